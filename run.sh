@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# One entry point that sets everything up (idempotently) and then runs a job.
+#   bash run.sh demo [ARGS...]   the main job: the paper's experiments in the twin
+#   bash run.sh test [ARGS...]   the test suite (pytest)
+#   bash run.sh CMD  [ARGS...]   any `scheimpflug` subcommand, e.g. design --preset paper
+# Set-up: Debian's libllvm19 (Mitsuba's CPU JIT needs libLLVM >= 17) when run as
+# root with apt, a virtual environment in .venv, and the project installed into it.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+venv="$here/.venv"
+log() { printf 'run.sh: %s\n' "$*" >&2; }
+
+have_llvm17() {
+    ls /usr/lib/*/libLLVM.so.{17,18,19,20,21}* /usr/lib/*/libLLVM-{17,18,19,20,21}*.so* \
+       /usr/lib/llvm-{17,18,19,20,21}/lib/libLLVM*.so* >/dev/null 2>&1
+}
+
+if ! have_llvm17; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        log "installing Debian's libllvm19 (Mitsuba's CPU JIT needs libLLVM >= 17)"
+        if ! { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null; }; then
+            log "WARNING: could not install libllvm19; the renderer will fall back to Mitsuba's slow scalar variant"
+        fi
+    else
+        log "WARNING: no libLLVM >= 17 found and not root with apt; the renderer will fall back to Mitsuba's slow scalar variant"
+    fi
+fi
+
+py="${PYTHON:-}"
+if [ -z "$py" ]; then
+    for cand in python3.11 python3 python; do
+        if command -v "$cand" >/dev/null 2>&1; then py="$cand"; break; fi
+    done
+fi
+if [ ! -x "$venv/bin/python" ]; then
+    log "creating the virtual environment in .venv"
+    "$py" -m venv "$venv"
+fi
+stamp="$venv/.installed-$(cat "$here/pyproject.toml" | sha256sum | cut -c1-16)"
+if [ ! -f "$stamp" ]; then
+    log "installing the project and its dependencies into .venv (first run takes a few minutes)"
+    "$venv/bin/python" -m pip install -q --upgrade pip >/dev/null
+    "$venv/bin/python" -m pip install -q -e "$here[test]"
+    rm -f "$venv"/.installed-*
+    touch "$stamp"
+fi
+
+job="${1:-demo}"
+[ $# -gt 0 ] && shift
+cd "$here"
+case "$job" in
+    test) exec "$venv/bin/python" -m pytest "$@" ;;
+    *)    exec "$venv/bin/scheimpflug" "$job" "$@" ;;
+esac

@@ -1,0 +1,373 @@
+"""The rig: lens, laser sheet, sensor, stages and environment as frozen dataclasses.
+
+The rig is the single description of an instrument, real or simulated.  It is
+read from the TOML rig file of INTERFACE.md (one table per dataclass below) or
+taken from a built-in preset (``paper``).  Every key has a unit in its name
+where doubt is possible; derived quantities (tilt, hinge points, F², C) are
+computed in :mod:`scheimpflug.hinge`, never stored here.
+
+Rig frame (DESIGN.md §2): origin at the lens centre, +x along the optical axis
+toward the object, +z up, +y = z × x; lengths in mm, angles in degrees at
+interfaces.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from .errors import RigError
+
+__all__ = [
+    "Environment",
+    "Laser",
+    "Lens",
+    "PRESETS",
+    "Rig",
+    "Sensor",
+    "Stage",
+    "load_preset",
+    "load_rig",
+    "rig_from_dict",
+    "rig_to_dict",
+    "rig_to_toml",
+]
+
+
+@dataclass(frozen=True)
+class Lens:
+    """Ideal thin lens.
+
+    focal_length_mm : f [mm], > 0.
+    f_number : N, aperture diameter = f / N [-], > 0.
+    k1, k2 : radial distortion of the chief-ray angle, tan θ_d = tan θ (1 + k1 t² + k2 t⁴)
+        with t = tan θ [-]; 0 for an ideal lens.
+    """
+
+    focal_length_mm: float = 55.0
+    f_number: float = 5.6
+    k1: float = 0.0
+    k2: float = 0.0
+
+
+@dataclass(frozen=True)
+class Laser:
+    """Line laser spreading a vertical sheet ``y = d − x·tan φ``.
+
+    scheimpflug_distance_mm : d, lens centre to the Scheimpflug line [mm].
+    tan_phi : tan φ, sheet angle to the optical axis [-].
+    wavelength_nm : [nm].
+    power_mw : optical power in the whole fan [mW].
+    origin_x_mm : x of the laser origin on the sheet, in the meridian plane [mm].
+    waist_um : 1/e² half-thickness of the sheet at its waist [µm].
+    waist_distance_mm : distance of the waist from the origin along the sheet [mm].
+    divergence_mrad : far-field 1/e² half-angle of the thickness [mrad]
+        (≥ λ / (π w0), the diffraction limit).
+    fan_angle_deg : full opening of the fan in the sheet [deg].
+    fan_edge_deg : width of the soft fan edge (Gaussian roll-off) [deg].
+    speckle_contrast : multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
+    """
+
+    scheimpflug_distance_mm: float = 150.0
+    tan_phi: float = 0.2075
+    wavelength_nm: float = 450.0
+    power_mw: float = 20.0
+    origin_x_mm: float = 0.0
+    waist_um: float = 150.0
+    waist_distance_mm: float = 640.0
+    divergence_mrad: float = 1.5
+    fan_angle_deg: float = 40.0
+    fan_edge_deg: float = 1.0
+    speckle_contrast: float = 0.0
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Image sensor, tilted by the Scheimpflug angle (placement set by the hinge pixel).
+
+    pixel_pitch_um : p [µm].
+    columns, rows : N_u × N_v; columns run along the tilt (distance) direction and
+        increase toward the image hinge; rows run along height, increasing downward.
+    hinge_column : u_h, column of the image hinge [px]; must lie beyond the last column.
+    axis_row : v_h, row of the meridian plane [px].
+    roll_deg, tilt_error_deg : misalignment of the sensor about its normal and about
+        its row axis (changes β), through the sensor centre [deg].
+    offset_u_px, offset_v_px, offset_normal_um : sensor displacement [px, px, µm].
+    quantum_efficiency : electrons per photon at the laser wavelength [-].
+    full_well_e : saturation charge [e⁻].
+    read_noise_e : RMS read noise [e⁻].
+    dark_offset_dn : black level added by the ADC [DN].
+    adc_bits : ADC depth; frames are stored as 16-bit PNG [bit].
+    gain_e_per_dn : conversion gain; 0 = full well maps to full scale [e⁻/DN].
+    exposure_ms : exposure time [ms].
+    """
+
+    pixel_pitch_um: float = 5.86
+    columns: int = 1216
+    rows: int = 1936
+    hinge_column: float = 3196.0
+    axis_row: float = 771.0
+    roll_deg: float = 0.0
+    tilt_error_deg: float = 0.0
+    offset_u_px: float = 0.0
+    offset_v_px: float = 0.0
+    offset_normal_um: float = 0.0
+    quantum_efficiency: float = 0.75
+    full_well_e: float = 32000.0
+    read_noise_e: float = 6.0
+    dark_offset_dn: float = 16.0
+    adc_bits: int = 12
+    gain_e_per_dn: float = 0.0
+    exposure_ms: float = 5.0
+
+
+@dataclass(frozen=True)
+class Stage:
+    """Translation and rotary stages (INTERFACE.md stage conventions).
+
+    d0_mm : stage coordinate of the object hinge; a face at stage s is at D = s − d0 [mm].
+    axis_mm : rotary axis position in stage coordinates [mm].
+    calibration_table_z_mm : height of the translation stage's table (plate bottom) [mm].
+    rotary_table_z_mm : height of the rotary stage's table below/above the optical axis [mm].
+    axis_tilt_deg, axis_tilt_azimuth_deg : tilt of the rotary axis from vertical and
+        the direction it leans to (0 = toward +propagation) [deg].
+    runout_um : radial runout of the rotary axis (once per turn) [µm].
+    """
+
+    d0_mm: float = -466.0
+    axis_mm: float = 179.45
+    calibration_table_z_mm: float = -54.0
+    rotary_table_z_mm: float = -70.0
+    axis_tilt_deg: float = 0.0
+    axis_tilt_azimuth_deg: float = 0.0
+    runout_um: float = 0.0
+
+
+@dataclass(frozen=True)
+class Environment:
+    """Light that is not the laser.
+
+    ambient_irradiance_w_m2 : diffuse ambient irradiance on the scene within the
+        camera's spectral band [W/m²].
+    """
+
+    ambient_irradiance_w_m2: float = 0.02
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A whole instrument: one table of the rig file per field."""
+
+    lens: Lens = field(default_factory=Lens)
+    laser: Laser = field(default_factory=Laser)
+    sensor: Sensor = field(default_factory=Sensor)
+    stage: Stage = field(default_factory=Stage)
+    environment: Environment = field(default_factory=Environment)
+
+    def __post_init__(self) -> None:
+        validate_rig(self)
+
+    def replace(self, **tables: Mapping[str, Any]) -> "Rig":
+        """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``."""
+        data = rig_to_dict(self)
+        for table, values in tables.items():
+            if table not in data:
+                raise RigError(f"unknown rig table [{table}]")
+            data[table].update(values)
+        return rig_from_dict(data)
+
+
+_TABLES: dict[str, type] = {
+    "lens": Lens,
+    "laser": Laser,
+    "sensor": Sensor,
+    "stage": Stage,
+    "environment": Environment,
+}
+
+PRESETS = ("paper",)
+
+# ---------------------------------------------------------------- validation
+
+
+def _finite(table: str, key: str, value: float) -> None:
+    if not math.isfinite(value):
+        raise RigError(f"[{table}] {key} = {value!r}: must be a finite number")
+
+
+def _require(cond: bool, table: str, key: str, value: Any, reason: str) -> None:
+    if not cond:
+        raise RigError(f"[{table}] {key} = {value!r}: {reason}")
+
+
+def _check_fields(table: str, obj: Any) -> None:
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        kind = hints[f.name]
+        if kind is int:
+            _require(isinstance(value, int) and not isinstance(value, bool), table, f.name,
+                     value, "must be an integer")
+        elif kind is float:
+            _require(isinstance(value, (int, float)) and not isinstance(value, bool), table,
+                     f.name, value, "must be a number")
+            _finite(table, f.name, float(value))
+
+
+def validate_rig(rig: Rig) -> None:
+    """Raise :class:`RigError` naming the key and the reason if ``rig`` is impossible."""
+    for name, cls in _TABLES.items():
+        obj = getattr(rig, name)
+        if not isinstance(obj, cls):
+            raise RigError(f"[{name}] must be a {cls.__name__}, got {type(obj).__name__}")
+        _check_fields(name, obj)
+    _validate_lens(rig.lens)
+    _validate_laser(rig.laser, rig.lens)
+    _validate_sensor(rig.sensor)
+    _validate_stage(rig.stage)
+    _require(rig.environment.ambient_irradiance_w_m2 >= 0, "environment",
+             "ambient_irradiance_w_m2", rig.environment.ambient_irradiance_w_m2,
+             "must be >= 0")
+
+
+def _validate_lens(lens: Lens) -> None:
+    _require(lens.focal_length_mm > 0, "lens", "focal_length_mm", lens.focal_length_mm,
+             "a thin lens needs a positive focal length")
+    _require(lens.f_number > 0, "lens", "f_number", lens.f_number, "must be > 0")
+
+
+def _validate_laser(laser: Laser, lens: Lens) -> None:
+    f, d, t = lens.focal_length_mm, laser.scheimpflug_distance_mm, laser.tan_phi
+    _require(d > 0, "laser", "scheimpflug_distance_mm", d,
+             "the Scheimpflug line must lie beside the lens (d > 0)")
+    _require(d - f * t > 0, "laser", "tan_phi", t,
+             f"d − f·tan φ = {d - f * t:.6g} mm must be > 0: the sheet must cross the front "
+             "focal plane on the laser's side of the axis (paper Eq. 5)")
+    _require(laser.wavelength_nm > 0, "laser", "wavelength_nm", laser.wavelength_nm, "must be > 0")
+    _require(laser.power_mw >= 0, "laser", "power_mw", laser.power_mw, "must be >= 0")
+    _require(laser.origin_x_mm < f, "laser", "origin_x_mm", laser.origin_x_mm,
+             "the laser origin must lie before the object hinge (x < f)")
+    _require(laser.waist_um > 0, "laser", "waist_um", laser.waist_um, "must be > 0")
+    limit = laser.wavelength_nm * 1e-3 / (math.pi * laser.waist_um)  # [rad]
+    _require(laser.divergence_mrad * 1e-3 >= limit * (1 - 1e-9), "laser", "divergence_mrad",
+             laser.divergence_mrad,
+             f"below the diffraction limit λ/(π·w0) = {limit * 1e3:.4g} mrad for this waist")
+    _require(0 < laser.fan_angle_deg < 180, "laser", "fan_angle_deg", laser.fan_angle_deg,
+             "must be in (0, 180)")
+    _require(laser.fan_edge_deg >= 0, "laser", "fan_edge_deg", laser.fan_edge_deg, "must be >= 0")
+    _require(0 <= laser.speckle_contrast <= 1, "laser", "speckle_contrast",
+             laser.speckle_contrast, "must be in [0, 1]")
+
+
+def _validate_sensor(s: Sensor) -> None:
+    _require(s.pixel_pitch_um > 0, "sensor", "pixel_pitch_um", s.pixel_pitch_um, "must be > 0")
+    _require(s.columns > 0, "sensor", "columns", s.columns, "must be > 0")
+    _require(s.rows > 0, "sensor", "rows", s.rows, "must be > 0")
+    _require(s.hinge_column > s.columns - 0.5, "sensor", "hinge_column", s.hinge_column,
+             f"the image hinge must lie beyond the last column (> {s.columns - 0.5}): a sensor "
+             "that contains or straddles the hinge would image points at or inside the focal "
+             "length; columns increase toward the hinge (flip frames left-right if your camera "
+             "reads out the other way)")
+    _require(0 < s.quantum_efficiency <= 1, "sensor", "quantum_efficiency",
+             s.quantum_efficiency, "must be in (0, 1]")
+    _require(s.full_well_e > 0, "sensor", "full_well_e", s.full_well_e, "must be > 0")
+    _require(s.read_noise_e >= 0, "sensor", "read_noise_e", s.read_noise_e, "must be >= 0")
+    _require(1 <= s.adc_bits <= 16, "sensor", "adc_bits", s.adc_bits,
+             "must be 1..16 (frames are 16-bit PNG)")
+    _require(0 <= s.dark_offset_dn < 2 ** s.adc_bits, "sensor", "dark_offset_dn",
+             s.dark_offset_dn, f"must be in [0, {2 ** s.adc_bits})")
+    _require(s.gain_e_per_dn >= 0, "sensor", "gain_e_per_dn", s.gain_e_per_dn,
+             "must be >= 0 (0 = full well at full scale)")
+    _require(s.exposure_ms > 0, "sensor", "exposure_ms", s.exposure_ms, "must be > 0")
+    _require(abs(s.roll_deg) < 45, "sensor", "roll_deg", s.roll_deg, "must be within ±45°")
+    _require(abs(s.tilt_error_deg) < 30, "sensor", "tilt_error_deg", s.tilt_error_deg,
+             "must be within ±30°")
+
+
+def _validate_stage(st: Stage) -> None:
+    _require(0 <= st.axis_tilt_deg < 10, "stage", "axis_tilt_deg", st.axis_tilt_deg,
+             "must be in [0, 10)")
+    _require(st.runout_um >= 0, "stage", "runout_um", st.runout_um, "must be >= 0")
+
+
+# ---------------------------------------------------------------- (de)serialisation
+
+
+def _coerce(table: str, key: str, kind: type, value: Any) -> Any:
+    if isinstance(value, bool):
+        raise RigError(f"[{table}] {key} = {value!r}: must be a number, not a boolean")
+    if kind is float and isinstance(value, (int, float)):
+        return float(value)
+    if kind is int and isinstance(value, int):
+        return value
+    if kind is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    want = "an integer" if kind is int else "a number"
+    raise RigError(f"[{table}] {key} = {value!r}: must be {want}")
+
+
+def _table_from_dict(name: str, cls: type, values: Any) -> Any:
+    if not isinstance(values, Mapping):
+        raise RigError(f"[{name}] must be a table of keys, got {type(values).__name__}")
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise RigError(f"[{name}] unknown key {unknown[0]!r} (known keys: {', '.join(sorted(known))})")
+    return cls(**{k: _coerce(name, k, hints[k], v) for k, v in values.items()})
+
+
+def rig_from_dict(data: Mapping[str, Any]) -> Rig:
+    """Build a :class:`Rig` from nested tables; missing keys take the paper defaults."""
+    if not isinstance(data, Mapping):
+        raise RigError(f"a rig must be a table of tables, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(_TABLES))
+    if unknown:
+        raise RigError(f"unknown rig table [{unknown[0]}] (known: {', '.join(_TABLES)})")
+    parts = {name: _table_from_dict(name, cls, data.get(name, {})) for name, cls in _TABLES.items()}
+    return Rig(**parts)
+
+
+def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
+    """Nested plain tables, as in the rig file (and in ``manifest.json``)."""
+    return {name: dataclasses.asdict(getattr(rig, name)) for name in _TABLES}
+
+
+def rig_to_toml(rig: Rig) -> str:
+    """The rig file text for ``rig`` (every key, with its value)."""
+    lines: list[str] = []
+    for name, table in rig_to_dict(rig).items():
+        lines.append(f"[{name}]")
+        lines += [f"{k} = {v!r}" for k, v in table.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read a TOML rig file; a missing, unreadable or malformed file raises :class:`RigError`."""
+    p = Path(path)
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise RigError(f"rig file {str(p)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RigError(f"rig file {str(p)!r} cannot be read: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RigError(f"rig file {str(p)!r} is not valid TOML: {exc}") from None
+    return rig_from_dict(data)
+
+
+def load_preset(name: str) -> Rig:
+    """A built-in rig by name (``paper``: DESIGN.md §2 with f/5.6)."""
+    if name not in PRESETS:
+        raise RigError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
+    text = resources.files("scheimpflug").joinpath("presets", f"{name}.toml").read_text("utf-8")
+    return rig_from_dict(tomllib.loads(text))
