@@ -1,13 +1,126 @@
-"""`scheimpflug design` (placeholder until its issue lands)."""
+"""``scheimpflug design``: what a rig sees and how finely; or which rig covers a wanted range."""
 
-from ..errors import ScheimpflugError
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from ..design import design_report, inverse_design
+from ..errors import RigError
+from ..rig import Rig, rig_to_toml
+from ._common import add_rig_options, print_json, rig_from_args
+
+__all__ = ["add_parser", "format_report"]
+
+# (key, label, unit, formula / reference, format)
+_ROWS = [
+    ("tilt_deg", "sensor tilt β", "deg", "tan β = f/(d − f·tan φ)  [paper Eq. 5]", "{:.4f}"),
+    ("tan_beta", "tan β", "-", "[paper Eq. 5]", "{:.5f}"),
+    ("F2_px_mm", "F²", "px·mm", "−f²/(p·cos φ·sin β); D = F²/(u − u_h)  [Eqs. 1, 11]", "{:.6g}"),
+    ("C_mm", "C", "mm", "f/sin β; h = C·(v − v_h)/(u − u_h)  [Eqs. 8, 12]", "{:.5g}"),
+    ("depth_range_mm", "depth range over the sensor", "mm", "D(last col) − D(col 0)  [Eq. 11]", "{:.2f}"),
+    ("distance_resolution_center_mm", "distance resolution at centre", "mm/px", "|F²|/(u − u_h)²", "{:.4f}"),
+    ("height_resolution_center_mm", "height resolution at centre", "mm/px", "C/|u − u_h|", "{:.4f}"),
+    ("height_range_near_mm", "height range, near end", "mm", "C·rows/|u − u_h| at the first column's edge", "{:.2f}"),
+    ("height_range_far_mm", "height range, far end", "mm", "C·rows/|u − u_h| at the last column's edge", "{:.2f}"),
+    ("sensor_distance_to_lens_mm", "sensor centre to lens centre", "mm", "", "{:.2f}"),
+    ("axis_distance_mm", "rotary axis from the hinge", "mm", "axis_mm − d0", "{:.2f}"),
+    ("axis_column_px", "rotary axis column", "px", "u_h + F²/D_axis", "{:.1f}"),
+    ("stage_zero_column_px", "column of stage zero", "px", "u_h + F²/(−d0)", "{:.1f}"),
+    ("focal_length_check_mm", "f recovered at stage zero", "mm", "√(−x_M'·x_M)  [Eqs. 13–14, 1]", "{:.3f}"),
+]
 
 
-def add_parser(sub):
-    p = sub.add_parser("design", help="(not available yet)")
-    p.set_defaults(func=_run)
+def add_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "design",
+        help="design report of a rig (tilt, hinge, ranges, resolution) or an inverse design",
+        description="Print the hinge-rule design of a rig: sensor tilt, hinge, calibration constants, "
+                    "depth and height ranges, resolutions (DESIGN.md §3, paper Eqs. 5, 11, 12). "
+                    "With --near-mm/--far-mm, find instead the sheet angle or baseline, tilt and sensor "
+                    "placement that cover a wanted working range with the rig's lens and sensor.",
+    )
+    add_rig_options(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument("--plot", metavar="FILE.png", help="draw the meridian-plane layout and resolution curves")
+    inv = p.add_argument_group("inverse design (distances along the sheet from the Scheimpflug line / laser)")
+    inv.add_argument("--near-mm", type=float, help="wanted near end of the working range [mm]")
+    inv.add_argument("--far-mm", type=float, help="wanted far end of the working range [mm]")
+    pick = inv.add_mutually_exclusive_group()
+    pick.add_argument("--tan-phi", type=float, help="keep this sheet angle, solve the baseline d")
+    pick.add_argument("--baseline-mm", type=float, help="keep this baseline d, solve the sheet angle")
+    inv.add_argument("--write-rig", metavar="RIG.toml", help="write the designed rig file")
+    p.set_defaults(func=run)
     return p
 
 
-def _run(args):
-    raise ScheimpflugError("'design' is not available yet in this version")
+def run(args: argparse.Namespace) -> int:
+    rig = rig_from_args(args)
+    source = args.rig or f"preset '{args.preset or 'paper'}'"
+    if args.near_mm is not None or args.far_mm is not None:
+        rig = _inverse(args, rig)
+        source = (f"inverse design for {args.near_mm:g}–{args.far_mm:g} mm along the sheet, "
+                  f"lens and sensor of {source}")
+    report = design_report(rig)
+    if args.plot:
+        from ..design_plot import plot_design
+
+        plot_design(rig, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    if args.json:
+        print_json(report)
+    else:
+        sys.stdout.write(format_report(rig, report, source))
+    return 0
+
+
+def _inverse(args: argparse.Namespace, rig: Rig) -> Rig:
+    if args.near_mm is None or args.far_mm is None:
+        raise RigError("inverse design needs both --near-mm and --far-mm")
+    tan_phi, base = args.tan_phi, args.baseline_mm
+    if tan_phi is None and base is None:
+        tan_phi = rig.laser.tan_phi
+    choice = inverse_design(rig.lens.focal_length_mm, rig.sensor.pixel_pitch_um, rig.sensor.columns,
+                            args.near_mm, args.far_mm, tan_phi=tan_phi, scheimpflug_distance_mm=base)
+    new = rig.replace(laser={"tan_phi": choice.tan_phi,
+                             "scheimpflug_distance_mm": choice.scheimpflug_distance_mm},
+                      sensor={"hinge_column": choice.hinge_column})
+    if args.write_rig:
+        from ..fileio import write_text_atomic
+
+        write_text_atomic(args.write_rig, rig_to_toml(new))
+        print(f"wrote {args.write_rig}", file=sys.stderr)
+    return new
+
+
+def format_report(rig: Rig, rep: dict, source: str) -> str:
+    """Human-readable design table with units and the paper's equation numbers."""
+    L, S, s = rig.lens, rig.laser, rig.sensor
+    lines = [
+        f"Scheimpflug design — rig: {source}",
+        f"  lens    f = {L.focal_length_mm:g} mm, f/{L.f_number:g}",
+        f"  sheet   d = {S.scheimpflug_distance_mm:g} mm, tan φ = {S.tan_phi:g} "
+        f"(φ = {math.degrees(math.atan(S.tan_phi)):.3f}°)",
+        f"  sensor  {s.columns} × {s.rows} px (columns × rows), p = {s.pixel_pitch_um:g} µm, "
+        f"hinge (u_h, v_h) = ({s.hinge_column:g}, {s.axis_row:g}) px",
+        "",
+        f"  {'quantity':<32s} {'value':>14s}  {'unit':<6s} formula [reference]",
+        "  " + "-" * 100,
+    ]
+    d_near, d_far = rep["distance_range_mm"]
+    lines.append(f"  {'distance range (D from hinge)':<32s} {f'{d_near:.2f} … {d_far:.2f}':>14s}  "
+                 f"{'mm':<6s} F²/(u − u_h) at columns 0 and {s.columns - 1}  [Eq. 11]")
+    for key, label, unit, ref, fmt in _ROWS:
+        lines.append(f"  {label:<32s} {fmt.format(rep[key]):>14s}  {unit:<6s} {ref}")
+    oh, ih = rep["object_hinge_mm"], rep["image_hinge_mm"]
+    lines += [
+        "",
+        f"  object hinge H  = ({oh[0]:.3f}, {oh[1]:.3f}, 0) mm  (front focal plane ∩ sheet)",
+        f"  image hinge  H' = ({ih[0]:.3f}, {ih[1]:.3f}, 0) mm  (back focal plane ∩ sensor; O→H ∥ sensor, Eq. 6)",
+        f"  stage coordinates in view: {rep['stage_range_mm'][0]:.2f} … {rep['stage_range_mm'][1]:.2f} mm "
+        f"(d0 = {rig.stage.d0_mm:g} mm)",
+        "  frame: origin at the lens centre, +x optical axis, +z up; D along the sheet from the object hinge",
+        "",
+    ]
+    return "\n".join(lines)

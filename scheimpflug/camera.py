@@ -1,0 +1,255 @@
+"""Thin-lens camera with a tilted (and possibly misaligned) sensor: exact, vectorised.
+
+This is the single source of truth for where the sensor sits and how any 3-D
+point images onto it.  The renderer, the ground truth and the design tool all
+use it.
+
+Model
+-----
+* Ideal thin lens at the rig origin, lens plane x = 0, focal length f,
+  aperture a disc of diameter f/N in the lens plane.
+* A rig point P (x > 0) has the conjugate P' = −f/(x − f)·P (Gaussian lens
+  equation; Newton's x·x' = −f² with x, x' from the focal planes, paper Eq. 1).
+* Radial distortion acts on the chief ray: the image point keeps its axial
+  position x' but its lateral offset is scaled by 1 + k1·t² + k2·t⁴ with
+  t = tan θ = √(y² + z²)/x the object-side field angle.
+* The sensor is a plane (:class:`SensorPose`); the *image* of P on it is where
+  the (distorted) chief ray through the lens centre meets the sensor.  The blur
+  is the section of the cone from the aperture to P' by the sensor.
+
+Sensor frame: pixel (u, v) sits at ``origin + u·p·e_u + v·p·e_v``; columns u
+run along the tilt (toward the image hinge), rows v increase downward in the
+upright image (+z' on the sensor, the image being inverted).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .hinge import hinge_geometry
+from .rig import Rig
+
+__all__ = [
+    "Projection",
+    "SensorPose",
+    "blur_footprint_px",
+    "chief_ray_from_pixel",
+    "conjugate_point",
+    "pixel_from_sensor_point",
+    "project_points",
+    "sensor_point_from_pixel",
+    "sensor_pose",
+    "sheet_point_from_pixel",
+]
+
+
+@dataclass(frozen=True)
+class SensorPose:
+    """Pose of the sensor plane in the rig frame.
+
+    origin_mm : (3,) rig position of the centre of pixel (0, 0) [mm].
+    u_dir, v_dir : (3,) unit vectors of increasing column and row.
+    pitch_mm : pixel pitch [mm].
+    columns, rows : sensor size [px].
+    """
+
+    origin_mm: np.ndarray
+    u_dir: np.ndarray
+    v_dir: np.ndarray
+    pitch_mm: float
+    columns: int
+    rows: int
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal e_u × e_v (points toward the lens for the Scheimpflug pose), (3,)."""
+        n = np.cross(self.u_dir, self.v_dir)
+        return n / np.linalg.norm(n)
+
+    @property
+    def rig_from_sensor(self) -> np.ndarray:
+        """4×4 transform from sensor coordinates (a, b, c) [mm] (a = u·p, b = v·p, c along the normal)."""
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = self.u_dir, self.v_dir, self.normal, self.origin_mm
+        return m
+
+
+def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Rodrigues rotation matrix about the unit ``axis``, (3, 3)."""
+    k = axis / np.linalg.norm(axis)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle_rad) * kx + (1 - math.cos(angle_rad)) * kx @ kx
+
+
+def sensor_pose(rig: Rig) -> SensorPose:
+    """The sensor pose of ``rig``: the Scheimpflug pose plus the rig's misalignments.
+
+    Ideal pose: pixel (u_h, v_h) at the image hinge H' = (−f, f·tan φ, 0),
+    e_u = (sin β, cos β, 0) (parallel to O→H, paper Eq. 6), e_v = +z.
+    Roll (about the normal) and tilt error (about the row direction, i.e. a
+    change of β) turn the sensor about its centre pixel; then the offsets
+    (u, v in pixels, normal in µm) translate it.
+    """
+    g = hinge_geometry(rig)
+    s = rig.sensor
+    p = g.pixel_pitch_mm
+    e_u, e_v = g.sensor_u_dir, np.array([0.0, 0.0, 1.0])
+    origin = g.image_hinge_mm - s.hinge_column * p * e_u - s.axis_row * p * e_v
+    centre = origin + 0.5 * (s.columns - 1) * p * e_u + 0.5 * (s.rows - 1) * p * e_v
+    normal = np.cross(e_u, e_v)
+    rot = _rotation(e_v, math.radians(s.tilt_error_deg)) @ _rotation(normal, math.radians(s.roll_deg))
+    e_u2, e_v2 = rot @ e_u, rot @ e_v
+    n2 = np.cross(e_u2, e_v2)
+    shift = s.offset_u_px * p * e_u2 + s.offset_v_px * p * e_v2 + s.offset_normal_um * 1e-3 * n2
+    origin2 = centre + rot @ (origin - centre) + shift
+    return SensorPose(origin2, e_u2, e_v2, p, s.columns, s.rows)
+
+
+# ------------------------------------------------------------------ lens model
+
+
+def _distortion_scale(t2, k1: float, k2: float):
+    return 1.0 + k1 * t2 + k2 * t2 * t2
+
+
+def _undistort_tan(td2, k1: float, k2: float, iters: int = 20):
+    """Solve t·s(t²) = t_d for t² given t_d² (Newton on r = t·s(t²)), vectorised."""
+    if k1 == 0.0 and k2 == 0.0:
+        return np.ones_like(td2)
+    td = np.sqrt(td2)
+    t = td.copy()
+    for _ in range(iters):
+        f = t * _distortion_scale(t * t, k1, k2) - td
+        df = 1.0 + 3.0 * k1 * t * t + 5.0 * k2 * t**4
+        t = t - f / df
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(td > 0, t / np.where(td > 0, td, 1.0), 1.0)  # ratio t / t_d
+
+
+def conjugate_point(rig: Rig, points_mm) -> np.ndarray:
+    """Image-side conjugate P' of rig points (…, 3) [mm], distortion included.
+
+    P' = −f/(x − f)·P, its lateral part scaled by the distortion factor.
+    Points at x = f (the front focal plane) have no finite image: NaN.
+    """
+    p = np.asarray(points_mm, dtype=np.float64)
+    f = rig.lens.focal_length_mm
+    x = p[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m = np.where(x != f, -f / (x - f), np.nan)
+        t2 = (p[..., 1] ** 2 + p[..., 2] ** 2) / (x * x)
+    img = m[..., None] * p
+    s = _distortion_scale(t2, rig.lens.k1, rig.lens.k2)
+    img[..., 1] *= s
+    img[..., 2] *= s
+    return img
+
+
+def _chief_dir_image(rig: Rig, points_mm: np.ndarray) -> np.ndarray:
+    """Direction of the (distorted) chief ray behind the lens for object points, (…, 3)."""
+    p = np.asarray(points_mm, dtype=np.float64)
+    x = p[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t2 = (p[..., 1] ** 2 + p[..., 2] ** 2) / (x * x)
+    s = _distortion_scale(t2, rig.lens.k1, rig.lens.k2)
+    return np.stack([-x, -p[..., 1] * s, -p[..., 2] * s], axis=-1)
+
+
+def _hit_plane(pose: SensorPose, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Intersection of lines start + λ·direction with the sensor plane, (…, 3)."""
+    n = pose.normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = ((pose.origin_mm - start) @ n) / (direction @ n)
+    return start + lam[..., None] * direction
+
+
+def pixel_from_sensor_point(pose: SensorPose, q_mm) -> np.ndarray:
+    """Pixel coordinates (…, 2) [px] of points (…, 3) lying in the sensor plane."""
+    rel = np.asarray(q_mm, dtype=np.float64) - pose.origin_mm
+    return np.stack([rel @ pose.u_dir, rel @ pose.v_dir], axis=-1) / pose.pitch_mm
+
+
+def sensor_point_from_pixel(pose: SensorPose, uv_px) -> np.ndarray:
+    """Rig position (…, 3) [mm] of pixel coordinates (…, 2)."""
+    uv = np.asarray(uv_px, dtype=np.float64)
+    return (pose.origin_mm + uv[..., :1] * pose.pitch_mm * pose.u_dir
+            + uv[..., 1:2] * pose.pitch_mm * pose.v_dir)
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Result of :func:`project_points` (all arrays share the points' leading shape).
+
+    uv_px : (…, 2) pixel where the chief ray meets the sensor [px].
+    image_point_mm : (…, 3) conjugate point P' [mm].
+    defocus_mm : signed distance from the sensor plane to P' along the sensor normal [mm]
+        (0 for points on the sheet of an ideal rig).
+    blur_diameter_mm : diameter of the thin-lens circle of confusion, i.e. the cone's
+        section by the plane parallel to the lens through the chief-ray hit:
+        A·|x_hit − x'|/|x'| with A = f/N [mm].
+    """
+
+    uv_px: np.ndarray
+    image_point_mm: np.ndarray
+    defocus_mm: np.ndarray
+    blur_diameter_mm: np.ndarray
+
+
+def project_points(rig: Rig, points_mm, pose: SensorPose | None = None) -> Projection:
+    """Project rig-frame points (…, 3) [mm] (x > f) onto the tilted sensor.
+
+    Works for any point, on the sheet or off it; for sheet points of an ideal
+    rig the result equals the closed forms of :mod:`scheimpflug.hinge`.
+    """
+    pose = sensor_pose(rig) if pose is None else pose
+    p = np.asarray(points_mm, dtype=np.float64)
+    img = conjugate_point(rig, p)
+    hit = _hit_plane(pose, np.zeros(3), _chief_dir_image(rig, p))
+    aperture = rig.lens.focal_length_mm / rig.lens.f_number
+    with np.errstate(divide="ignore", invalid="ignore"):
+        blur = aperture * np.abs(hit[..., 0] - img[..., 0]) / np.abs(img[..., 0])
+    defocus = (img - pose.origin_mm) @ pose.normal
+    return Projection(pixel_from_sensor_point(pose, hit), img, defocus, blur)
+
+
+def blur_footprint_px(rig: Rig, points_mm, pose: SensorPose | None = None,
+                      n_angles: int = 72) -> tuple[np.ndarray, np.ndarray]:
+    """Full extent (Δu, Δv) [px] of the blur spot on the sensor for points (…, 3).
+
+    Marginal rays from ``n_angles`` points on the aperture rim through the
+    conjugate point P' are intersected with the (tilted) sensor plane; the
+    extents of that section along the columns and rows are returned.
+    """
+    pose = sensor_pose(rig) if pose is None else pose
+    img = conjugate_point(rig, points_mm)[..., None, :]
+    a = 0.5 * rig.lens.focal_length_mm / rig.lens.f_number
+    psi = np.linspace(0.0, 2 * np.pi, n_angles, endpoint=False)
+    rim = np.stack([np.zeros_like(psi), a * np.cos(psi), a * np.sin(psi)], axis=-1)
+    uv = pixel_from_sensor_point(pose, _hit_plane(pose, rim, img - rim))
+    return np.ptp(uv[..., 0], axis=-1), np.ptp(uv[..., 1], axis=-1)
+
+
+def chief_ray_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.ndarray:
+    """Unit object-side direction (…, 3) of the chief ray of pixels (…, 2); it starts at the lens centre."""
+    pose = sensor_pose(rig) if pose is None else pose
+    q = sensor_point_from_pixel(pose, uv_px)
+    lat2 = (q[..., 1] ** 2 + q[..., 2] ** 2) / (q[..., 0] ** 2)  # distorted tan² of the field angle
+    ratio = _undistort_tan(lat2, rig.lens.k1, rig.lens.k2)
+    w = np.stack([-q[..., 0], -q[..., 1] * ratio, -q[..., 2] * ratio], axis=-1)
+    return w / np.linalg.norm(w, axis=-1, keepdims=True)
+
+
+def sheet_point_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.ndarray:
+    """Rig point (…, 3) [mm] where the chief ray of pixels (…, 2) meets the laser sheet.
+
+    Rays parallel to the sheet, or meeting it behind the lens, give NaN.
+    """
+    w = chief_ray_from_pixel(rig, uv_px, pose)
+    d, t = rig.laser.scheimpflug_distance_mm, rig.laser.tan_phi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = d / (w[..., 1] + w[..., 0] * t)
+    lam = np.where(lam > 0, lam, np.nan)
+    return lam[..., None] * w

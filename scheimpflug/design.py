@@ -1,0 +1,191 @@
+"""Design calculations: what a rig sees, how finely, and which tilt to set.
+
+Forward: :func:`design_report` gives the tilt, hinge, calibration constants,
+depth and height ranges and resolutions of a rig (DESIGN.md §3).  Inverse:
+:func:`inverse_design` finds, for a lens and a sensor, the sheet-angle /
+baseline pairs, tilts and sensor placements that cover a wanted working range.
+Pure functions; the command line lives in :mod:`scheimpflug.commands.design`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from .errors import RigError
+from .hinge import HingeGeometry, hinge_geometry, tilt_rad
+from .rig import Rig
+
+__all__ = [
+    "DesignChoice",
+    "design_report",
+    "focal_length_from_endpoint",
+    "inverse_design",
+    "resolution_maps",
+]
+
+
+def design_report(rig: Rig) -> dict:
+    """The design figures of ``rig`` as a JSON-ready dict (INTERFACE.md fields and more).
+
+    Distances D are measured along the sheet from the object hinge [mm].
+    The distance range is D at the centres of the first and last columns; the
+    height ranges are the sensor's full height (rows × pitch) mapped at the
+    outer edges of the first (near) and last (far) columns.
+    """
+    g = hinge_geometry(rig)
+    s = rig.sensor
+    u_last = s.columns - 1
+    u_mid = s.columns // 2
+    d_near, d_far = (float(x) for x in g.distance_from_column([0.0, u_last]))
+    near_edge, far_edge = -0.5, s.columns - 0.5
+    d_hinge_stage0 = -rig.stage.d0_mm
+    u_stage0 = float(g.column_from_distance(d_hinge_stage0))
+    return {
+        "tilt_deg": g.tilt_deg,
+        "tan_beta": g.tan_beta,
+        "hinge_px": [s.hinge_column, s.axis_row],
+        "F2_px_mm": g.F2_px_mm,
+        "C_mm": g.C_mm,
+        "distance_range_mm": [d_near, d_far],
+        "depth_range_mm": d_far - d_near,
+        "distance_resolution_center_mm": float(g.distance_resolution(u_mid)),
+        "height_resolution_center_mm": float(g.height_resolution(u_mid)),
+        "center_column_px": u_mid,
+        "height_range_near_mm": float(g.C_mm * s.rows / abs(near_edge - s.hinge_column)),
+        "height_range_far_mm": float(g.C_mm * s.rows / abs(far_edge - s.hinge_column)),
+        "object_hinge_mm": g.object_hinge_mm.tolist(),
+        "image_hinge_mm": g.image_hinge_mm.tolist(),
+        "sensor_distance_to_lens_mm": _sensor_centre_distance(rig, g),
+        "stage_range_mm": [d_near + rig.stage.d0_mm, d_far + rig.stage.d0_mm],
+        "axis_distance_mm": rig.stage.axis_mm - rig.stage.d0_mm,
+        "axis_column_px": float(g.column_from_distance(rig.stage.axis_mm - rig.stage.d0_mm)),
+        "stage_zero_column_px": u_stage0,
+        "focal_length_check_mm": focal_length_from_endpoint(g, u_stage0, d_hinge_stage0),
+    }
+
+
+def _sensor_centre_distance(rig: Rig, g: HingeGeometry) -> float:
+    s = rig.sensor
+    u_c = 0.5 * (s.columns - 1)
+    q = g.image_hinge_mm + (u_c - s.hinge_column) * g.pixel_pitch_mm * g.sensor_u_dir
+    return float(np.linalg.norm(q[:2]))
+
+
+def focal_length_from_endpoint(g: HingeGeometry, u_px: float, distance_mm: float) -> float:
+    """The paper's check, Eqs. 13–14 and 1: f = √(−x_M'·x_M) [mm].
+
+    x_M' = (u − u_h)·sin β·p and x_M = D·cos φ for a point at column ``u`` and
+    distance ``D`` from the object hinge.
+    """
+    x_img = (u_px - g.hinge_column) * math.sin(g.beta_rad) * g.pixel_pitch_mm
+    x_obj = distance_mm * math.cos(g.phi_rad)
+    return math.sqrt(-x_img * x_obj)
+
+
+def resolution_maps(rig: Rig) -> dict[str, np.ndarray]:
+    """Per-pixel resolution over the sensor.
+
+    Returns ``distance_mm_per_px`` = |dD/du| and ``height_mm_per_px`` = |dh/dv|,
+    each (rows, columns) float64, and ``distance_mm`` (columns,) [mm].
+    For the ideal rig both depend on the column only (paper Eqs. 11–12).
+    """
+    g = hinge_geometry(rig)
+    u = np.arange(rig.sensor.columns, dtype=np.float64)
+    shape = (rig.sensor.rows, rig.sensor.columns)
+    return {
+        "distance_mm": g.distance_from_column(u),
+        "distance_mm_per_px": np.broadcast_to(g.distance_resolution(u), shape),
+        "height_mm_per_px": np.broadcast_to(g.height_resolution(u), shape),
+    }
+
+
+@dataclass(frozen=True)
+class DesignChoice:
+    """One rig layout that images a wanted working range onto the sensor.
+
+    tan_phi : sheet angle to the optical axis [-].
+    scheimpflug_distance_mm : d, lens centre to the Scheimpflug line [mm].
+    tilt_deg : sensor tilt β [deg].
+    hinge_column : u_h, where to place the sensor relative to the image hinge [px].
+    F2_px_mm, C_mm : calibration constants of that layout.
+    """
+
+    tan_phi: float
+    scheimpflug_distance_mm: float
+    tilt_deg: float
+    hinge_column: float
+    F2_px_mm: float
+    C_mm: float
+
+
+def inverse_design(focal_length_mm: float, pixel_pitch_um: float, columns: int,
+                   near_mm: float, far_mm: float, *, tan_phi: float | None = None,
+                   scheimpflug_distance_mm: float | None = None) -> DesignChoice:
+    """Tilt, baseline and sensor placement that map ``near..far`` onto columns 0..N−1.
+
+    ``near_mm`` and ``far_mm`` are distances along the sheet from the
+    Scheimpflug line (where the laser sits) [mm].  Give exactly one of
+    ``tan_phi`` or ``scheimpflug_distance_mm``; the other is solved for.
+
+    Notes
+    -----
+    The hinge lies f/cos φ along the sheet from the Scheimpflug line, so
+    D = L − f/cos φ.  D(u) = F²/(u − u_h) at u = 0 and N−1 gives
+    u_h = (N−1)·D_far/(D_far − D_near) and F² = −D_near·u_h; then
+    F² = −f²/(p·cos φ·sin β) with tan β = f/(d − f·tan φ) (paper Eq. 5) fixes
+    the remaining unknown.
+    """
+    f, p = float(focal_length_mm), float(pixel_pitch_um) * 1e-3
+    if (tan_phi is None) == (scheimpflug_distance_mm is None):
+        raise RigError("inverse design: give exactly one of tan_phi or scheimpflug_distance_mm")
+    if not (f > 0 and p > 0 and columns > 1 and 0 < near_mm < far_mm):
+        raise RigError(f"inverse design: need f > 0, pitch > 0, columns > 1 and 0 < near < far "
+                       f"(got f={f}, pitch={pixel_pitch_um} µm, columns={columns}, near={near_mm}, far={far_mm})")
+    if tan_phi is None:
+        tan_phi = _solve_tan_phi(f, p, columns, near_mm, far_mm, float(scheimpflug_distance_mm))
+    cos_phi = 1.0 / math.hypot(1.0, tan_phi)
+    d_near, d_far = near_mm - f / cos_phi, far_mm - f / cos_phi
+    if d_near <= 0:
+        raise RigError(f"inverse design: near = {near_mm} mm lies inside the focal length along the "
+                       f"sheet (f/cos φ = {f / cos_phi:.2f} mm)")
+    u_h = (columns - 1) * d_far / (d_far - d_near)
+    f2 = -d_near * u_h
+    sin_beta = f * f / (p * cos_phi * abs(f2))
+    if sin_beta >= 1.0:
+        raise RigError(f"inverse design: the range {near_mm}–{far_mm} mm needs sin β = {sin_beta:.3f} ≥ 1; "
+                       "use a longer range, a longer focal length or a finer pixel pitch")
+    beta = math.asin(sin_beta)
+    d = f / math.tan(beta) + f * tan_phi
+    if scheimpflug_distance_mm is not None and not math.isclose(d, scheimpflug_distance_mm, rel_tol=1e-6):
+        raise RigError("inverse design: no sheet angle reaches this baseline")  # pragma: no cover
+    return DesignChoice(tan_phi, d, math.degrees(beta), u_h, f2, f / sin_beta)
+
+
+def _solve_tan_phi(f: float, p: float, columns: int, near: float, far: float, d: float) -> float:
+    def residual(t: float) -> float:
+        cos_phi = 1.0 / math.hypot(1.0, t)
+        dn, df = near - f / cos_phi, far - f / cos_phi
+        u_h = (columns - 1) * df / (df - dn)
+        sin_beta = f * f / (p * cos_phi * dn * u_h)
+        beta = tilt_rad(f, d, t)
+        return sin_beta - math.sin(beta)
+
+    grid = np.linspace(-3.0, min(3.0, (d / f) * (1 - 1e-9)), 601)
+    vals = [residual(t) for t in grid]
+    for a, b, fa, fb in zip(grid[:-1], grid[1:], vals[:-1], vals[1:]):
+        if np.isfinite(fa) and np.isfinite(fb) and fa * fb <= 0:
+            return brentq(residual, a, b, xtol=1e-14)
+    hints = []
+    for t in (0.0, 0.2, 0.5):
+        try:
+            c = inverse_design(f, p * 1e3, columns, near, far, tan_phi=t)
+            hints.append(f"d = {c.scheimpflug_distance_mm:.1f} mm at tan φ = {t:g}")
+        except RigError:
+            pass
+    hint = ("; baselines that work: " + ", ".join(hints)) if hints else ""
+    raise RigError(f"inverse design: no sheet angle with |tan φ| ≤ 3 covers {near}–{far} mm "
+                   f"with d = {d} mm (the baseline fixes the magnification){hint}")
