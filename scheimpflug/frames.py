@@ -1,0 +1,199 @@
+"""Frame folders: ``manifest.json`` + ``frames/*.png`` (INTERFACE.md), read and validated.
+
+A frame folder is what ``scheimpflug render`` writes and what a real camera
+rig provides.  The pipeline reads only the manifest and the frames, so real
+and simulated data go through the same code.
+
+Validation raises :class:`~scheimpflug.errors.FrameError` with the file and the
+reason: a missing folder or manifest, bad JSON, missing keys, a missing,
+unreadable or corrupt PNG, a frame whose size differs from the manifest's rig
+(``sensor.rows × sensor.columns``) or from the first frame (no rig), a colour
+frame or an unsupported dtype (only 8- and 16-bit grayscale).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import cv2
+import numpy as np
+
+from .errors import FrameError
+
+__all__ = ["FrameFolder", "FrameRecord", "open_frame_folder", "read_frame"]
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One entry of the manifest's ``frames`` list.
+
+    file : path relative to the folder (``frames/00000.png``).
+    stage_mm : translation stage coordinate [mm] or None.
+    angle_deg : rotary stage angle [deg] or None.
+    exposure_ms : exposure [ms] or None.
+    seed : render seed or None.
+    extra : every other key of the entry.
+    """
+
+    file: str
+    stage_mm: float | None = None
+    angle_deg: float | None = None
+    exposure_ms: float | None = None
+    seed: int | None = None
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FrameFolder:
+    """A validated frame folder; frames are read lazily.
+
+    path : the folder.
+    rig : the manifest's rig tables, or None (real frames without a rig).
+    scenario : the manifest's scenario name or None.
+    scenario_params : the manifest's ``scenario_params`` (may be empty).
+    frames : one :class:`FrameRecord` per frame, in manifest order.
+    rows, columns : the expected frame shape [px].
+    adc_bits : ADC depth from the rig (None if unknown) [bit].
+    """
+
+    path: Path
+    rig: dict | None
+    scenario: str | None
+    scenario_params: dict
+    frames: tuple[FrameRecord, ...]
+    rows: int
+    columns: int
+    adc_bits: int | None = None
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def frame_path(self, i: int) -> Path:
+        return self.path / self.frames[i].file
+
+    def read(self, i: int) -> np.ndarray:
+        """Frame ``i`` as a (rows, columns) uint8/uint16 array [DN]."""
+        return read_frame(self.frame_path(i), (self.rows, self.columns))
+
+    def __iter__(self) -> Iterator[tuple[FrameRecord, np.ndarray]]:
+        for i, rec in enumerate(self.frames):
+            yield rec, self.read(i)
+
+    def saturation_dn(self, frame: np.ndarray) -> float:
+        """Saturation level of ``frame`` [DN]: ``2**adc_bits − 1`` when the rig gives the
+        ADC depth and the frame stays within it, else the dtype's maximum."""
+        top = float(np.iinfo(frame.dtype).max)
+        if self.adc_bits is not None and frame.dtype == np.uint16:
+            level = float(2 ** self.adc_bits - 1)
+            if float(frame.max()) <= level:
+                return level
+        return top
+
+
+def read_frame(path: str | Path, expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Read one grayscale PNG frame unchanged (8- or 16-bit).
+
+    Raises :class:`FrameError` naming the file for a missing, unreadable or
+    corrupt file, a colour image, another dtype, or a shape other than
+    ``expected_shape`` (rows, columns).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FrameError(f"frame {str(p)!r} does not exist")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FrameError(f"frame {str(p)!r} is unreadable or corrupt (not a PNG OpenCV can decode)")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim != 2:
+        raise FrameError(f"frame {str(p)!r} has {img.shape[2]} channels: frames must be grayscale")
+    if img.dtype not in (np.uint8, np.uint16):
+        raise FrameError(f"frame {str(p)!r} has dtype {img.dtype}: frames must be 8- or 16-bit")
+    if expected_shape is not None and tuple(img.shape) != tuple(expected_shape):
+        raise FrameError(f"frame {str(p)!r} is {img.shape[0]} rows × {img.shape[1]} columns, "
+                         f"expected {expected_shape[0]} × {expected_shape[1]} (sensor rows × columns)")
+    return img
+
+
+def _load_manifest(folder: Path) -> dict:
+    if not folder.is_dir():
+        raise FrameError(f"frame folder {str(folder)!r} does not exist or is not a folder")
+    mpath = folder / "manifest.json"
+    if not mpath.is_file():
+        raise FrameError(f"frame folder {str(folder)!r} has no manifest.json")
+    try:
+        data = json.loads(mpath.read_text("utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FrameError(f"{str(mpath)!r} cannot be read: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise FrameError(f"{str(mpath)!r} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise FrameError(f"{str(mpath)!r} must hold a JSON object")
+    if "frames" not in data:
+        raise FrameError(f"{str(mpath)!r} has no 'frames' key")
+    if not isinstance(data["frames"], list) or not data["frames"]:
+        raise FrameError(f"{str(mpath)!r}: 'frames' must be a non-empty list")
+    return data
+
+
+def _number(mpath: Path, i: int, entry: dict, key: str) -> float | None:
+    value = entry.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise FrameError(f"{str(mpath)!r}: frames[{i}].{key} = {value!r} must be a finite number")
+    return float(value)
+
+
+def _record(mpath: Path, i: int, entry: Any) -> FrameRecord:
+    if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+        raise FrameError(f"{str(mpath)!r}: frames[{i}] must be an object with a 'file' string")
+    known = {"file", "stage_mm", "angle_deg", "exposure_ms", "seed"}
+    seed = entry.get("seed")
+    return FrameRecord(file=entry["file"], stage_mm=_number(mpath, i, entry, "stage_mm"),
+                       angle_deg=_number(mpath, i, entry, "angle_deg"),
+                       exposure_ms=_number(mpath, i, entry, "exposure_ms"),
+                       seed=int(seed) if isinstance(seed, int) and not isinstance(seed, bool) else None,
+                       extra={k: v for k, v in entry.items() if k not in known})
+
+
+def _sensor_shape(mpath: Path, rig: Any) -> tuple[int, int, int | None] | None:
+    if rig is None:
+        return None
+    sensor = rig.get("sensor") if isinstance(rig, dict) else None
+    if not isinstance(sensor, dict):
+        raise FrameError(f"{str(mpath)!r}: 'rig' must hold a 'sensor' table")
+    try:
+        rows, cols = int(sensor["rows"]), int(sensor["columns"])
+    except (KeyError, TypeError, ValueError):
+        raise FrameError(f"{str(mpath)!r}: rig.sensor needs integer 'rows' and 'columns'") from None
+    bits = sensor.get("adc_bits")
+    return rows, cols, int(bits) if isinstance(bits, (int, float)) else None
+
+
+def open_frame_folder(path: str | Path) -> FrameFolder:
+    """Open and validate a frame folder (manifest and file list; frames read lazily).
+
+    Every listed frame must exist; the first one is decoded to check (or, with
+    no rig in the manifest, to set) the frame size.
+    """
+    folder = Path(path)
+    data = _load_manifest(folder)
+    mpath = folder / "manifest.json"
+    records = tuple(_record(mpath, i, e) for i, e in enumerate(data["frames"]))
+    for rec in records:
+        if not (folder / rec.file).is_file():
+            raise FrameError(f"frame {str(folder / rec.file)!r} listed in {str(mpath)!r} does not exist")
+    shape = _sensor_shape(mpath, data.get("rig"))
+    first = read_frame(folder / records[0].file, shape[:2] if shape else None)
+    rows, cols = (shape[0], shape[1]) if shape else first.shape
+    params = data.get("scenario_params") or {}
+    if not isinstance(params, dict):
+        raise FrameError(f"{str(mpath)!r}: 'scenario_params' must be an object")
+    return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
+                       scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
+                       adc_bits=shape[2] if shape else None)

@@ -1,0 +1,177 @@
+"""Calibration (paper Section 3 + refined fit) against synthetic frames of known geometry."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from scheimpflug.calibration import (Calibration, PlateMeasurement, calibrate_folder,
+                                     calibrate_measurements, measure_plate_frame)
+from scheimpflug.cli import main
+from scheimpflug.errors import CalibrationError
+from synth_frames import (C_NOMINAL, F2_NOMINAL, Camera, Geometry, PlateScene, calibration_folder,
+                          plate_frame, write_folder)
+
+# the paper's own numbers (Section 3; DESIGN.md §3)
+PAPER = {"u_h": 3196.0, "v_h": 771.0, "F2": -1.446e6, "C": 145.91, "d0": -466.0}
+
+
+@pytest.fixture(scope="module")
+def paper_folder(tmp_path_factory):
+    """27 frames × 10 mm from s = 0 on the paper rig; the last is out of view."""
+    return calibration_folder(tmp_path_factory.mktemp("cal") / "paper", Geometry(), seed=11)
+
+
+def _assert_truth(cal: Calibration, geo: Geometry):
+    assert abs(cal.hinge_u_px - geo.hinge_u_px) <= 0.5
+    assert abs(cal.hinge_v_px - geo.hinge_v_px) <= 0.5
+    assert abs(cal.F2_px_mm / geo.F2_px_mm - 1) <= 5e-4
+    assert abs(cal.C_mm / geo.C_mm - 1) <= 5e-4
+    assert abs(cal.d0_mm - geo.d0_mm) <= 0.05
+
+
+def test_paper_rig_cli_recovers_truth(paper_folder, tmp_path, capsys):
+    path, _ = paper_folder
+    out, plot = tmp_path / "cal.json", tmp_path / "fig.png"
+    assert main(["calibrate", str(path), "--json", "--out", str(out), "--plot", str(plot),
+                 "--quiet"]) == 0
+    cap = capsys.readouterr()
+    d = json.loads(cap.out)
+    for key in ("hinge_px", "F2_px_mm", "F2_sigma_px_mm", "d0_mm", "C_mm", "C_sigma_mm",
+                "endpoint_fit_r2", "paper", "refined"):
+        assert key in d
+    assert "00026.png" in cap.err  # out of view: skipped with a warning
+    geo = Geometry()
+    for est in (Calibration.load(out), Calibration.from_json_dict(d["paper"]),
+                Calibration.from_json_dict(d["refined"])):
+        _assert_truth(est, geo)
+    assert min(d["endpoint_fit_r2"]) >= 0.9998
+    # within 3 % of the paper's own numbers (its lens is a real f ≈ 55.33 mm)
+    assert abs(d["hinge_px"][0] / PAPER["u_h"] - 1) < 0.03
+    assert abs(d["hinge_px"][1] / PAPER["v_h"] - 1) < 0.03
+    assert abs(d["F2_px_mm"] / PAPER["F2"] - 1) < 0.03
+    assert abs(d["C_mm"] / PAPER["C"] - 1) < 0.03
+    assert abs(d["d0_mm"] / PAPER["d0"] - 1) < 0.03
+    assert plot.stat().st_size > 10_000
+
+
+def test_measurements_match_truth(paper_folder):
+    path, truths = paper_folder
+    res = calibrate_folder(path, method="paper")
+    assert res.best.method == "paper" and len(res.measurements) == 26
+    for m, (u, v_top, v_bot) in zip(res.measurements, truths):
+        assert abs(m.u_mean_px - u) < 0.02
+        assert abs(m.top_px[1] - v_top) < 0.15 and abs(m.bottom_px[1] - v_bot) < 0.15
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_random_geometry(seed):
+    """Random hinge, F², C, d0, stripe width and edge blur; in-memory frames."""
+    rng = np.random.default_rng(seed)
+    geo = Geometry(hinge_u_px=rng.uniform(2900, 3500), hinge_v_px=rng.uniform(750, 800),
+                   F2_px_mm=F2_NOMINAL * rng.uniform(0.93, 1.07),
+                   C_mm=C_NOMINAL * rng.uniform(0.97, 1.03), d0_mm=rng.uniform(-500, -430))
+    scene = PlateScene(sigma_px=rng.uniform(1.0, 2.5), edge_blur_px=rng.uniform(0.3, 1.5),
+                       total_e=rng.uniform(6000, 15000), hot_pixels=20)
+    # stage positions whose stripes fall within columns 60 … 1150
+    s_lo = geo.F2_px_mm / (60 - geo.hinge_u_px) + geo.d0_mm
+    s_hi = geo.F2_px_mm / (1150 - geo.hinge_u_px) + geo.d0_mm
+    ms = []
+    for s in np.linspace(s_lo, s_hi, 12):
+        frame, _ = plate_frame(geo, s, scene, Camera(), rng)
+        ms.append(measure_plate_frame(frame, s, saturation_dn=4095))
+    res = calibrate_measurements(ms, columns=geo.columns, rows=geo.rows)
+    _assert_truth(res.refined, geo)
+    assert abs(res.paper.hinge_u_px - geo.hinge_u_px) <= 1.0  # the paper's extrapolation
+    assert res.best is res.refined  # smaller σ(u_h)
+    assert min(res.paper.endpoint_fit_r2) >= 0.9998
+
+
+def test_round_trip_and_json(tmp_path):
+    cal = Calibration(hinge_u_px=3196.0, hinge_v_px=771.0, F2_px_mm=F2_NOMINAL, F2_sigma_px_mm=1.0,
+                      d0_mm=-466.0, C_mm=C_NOMINAL, C_sigma_mm=0.01, endpoint_fit_r2=(1.0, 1.0),
+                      method="refined", columns=1216, rows=1936)
+    s, h = np.array([0.0, 100.0, 250.0]), np.array([-50.0, 0.0, 30.0])
+    u, v = cal.pixel_from_stage(s, h)
+    s2, h2 = cal.stage_from_pixel(u, v)
+    assert np.allclose(s2, s, atol=1e-9) and np.allclose(h2, h, atol=1e-9)
+    # Eq. 11 at u = 965, hinge 3196: D = F²/(965 − 3196)
+    assert math.isclose(cal.stage_from_pixel(965.0, 771.0)[0], F2_NOMINAL / (965 - 3196) - 466.0)
+    cal.save(tmp_path / "c.json")
+    assert Calibration.load(tmp_path / "c.json") == cal
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(CalibrationError):
+        Calibration.load(tmp_path / "bad.json")
+    with pytest.raises(CalibrationError):
+        Calibration.load(tmp_path / "missing.json")
+
+
+# ---------------------------------------------------------------- bad inputs
+
+SMALL = Geometry()
+
+
+def _small_folder(path, stages, scene=PlateScene(), transform=None):
+    rng = np.random.default_rng(0)
+    frames = []
+    for s in stages:
+        f, _ = plate_frame(SMALL, s, scene, Camera(), rng)
+        frames.append(transform(f) if transform else f)
+    from synth_frames import rig_dict
+    return write_folder(path, frames, [{"stage_mm": float(s)} for s in stages], rig=rig_dict(SMALL))
+
+
+def _cli_error(args, capsys):
+    assert main(["calibrate", *args, "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    return err[-1]
+
+
+def test_cli_missing_manifest(tmp_path, capsys):
+    (tmp_path / "d").mkdir()
+    assert "no manifest.json" in _cli_error([str(tmp_path / "d")], capsys)
+
+
+def test_cli_plate_did_not_move(tmp_path, capsys):
+    p = _small_folder(tmp_path / "d", [50.0] * 4)
+    assert "did not move" in _cli_error([str(p)], capsys)
+
+
+def test_cli_too_few_frames(tmp_path, capsys):
+    p = _small_folder(tmp_path / "d", [0.0, 100.0])
+    assert "need at least 3" in _cli_error([str(p)], capsys)
+
+
+def test_cli_blank_frames(tmp_path, capsys):
+    p = _small_folder(tmp_path / "d", [0.0, 50.0, 100.0], scene=PlateScene(total_e=0.0))
+    msg = _cli_error([str(p)], capsys)
+    assert "only 0 usable" in msg
+
+
+def test_cli_saturated_frames(tmp_path, capsys):
+    p = _small_folder(tmp_path / "d", [0.0, 50.0, 100.0],
+                      transform=lambda f: np.full_like(f, 4095))
+    assert "only 0 usable" in _cli_error([str(p)], capsys)
+
+
+def test_cli_wrong_size_frame(tmp_path, capsys):
+    import cv2
+    p = _small_folder(tmp_path / "d", [0.0, 50.0, 100.0])
+    cv2.imwrite(str(p / "frames" / "00001.png"), np.zeros((100, 100), np.uint16))
+    assert "expected 1936 × 1216" in _cli_error([str(p)], capsys)
+
+
+def test_missing_stage(tmp_path):
+    p = write_folder(tmp_path / "d", [np.zeros((10, 20), np.uint16)] * 3, [{}] * 3)
+    with pytest.raises(CalibrationError, match="stage_mm"):
+        calibrate_folder(p)
+
+
+def test_parallel_endpoint_lines():
+    ms = [PlateMeasurement(stage_mm=s, u_mean_px=u, n_rows=100, line=(u, 0.0),
+                           top_px=(u, 100.0 + 0.1 * u), bottom_px=(u, 900.0 + 0.1 * u),
+                           rows=np.arange(3), u=np.zeros(3))
+          for s, u in ((0.0, 100.0), (50.0, 400.0), (100.0, 700.0), (150.0, 900.0))]
+    with pytest.raises(CalibrationError, match="parallel"):
+        calibrate_measurements(ms)
