@@ -1,13 +1,129 @@
-"""`scheimpflug evaluate` (placeholder until its issue lands)."""
+"""`scheimpflug evaluate CLOUD.ply --mesh TRUTH`: point-to-mesh scores and the paper's fits."""
 
-from ..errors import ScheimpflugError
+from __future__ import annotations
+
+import sys
+
+from ._common import print_json
+
+_FITS = ("plane", "plane-paper", "cylinder", "circle")
 
 
 def add_parser(sub):
-    p = sub.add_parser("evaluate", help="(not available yet)")
+    p = sub.add_parser("evaluate", help="score a point cloud against the true mesh",
+                       description="Point-to-mesh distances of a point cloud (signed when the mesh "
+                                   "is closed), with a per-body breakdown and the paper's fits "
+                                   "(plane, cylinder, circle in top view).")
+    p.add_argument("cloud", metavar="CLOUD.ply", help="point cloud (from 'scheimpflug reconstruct')")
+    p.add_argument("--mesh", required=True, metavar="TRUTH.ply",
+                   help="true surface (PLY/STL/OBJ) in the cloud's frame (the twin's truth/mesh.ply)")
+    p.add_argument("--fit", action="append", choices=_FITS, default=[],
+                   help="also fit this shape to the points (repeatable; with --region, to that "
+                        "region's points)")
+    p.add_argument("--region", action="append", type=int, default=None, metavar="ID",
+                   help="score and fit only the points nearest to this object id / body (repeatable)")
+    p.add_argument("--z-range", nargs=2, type=float, metavar=("ZMIN", "ZMAX"),
+                   help="keep only points with ZMIN <= z <= ZMAX [mm] (e.g. the smooth band)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=_run)
     return p
 
 
-def _run(args):
-    raise ScheimpflugError("'evaluate' is not available yet in this version")
+def _fits(names, xyz) -> dict:
+    from ..fitting import fit_circle_top_view, fit_cylinder, fit_plane, fit_plane_paper
+
+    fns = {"plane": fit_plane, "plane-paper": fit_plane_paper, "circle": fit_circle_top_view,
+           "cylinder": lambda p: fit_cylinder(p, axis_guess=[0.0, 0.0, 1.0])}
+    out = {}
+    for name in dict.fromkeys(names):
+        try:
+            out[name] = fns[name](xyz).to_dict()
+        except ValueError as exc:
+            out[name] = {"error": str(exc)}
+    return out
+
+
+def _select(args, cloud):
+    """Points kept by --z-range."""
+    import numpy as np
+
+    from ..errors import MeshError
+
+    xyz = cloud.xyz_mm
+    if len(xyz) == 0:
+        raise MeshError(f"point cloud {args.cloud!r} is empty")
+    if not np.all(np.isfinite(xyz)):
+        xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    if args.z_range:
+        lo, hi = sorted(args.z_range)
+        xyz = xyz[(xyz[:, 2] >= lo) & (xyz[:, 2] <= hi)]
+    if len(xyz) == 0:
+        raise MeshError(f"no finite points of {args.cloud!r} left to score"
+                        + (f" in z {args.z_range}" if args.z_range else ""))
+    return xyz
+
+
+def _run(args) -> int:
+    import numpy as np
+
+    from ..plyio import read_mesh, read_point_cloud
+    from ..scoring import PointToMesh, body_labels, distance_stats
+
+    cloud = read_point_cloud(args.cloud)
+    xyz = _select(args, cloud)
+    vertices, faces, ids = read_mesh(args.mesh)
+    pm = PointToMesh(vertices, faces)
+    res = pm.query(xyz)
+    labels_all = ids if ids is not None else body_labels(pm.faces)
+    if ids is not None and len(ids) != len(pm.faces):
+        from ..errors import MeshError
+        raise MeshError(f"{args.mesh!r}: object_id has {len(ids)} values for {len(pm.faces)} faces")
+    labels = labels_all[res.face]
+    keep = np.ones(len(xyz), bool)
+    if args.region:
+        keep = np.isin(labels, args.region)
+        if not keep.any():
+            from ..errors import MeshError
+            raise MeshError(f"no points lie nearest to region(s) {args.region} of {args.mesh!r} "
+                            f"(known: {sorted(set(labels_all.tolist()))})")
+    d = res.distance_mm[keep]
+    out = {**distance_stats(d, res.signed), "distance_kind": "signed" if res.signed else "unsigned",
+           "cloud": str(args.cloud), "mesh": str(args.mesh), "n_faces": int(len(pm.faces))}
+    if args.region:
+        out["region_filter"] = list(args.region)
+    unique = np.unique(labels_all)
+    if len(unique) > 1:
+        out["region_key"] = "object_id" if ids is not None else "body"
+        out["regions"] = {str(int(k)): distance_stats(res.distance_mm[keep & (labels == k)], res.signed)
+                          for k in unique if np.any(keep & (labels == k))}
+    if args.fit:
+        out["fits"] = _fits(args.fit, xyz[keep])
+    _print(out, args)
+    return 0
+
+
+def _print(out: dict, args) -> None:
+    if args.json:
+        print_json(out)
+        return
+    print(f"{out['n_points']} points vs {out['n_faces']} faces ({out['distance_kind']} distance): "
+          f"RMS {out['rms_mm']:.4f} mm, mean |d| {out['mean_abs_mm']:.4f} mm, "
+          f"p95 {out['p95_mm']:.4f} mm, max {out['max_mm']:.4f} mm")
+    if "mean_signed_mm" in out:
+        print(f"  signed mean {out['mean_signed_mm']:+.4f} mm, std {out['std_signed_mm']:.4f} mm, "
+              f"{100 * out['fraction_inside']:.1f} % inside")
+    for k, s in out.get("regions", {}).items():
+        print(f"  {out['region_key']} {k}: {s['n_points']} points, RMS {s['rms_mm']:.4f} mm, "
+              f"p95 {s['p95_mm']:.4f} mm, max {s['max_mm']:.4f} mm")
+    for name, fit in out.get("fits", {}).items():
+        shown = {k: v for k, v in fit.items() if k != "n_points"}
+        print(f"  fit {name}: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()))
+    sys.stdout.flush()
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
+    return str(v)

@@ -1,0 +1,221 @@
+"""PLY files: reconstructed point clouds (write, read back) and truth meshes (read).
+
+Point clouds are binary little-endian PLY with one ``vertex`` element::
+
+    property float x, y, z            part frame [mm]
+    property uchar red, green, blue   colour by height z (perceptual colormap, viridis)
+    property float angle_deg          rotary angle of the frame [deg]
+    property int row                  sensor row [px]
+    property float intensity          stripe peak above background [DN]
+
+which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and whose
+extra properties those tools keep as scalar fields.  The reader accepts any
+PLY whose vertex element has x, y, z (ascii or binary, either byte order);
+missing extras come back as NaN / −1.
+
+Meshes for ``evaluate`` are read with trimesh (PLY, STL, OBJ, ...); a PLY
+face property ``object_id`` (the twin's ``truth/mesh.ply``) is returned per
+face, and a multi-object file (an OBJ with several objects) gets one id per
+object.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import MeshError
+from .fileio import atomic_path
+from .reconstruct import PointCloud
+
+__all__ = ["height_colors", "read_mesh", "read_point_cloud", "write_point_cloud"]
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+_CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4")])
+_PLY_NAME = {"f4": "float", "u1": "uchar", "i4": "int"}
+
+
+def height_colors(z_mm: np.ndarray, cmap: str = "viridis") -> np.ndarray:
+    """RGB colours (n, 3) uint8 of heights ``z_mm`` [mm] over their 1–99 % range."""
+    import matplotlib
+
+    z = np.asarray(z_mm, dtype=np.float64)
+    if z.size == 0:
+        return np.zeros((0, 3), np.uint8)
+    lo, hi = np.percentile(z, [1, 99])
+    t = np.clip((z - lo) / (hi - lo), 0, 1) if hi > lo else np.full(z.shape, 0.5)
+    rgba = matplotlib.colormaps[cmap](t)
+    return np.round(rgba[:, :3] * 255).astype(np.uint8)
+
+
+def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str = "") -> Path:
+    """Write ``cloud`` as a binary PLY coloured by height, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination ``.ply``.
+    cloud : PointCloud
+        Points [mm] with angle, row and intensity.
+    comment : str
+        Extra header comment (one line; e.g. the command that made it).
+
+    Returns
+    -------
+    Path
+    """
+    data = np.empty(len(cloud), dtype=_CLOUD_DTYPE)
+    for k, name in enumerate("xyz"):
+        data[name] = cloud.xyz_mm[:, k]
+    rgb = height_colors(cloud.xyz_mm[:, 2])
+    data["red"], data["green"], data["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    data["angle_deg"], data["row"], data["intensity"] = cloud.angle_deg, cloud.row, cloud.intensity
+    lines = ["ply", "format binary_little_endian 1.0",
+             "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
+    lines += [f"comment {' '.join(comment.split())}"] if comment else []
+    lines += [f"element vertex {len(cloud)}"]
+    lines += [f"property {_PLY_NAME[data.dtype[n].str[1:]]} {n}" for n in data.dtype.names]
+    header = "\n".join(lines + ["end_header"]) + "\n"
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(data.tobytes())
+    return Path(path)
+
+
+def _parse_header(fh, path: Path) -> tuple[str, list]:
+    if fh.readline().strip() != b"ply":
+        raise MeshError(f"{str(path)!r} is not a PLY file (no 'ply' magic line)")
+    fmt, elements = None, []
+    while True:
+        line = fh.readline()
+        if not line:
+            raise MeshError(f"{str(path)!r}: PLY header has no 'end_header'")
+        words = line.decode("ascii", "replace").split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "end_header":
+            break
+        if words[0] == "format" and len(words) >= 2:
+            fmt = words[1]
+        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and elements and len(words) >= 3:
+            elements[-1][2].append(words[1:])
+        else:
+            raise MeshError(f"{str(path)!r}: malformed PLY header line {line.strip()!r}")
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise MeshError(f"{str(path)!r}: unknown PLY format {fmt!r}")
+    return fmt, elements
+
+
+def _vertex_dtype(props: list, fmt: str, path: Path) -> np.dtype:
+    order = ">" if fmt == "binary_big_endian" else "<"
+    fields = []
+    for p in props:
+        if p[0] == "list" or p[0] not in _PLY_TYPES or len(p) != 2:
+            raise MeshError(f"{str(path)!r}: unsupported vertex property {' '.join(p)!r}")
+        fields.append((p[1], order + _PLY_TYPES[p[0]]))
+    return np.dtype(fields)
+
+
+def read_point_cloud(path: str | os.PathLike) -> PointCloud:
+    """Read a point cloud PLY (the vertex element; any faces after it are ignored).
+
+    Raises
+    ------
+    MeshError
+        Missing, non-PLY, truncated or malformed file, or no x, y, z.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise MeshError(f"point cloud {str(p)!r} does not exist")
+    with open(p, "rb") as fh:
+        fmt, elements = _parse_header(fh, p)
+        if not elements or elements[0][0] != "vertex":
+            raise MeshError(f"{str(p)!r}: the first PLY element must be 'vertex'")
+        _, n, props = elements[0]
+        dtype = _vertex_dtype(props, fmt, p)
+        if not {"x", "y", "z"} <= set(dtype.names):
+            raise MeshError(f"{str(p)!r}: PLY vertices lack x, y, z")
+        data = _read_body(fh, fmt, dtype, n, p)
+    get = (lambda name, fill: data[name].astype(np.float64) if name in dtype.names
+           else np.full(n, fill, np.float64))
+    xyz = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
+    return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
+                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan))
+
+
+def _read_body(fh, fmt: str, dtype: np.dtype, n: int, path: Path) -> np.ndarray:
+    if fmt == "ascii":
+        rows = [fh.readline().split() for _ in range(n)]
+        if any(len(r) < len(dtype.names) for r in rows):
+            raise MeshError(f"{str(path)!r}: truncated or malformed ascii PLY vertex data")
+        try:
+            table = np.array([r[:len(dtype.names)] for r in rows], dtype=np.float64).reshape(n, -1)
+        except ValueError:
+            raise MeshError(f"{str(path)!r}: non-numeric ascii PLY vertex data") from None
+        out = np.empty(n, dtype=dtype)
+        for k, name in enumerate(dtype.names):
+            out[name] = table[:, k]
+        return out
+    raw = fh.read(n * dtype.itemsize)
+    if len(raw) != n * dtype.itemsize:
+        raise MeshError(f"{str(path)!r}: truncated PLY ({len(raw)} of {n * dtype.itemsize} bytes of "
+                        f"vertex data)")
+    return np.frombuffer(raw, dtype=dtype)
+
+
+def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read a triangle mesh for scoring (coincident vertices welded, faces kept in file order).
+
+    Parameters
+    ----------
+    path : path-like
+        PLY, STL, OBJ or any format trimesh reads.
+
+    Returns
+    -------
+    vertices : (nv, 3) float [mm]
+    faces : (m, 3) int
+    face_object_id : (m,) int or None
+        PLY ``object_id`` face property; for a file with several objects
+        (a trimesh Scene), the object's index + 1; else None.
+
+    Raises
+    ------
+    MeshError
+        Missing, unreadable or empty file, or a file without triangles.
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise MeshError(f"mesh {str(p)!r} does not exist")
+    try:
+        loaded = trimesh.load(str(p), process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise MeshError(f"mesh {str(p)!r} is unreadable: {type(exc).__name__}: {exc}") from None
+    ids = None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        if not geoms:
+            raise MeshError(f"{str(p)!r} holds no triangles (not a mesh)")
+        ids = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
+        loaded = trimesh.util.concatenate(geoms)
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError(f"{str(p)!r} holds no triangles (not a mesh: {type(loaded).__name__})")
+    n_faces = len(loaded.faces)
+    loaded.merge_vertices()          # STL stores each face's own vertices: weld them (face order kept)
+    if len(loaded.faces) != n_faces:
+        raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
+    raw = loaded.metadata.get("_ply_raw") if isinstance(loaded.metadata, dict) else None
+    if raw is not None and "face" in raw and "object_id" in (raw["face"]["data"].dtype.names or ()):
+        ids = np.asarray(raw["face"]["data"]["object_id"]).astype(np.int64).ravel()
+    return np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), ids
