@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import json
 import math
+import os
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import cv2
 import numpy as np
@@ -82,6 +85,28 @@ class FrameFolder:
     def __iter__(self) -> Iterator[tuple[FrameRecord, np.ndarray]]:
         for i, rec in enumerate(self.frames):
             yield rec, self.read(i)
+
+    def map_frames(self, fn: Callable[[FrameRecord, np.ndarray], Any],
+                   workers: int | None = None) -> Iterator[Any]:
+        """Yield ``fn(record, frame)`` for every frame, in order, decoding on threads.
+
+        PNG decoding (OpenCV) and the numba stripe kernels release the GIL, so
+        ``workers`` threads (default: the CPU count, at most 4) overlap them.
+        At most ``2 × workers`` frames are in flight, which bounds memory.
+        """
+        n = workers or min(4, os.cpu_count() or 1)
+        work = lambda i: fn(self.frames[i], self.read(i))  # noqa: E731
+        if n <= 1:
+            yield from (work(i) for i in range(len(self.frames)))
+            return
+        with ThreadPoolExecutor(max_workers=n) as pool:
+            pending: deque = deque()
+            for i in range(len(self.frames)):
+                pending.append(pool.submit(work, i))
+                if len(pending) >= 2 * n:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
 
     def saturation_dn(self, frame: np.ndarray) -> float:
         """Saturation level of ``frame`` [DN]: ``2**adc_bits − 1`` when the rig gives the

@@ -29,6 +29,7 @@ import numpy as np
 __all__ = [
     "PointCloud",
     "SheetCalibration",
+    "extract_folder",
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
@@ -179,3 +180,32 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     ok = np.all(np.isfinite(xyz), axis=1)
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
                       intensity=ii[ok])
+
+
+def extract_folder(folder, method: str = "gaussian3", *, min_snr: float = 6.0,
+                   keep_saturated: bool = False, quiet: bool = False, label: str = "extract"):
+    """Stripe samples of every frame of a :class:`~scheimpflug.frames.FrameFolder`.
+
+    Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`)
+    with a progress bar.  Returns ``(rows, u, peak, stats)``: three lists with
+    one array per frame, and counters ``blank_frames`` and ``saturated_rows``.
+    Saturated rows are dropped unless ``keep_saturated``.
+    """
+    from .progress import Progress
+    from .stripe import extract_stripes
+
+    def one(rec, frame):
+        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame))
+
+    rows, us, peaks = [], [], []
+    stats = {"blank_frames": 0, "saturated_rows": 0}
+    with Progress(len(folder), label=label, quiet=quiet) as bar:
+        for prof in folder.map_frames(one):
+            keep = slice(None) if keep_saturated else ~prof.saturated
+            stats["saturated_rows"] += int(prof.saturated.sum())
+            stats["blank_frames"] += int(len(prof) == 0)
+            rows.append(prof.rows[keep])
+            us.append(prof.u[keep])
+            peaks.append(prof.peak[keep])
+            bar.update()
+    return rows, us, peaks, stats

@@ -59,21 +59,10 @@ def _check_folder(folder, calibration) -> None:
 
 def _extract(folder, args):
     """Per-frame (rows, u, intensity) of the detected stripe, and counters."""
-    from ..progress import progress
-    from ..stripe import extract_stripes
+    from ..reconstruct import extract_folder
 
-    rows, us, peaks = [], [], []
-    stats = {"blank_frames": 0, "saturated_rows": 0}
-    for rec, frame in progress(iter(folder), total=len(folder), label="reconstruct", quiet=args.quiet):
-        prof = extract_stripes(frame, args.method, min_snr=args.min_snr,
-                               saturation_dn=folder.saturation_dn(frame))
-        keep = slice(None) if args.keep_saturated else ~prof.saturated
-        stats["saturated_rows"] += int(prof.saturated.sum())
-        stats["blank_frames"] += int(len(prof) == 0)
-        rows.append(prof.rows[keep])
-        us.append(prof.u[keep])
-        peaks.append(prof.peak[keep])
-    return rows, us, peaks, stats
+    return extract_folder(folder, args.method, min_snr=args.min_snr,
+                          keep_saturated=args.keep_saturated, quiet=args.quiet)
 
 
 def _run(args) -> int:
