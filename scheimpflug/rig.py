@@ -77,7 +77,7 @@ class Laser:
     scheimpflug_distance_mm: float = 150.0
     tan_phi: float = 0.2075
     wavelength_nm: float = 450.0
-    power_mw: float = 20.0
+    power_mw: float = 3.0
     origin_x_mm: float = 0.0
     waist_um: float = 150.0
     waist_distance_mm: float = 640.0
@@ -124,7 +124,7 @@ class Sensor:
     dark_offset_dn: float = 16.0
     adc_bits: int = 12
     gain_e_per_dn: float = 0.0
-    exposure_ms: float = 5.0
+    exposure_ms: float = 2.0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,501 @@
+"""The render loop: expected photo-electrons per pixel for one frame (laser + ambient).
+
+Why light tracing
+-----------------
+Only a band a few pixels wide is lit by the laser in each row (≈ 0.3 % of the
+sensor).  A camera-side renderer must either shoot samples into every pixel
+(wasting > 99 % of them) or first find the band and then shoot the
+band's pixels × aperture samples × sheet-thickness samples.  Light tracing
+(particle tracing) puts every sample where light is *by construction*: rays
+are drawn from the laser's own distribution, their first hit is the lit point
+(so laser-side occlusion is automatic and exact), and each hit is splatted
+through a sample point of the aperture onto the tilted sensor.  The cost is
+proportional to the number of lit rows, not pixels; the estimator is unbiased
+and energy-conserving (each ray carries its share of the laser power).
+
+Laser pass (per frame)
+----------------------
+1. *Samples.*  N = samples_per_row · rows laser rays in groups of four.  Each
+   group q has its own fan angle α_q = lo + (q + ξ)·Δα/N_groups (exact 1-D
+   stratification over the fan interval the sensor sees on the sheet,
+   :func:`sim.lightsheet.visible_fan_interval`, ξ one shift per frame) and one
+   point of a randomly shifted Kronecker (golden-ratio / R2) sequence for the
+   offset across the sheet, the aperture point and the beam angle.  The four
+   samples of a group are its mirror images about the sheet's mid-plane and
+   the lens centre (±δ × ±A, antithetic), which cancels the stripe centre's
+   first-order Monte Carlo terms — including the δ·A defocus term.
+2. *Thickness.*  A pilot ray along the sheet's mid-plane per ``pilot_block``
+   samples finds the reference distance r_ref; the offset δ ~ N(0, s(r_ref)²)
+   and the angle a | δ come from :func:`sim.lightsheet.conditional_angle`, so
+   the ray ensemble reproduces w(r) = √(w0² + θ²(r − r_w)²) at every distance.
+3. *Hit.*  ray: O_l + (δ − a·r_ref)·n + λ·(d_s(α) + a·n); first hit P.
+   Rays are traced in the scene frame (``SimScene.scene_from_rig``, an opaque
+   per-frame transform), so a rigid motion of the parts costs no BVH rebuild.
+4. *Splat.*  Aperture point A on the lens disc (diameter f/N at x = 0); the
+   thin lens sends the ray P→A toward the conjugate P' of P
+   (:func:`scheimpflug.camera.conjugate_point`, distortion included), and it
+   lands on the sensor plane (:func:`scheimpflug.camera.sensor_pose`) at
+   q = A + λ(P' − A).  Light-tracing estimator of the flux through the lens::
+
+       Φ_pix += Φ_ray · f_r(ω_l, ω_c)·cos θ_c · A_ap · cos θ_A / |P − A|²
+
+   (Mitsuba's ``BSDF.eval`` returns f_r·cos θ_c, with ω_l toward the laser and
+   ω_c toward A), if the segment P→A is free (camera-side occlusion, a shadow
+   ray).  ``pixel_filter="box"``: the pixel whose square contains q (exact
+   pixel-area integration); ``"tent"`` (default): bilinear weights, i.e. the
+   pixel square ⊗ a 1-px box (+1/12 px² stripe variance) — far less
+   quantisation noise in the stripe centre.  Φ_ray = I(α)·Δα/N.
+5. *Electrons*: Φ · t_exp · QE · λ/(h·c).
+
+Splats are accumulated by a sequential numba loop in sample order (hence
+bit-identical for a given seed; parallel float atomics would not be).
+
+Ambient pass (approximation)
+----------------------------
+One chief ray per cell of a coarse grid (every ``ambient_step_px``-th pixel in
+both directions, cell centres), bilinear upsampling.  The hit surface is lit
+by a uniform, unoccluded diffuse irradiance E_amb, so its radiance is
+L = E_amb/π · ρ_dir(ω_c) with ρ_dir the directional albedo, estimated with
+``ambient_bsdf_samples`` BSDF samples (= ρ exactly for a Lambertian surface).
+Pixel flux Φ = L · A_pix · A_ap · cos θ_q · cos θ_A / |q|² (chief ray through
+the lens centre).  Ignored: inter-reflections, ambient occlusion, defocus blur
+of the ambient image, a background (rays that miss see black).
+
+Speckle: :func:`sim.lightsheet.speckle_pattern` on the laser part only, grain
+from the magnification at the sensor centre.
+
+Noise of the render: the stripe centre's Monte Carlo scatter is measured by
+``benchmarks/bench_render.py``: at the default 32 samples per row, mean per-row
+std ≈ 0.005 px mid/far range and ≈ 0.02 px at the near end (wide stripe).
+
+Only JIT variants (llvm_*, cuda_*) are supported; per-frame values (seed,
+scene transform) are opaque, so frames reuse the compiled kernels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from scheimpflug.camera import (SensorPose, chief_ray_from_pixel, sensor_point_from_pixel,
+                                sensor_pose, sheet_point_from_pixel)
+from scheimpflug.errors import RenderError
+from scheimpflug.rig import Rig
+
+from .lightsheet import light_sheet, speckle_grain_um, speckle_pattern, visible_fan_interval
+from .materials import channel_for_wavelength
+from .scene import SimScene
+from .variant import is_jit_variant
+
+__all__ = [
+    "RenderSettings",
+    "Renderer",
+    ]
+
+PLANCK_J_S = 6.62607015e-34
+LIGHT_SPEED_M_S = 299792458.0
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Sampling settings of :class:`Renderer`.
+
+    samples_per_row : laser samples (rays = splats) per sensor row: the laser pass shoots
+        N = samples_per_row · rows rays over the visible fan, plus as many shadow rays and
+        N/pilot_block pilot rays.  (This light tracer has no "band": every sample lands
+        on the lit band, so this is the number of splats per lit row.)
+    pilot_block : samples sharing one pilot ray (a multiple of 4) [-].
+    fan_margin_deg : widening of the visible fan interval on each side [deg].
+    ambient : render the ambient pass (skipped anyway when E_amb = 0).
+    ambient_step_px : ambient chief rays every this many pixels in u and v [px].
+    ambient_bsdf_samples : BSDF samples per ambient chief ray (directional albedo).
+    speckle : apply speckle when the rig's speckle_contrast > 0.
+    seed : base seed, mixed with the per-frame seed of :meth:`Renderer.render`.
+    pixel_filter : how a splat lands in pixels: ``"box"`` — the pixel whose square holds
+        it (exact pixel-area integration); ``"tent"`` — bilinear weights over the four
+        nearest pixel centres, i.e. the pixel square convolved with a further 1-px box
+        (adds 1/12 px² to the stripe's variance, like mild pixel crosstalk) but removes
+        the quantisation noise of the box, so the stripe centre converges much faster.
+    """
+
+    samples_per_row: int = 32
+    pilot_block: int = 8
+    fan_margin_deg: float = 0.25
+    ambient: bool = True
+    ambient_step_px: int = 8
+    ambient_bsdf_samples: int = 1
+    speckle: bool = True
+    seed: int = 0
+    pixel_filter: str = "tent"
+
+    def __post_init__(self) -> None:
+        if self.pixel_filter not in ("box", "tent"):
+            raise RenderError(f"pixel_filter = {self.pixel_filter!r}: must be 'box' or 'tent'")
+        if self.pilot_block % 4:
+            raise RenderError(f"pilot_block = {self.pilot_block}: must be a multiple of 4 "
+                              "(samples come in mirrored groups of four)")
+        for name in ("samples_per_row", "pilot_block", "ambient_step_px", "ambient_bsdf_samples"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise RenderError(f"RenderSettings.{name} = {value!r}: must be an integer ≥ 1")
+
+
+# Additive-recurrence (Kronecker) low-discrepancy constants as 32-bit fixed point:
+# golden ratio (thickness: with the exact 1-D fan stratification it forms a Fibonacci
+# lattice), plastic-number R2 pair (aperture disc), √2 − 1 (angle within the beam).
+_KRONECKER_U32 = tuple(int(round(c * 2**32)) & 0xFFFFFFFF for c in (
+    0.6180339887498949, 0.7548776662466927, 0.5698402909980532, 0.41421356237309503))
+
+
+def _border_pixels(pose: SensorPose, n: int = 33) -> np.ndarray:
+    u = np.linspace(-0.5, pose.columns - 0.5, n)
+    v = np.linspace(-0.5, pose.rows - 0.5, n)
+    edges = [np.stack([u, np.full(n, v[0])], 1), np.stack([u, np.full(n, v[-1])], 1),
+             np.stack([np.full(n, u[0]), v], 1), np.stack([np.full(n, u[-1]), v], 1)]
+    return np.concatenate(edges)
+
+
+class Renderer:
+    """Renders frames of a :class:`~sim.scene.SimScene` as seen by a rig.
+
+    Parameters
+    ----------
+    rig : Rig
+    sim_scene : SimScene
+    settings : RenderSettings, optional
+    pose : SensorPose, optional
+        Sensor pose; default :func:`scheimpflug.camera.sensor_pose` (rig).  A custom pose
+        (e.g. an untilted sensor) changes where light lands, not the lens.
+
+    Raises
+    ------
+    RenderError
+        If the scene's Mitsuba variant is not a JIT (llvm_*/cuda_*) variant.
+    """
+
+    def __init__(self, rig: Rig, sim_scene: SimScene, settings: RenderSettings | None = None,
+                 pose: SensorPose | None = None) -> None:
+        if not is_jit_variant(sim_scene.variant):
+            raise RenderError(f"the renderer needs a JIT Mitsuba variant (llvm_*/cuda_*), got "
+                              f"{sim_scene.variant}: install libLLVM ≥ 17 (apt-get install libllvm19)")
+        import drjit as dr
+        import mitsuba as mi
+
+        self._mi, self._dr = mi, dr
+        self.rig, self.scene = rig, sim_scene
+        self.settings = settings or RenderSettings()
+        self.pose = pose or sensor_pose(rig)
+        self.sheet = light_sheet(rig)
+        self.shape = (self.pose.rows, self.pose.columns)
+        lens = rig.lens
+        self.aperture_radius_mm = 0.5 * lens.focal_length_mm / lens.f_number
+        self.aperture_area_mm2 = math.pi * self.aperture_radius_mm**2
+        photon_j = PLANCK_J_S * LIGHT_SPEED_M_S / (rig.laser.wavelength_nm * 1e-9)
+        self.electrons_per_watt = rig.sensor.exposure_ms * 1e-3 * rig.sensor.quantum_efficiency \
+            / photon_j  # [e⁻ per W of flux over the exposure]
+        self.channel = channel_for_wavelength(rig.laser.wavelength_nm)
+        self._setup_laser()
+        self._setup_ambient()
+        self._frame = sim_scene.transforms_dr()  # (scene_from_rig, rig_from_scene) of the frame
+
+    # ------------------------------------------------------------ setup
+    def _setup_laser(self) -> None:
+        mi = self._mi
+        pts = sheet_point_from_pixel(self.rig, _border_pixels(self.pose), self.pose)
+        lo, hi = visible_fan_interval(self.sheet, pts, math.radians(self.settings.fan_margin_deg))
+        self.fan_interval_rad = (lo, hi)
+        block = self.settings.pilot_block
+        self.n_pilot = -(-(self.settings.samples_per_row * self.pose.rows) // block)
+        self.n_groups = self.n_pilot * (block // 4)
+
+    def _setup_ambient(self) -> None:
+        mi, pose, step = self._mi, self.pose, self.settings.ambient_step_px
+        nc, nr = -(-pose.columns // step), -(-pose.rows // step)
+        uu = step * np.arange(nc) + 0.5 * (step - 1)
+        vv = step * np.arange(nr) + 0.5 * (step - 1)
+        uv = np.stack(np.meshgrid(uu, vv), axis=-1).reshape(-1, 2)
+        dirs = chief_ray_from_pixel(self.rig, uv, pose)
+        q = sensor_point_from_pixel(pose, uv)
+        qn = np.linalg.norm(q, axis=1)
+        cos_a, cos_q = np.abs(q[:, 0]) / qn, np.abs(q @ pose.normal) / qn
+        g = pose.pitch_mm**2 * self.aperture_area_mm2 * cos_a * cos_q / qn**2  # [mm²·sr]
+        self._amb_grid = (nr, nc)
+        self._amb_dirs = mi.Vector3f(dirs.T.astype(np.float32))
+        self._amb_e_per_radiance = g * 1e-6 * self.electrons_per_watt  # [e⁻ per W/(m²·sr)]
+
+    # ------------------------------------------------------------ public
+    def render(self, rig_from_part, seed: int) -> np.ndarray:
+        """Expected photo-electrons per pixel of one frame, float32 (rows, columns).
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) or (n_parts, 4, 4) float
+            Pose of the parts in the rig frame [mm].
+        seed : int
+            Frame seed (≥ 0): same seed, same image, bit for bit.
+        """
+        self.scene.set_pose(rig_from_part)
+        key = self._key(seed)
+        self._frame = self.scene.transforms_dr()
+        out = self._ambient_image(key)
+        splats = self._laser_splats(key)
+        if self._speckle_on():
+            laser = self._accumulate(*splats)
+            out += laser * self._speckle(key).astype(np.float32)
+        else:
+            self._splat_into(out, *splats)
+        return out
+
+    def render_components(self, rig_from_part, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """(laser, ambient) expected electrons, float32 (rows, columns) each; their sum is
+        :meth:`render` (up to float32 rounding of the sum)."""
+        self.scene.set_pose(rig_from_part)
+        key = self._key(seed)
+        self._frame = self.scene.transforms_dr()
+        laser = self._accumulate(*self._laser_splats(key))
+        if self._speckle_on():
+            laser *= self._speckle(key).astype(np.float32)
+        return laser, self._ambient_image(key)
+
+    def speckle_grain_px(self) -> float:
+        """Speckle grain 1.22·λ·N·(1 + m) on the sensor, m at the sensor centre [px]."""
+        centre = np.array([0.5 * (self.pose.columns - 1), 0.5 * (self.pose.rows - 1)])
+        x = sheet_point_from_pixel(self.rig, centre, self.pose)[0]
+        f = self.rig.lens.focal_length_mm
+        mag = f / (x - f) if np.isfinite(x) and x > f else 0.0
+        return speckle_grain_um(self.rig.laser.wavelength_nm, self.rig.lens.f_number, mag) \
+            / (self.pose.pitch_mm * 1e3)
+
+    def render_point_source(self, point_mm, intensity_w_sr: float, n_samples: int = 65536,
+                            seed: int = 0) -> np.ndarray:
+        """Expected electrons (rows, columns) float32 of an isotropic point emitter.
+
+        Parameters
+        ----------
+        point_mm : (3,) rig position [mm] (x > f).
+        intensity_w_sr : radiant intensity [W/sr].
+        n_samples : aperture samples (randomly shifted R2 low-discrepancy sequence).
+        seed : int
+
+        Notes
+        -----
+        The spot is the thin-lens blur of the point on the sensor (same camera-side code
+        as the laser pass); parts between the point and the aperture shadow it.
+        """
+        mi, dr = self._mi, self._dr
+        s = dr.opaque(mi.UInt32, self._key(seed))
+        i = dr.arange(mi.UInt32, n_samples)
+        u = mi.Point2f(*[_kronecker(mi, i, k + 1, s) for k in range(2)])
+        p = mi.Point3f(*_floats(point_mm))
+        geo, uv, ok, a = self._to_sensor(p, mi.Bool(True), u)
+        v = a - p
+        length = dr.norm(v)
+        to_scene = self.scene.transforms_dr()[0]
+        ray = to_scene @ mi.Ray3f(mi.Ray3f(p, v / length), length * (1 - 1e-5))
+        ok &= ~self.scene.scene.ray_test(ray, ok)
+        flux = dr.select(ok, geo * (intensity_w_sr / n_samples), 0.0)
+        dr.eval(flux, uv)
+        return self._accumulate(np.asarray(uv, np.float32), np.asarray(flux, np.float32))
+
+    def _speckle_on(self) -> bool:
+        return self.settings.speckle and self.sheet.speckle_contrast > 0
+
+    def _speckle(self, key: int) -> np.ndarray:
+        return speckle_pattern(self.shape, self.sheet.speckle_contrast, self.speckle_grain_px(), key)
+
+    # ------------------------------------------------------------ internals
+    def _key(self, seed: int) -> int:
+        if int(seed) < 0:
+            raise RenderError(f"seed = {seed}: must be ≥ 0")
+        h = (int(seed) * 0x9E3779B1 + int(self.settings.seed) * 0x85EBCA77 + 0x165667B1)
+        return h & 0xFFFFFFFF
+
+    def _splat_into(self, img: np.ndarray, uv: np.ndarray, flux: np.ndarray) -> None:
+        """img += electrons of splats at pixel coordinates uv (2, n) with flux (n,) [W]."""
+        _splat_add(img, uv[0], uv[1], flux, self.electrons_per_watt,
+                   self.settings.pixel_filter == "tent")
+
+    def _accumulate(self, uv: np.ndarray, flux: np.ndarray) -> np.ndarray:
+        """Splats → electrons (rows, columns) float32 (sequential sum: deterministic)."""
+        img = np.zeros(self.shape, np.float32)
+        self._splat_into(img, uv, flux)
+        return img
+
+    def _to_sensor(self, p, active, u_ap):
+        """Thin-lens splat of points p through aperture samples u_ap ∈ [0, 1)².
+
+        Returns (A_ap·cos θ_A/|P − A|² [-], pixel coordinates (u, v) [px], ok, A [mm]).
+        """
+        mi, dr, pose = self._mi, self._dr, self.pose
+        f, k1, k2 = self.rig.lens.focal_length_mm, self.rig.lens.k1, self.rig.lens.k2
+        disc = mi.warp.square_to_uniform_disk_concentric(u_ap) * self.aperture_radius_mm
+        a = mi.Point3f(0.0, disc.x, disc.y)
+        v = p - a
+        dist2 = dr.squared_norm(v)
+        geo = self.aperture_area_mm2 * v.x * dr.rsqrt(dist2) / dist2
+        mag = -f / (p.x - f)
+        t2 = (p.y * p.y + p.z * p.z) / (p.x * p.x)
+        dist = 1.0 + k1 * t2 + k2 * t2 * t2
+        img = mi.Point3f(mag * p.x, mag * p.y * dist, mag * p.z * dist)
+        o, n = mi.Point3f(*_floats(pose.origin_mm)), mi.Vector3f(*_floats(pose.normal))
+        w = img - a
+        lam = dr.dot(o - a, n) / dr.dot(w, n)
+        rel = a + lam * w - o
+        uv = mi.Point2f(dr.dot(rel, mi.Vector3f(*_floats(pose.u_dir))),
+                        dr.dot(rel, mi.Vector3f(*_floats(pose.v_dir)))) / pose.pitch_mm
+        ok = active & (p.x > f * 1.0001) & (lam > 0) & (uv.x > -1.0) & (uv.x < pose.columns) \
+            & (uv.y > -1.0) & (uv.y < pose.rows)
+        return geo, dr.select(ok, uv, -10.0), ok, a
+
+    def _alpha(self, s, group_index):
+        """Fan angle of sample group q: α = lo + (q + ξ)·Δα/N_groups, ξ one shift per frame [rad]."""
+        mi = self._mi
+        lo, hi = self.fan_interval_rad
+        xi = mi.sample_tea_float32(s, 0x7FFFFFFF)
+        return lo + (group_index + xi) * ((hi - lo) / self.n_groups)
+
+    def _fan_rays(self, s):
+        """Pilot rays along the sheet's mid-plane, one per block of samples: r_ref [mm], evaluated."""
+        mi, dr, sh = self._mi, self._dr, self.sheet
+        per_pilot = self.settings.pilot_block // 4
+        b = dr.arange(mi.Float, self.n_pilot)
+        alpha = self._alpha(s, b * per_pilot + 0.5 * (per_pilot - 1))
+        d = _sheet_dir(mi, dr, sh, alpha)
+        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(*_floats(sh.origin_mm)), d)
+        si = self.scene.scene.ray_intersect(ray)
+        r_ref = dr.select(si.is_valid(), si.t, sh.waist_distance_mm)
+        dr.eval(r_ref)
+        return r_ref
+
+    def _laser_rays(self, s, r_ref_pilot):
+        """Laser rays of all samples: (ray, flux [W], aperture sample ∈ [0, 1)²).
+
+        Sample groups q = 0 … N/4 − 1 each have their own fan angle (exact 1-D
+        stratification) and a point of a randomly shifted Kronecker sequence for the
+        thickness offset, the aperture point and the beam angle.  The four samples of a
+        group are the four mirror images (u → 1 − u) of that point about the sheet's
+        mid-plane and/or the lens centre (antithetic sampling): offsets ±δ and aperture
+        points ±A in all combinations, so the stripe centre's first-order terms in δ, in A
+        and in δ·A (defocus of off-sheet points) cancel within every group.
+        """
+        mi, dr, sh = self._mi, self._dr, self.sheet
+        idx = dr.arange(mi.UInt32, 4 * self.n_groups)
+        q = idx >> 2
+        alpha = self._alpha(s, mi.Float(q))
+        r = dr.gather(mi.Float, r_ref_pilot, q // (self.settings.pilot_block // 4))
+        u = [_kronecker(mi, q, k, s) for k in range(4)]
+        flip_beam, flip_lens = (idx & 1) == 1, (idx & 2) == 2
+        u = [dr.select(flip_beam if k in (0, 3) else flip_lens, 1.0 - x, x) for k, x in enumerate(u)]
+        theta, w0 = sh.divergence_rad, sh.waist_mm
+        dl = r - sh.waist_distance_mm
+        w2 = w0 * w0 + theta * theta * dl * dl
+        delta = 0.5 * dr.sqrt(w2) * _norm_ppf(dr, u[0])
+        a = theta * theta * dl / w2 * delta + 0.5 * theta * w0 * dr.rsqrt(w2) * _norm_ppf(dr, u[3])
+        n = mi.Vector3f(*_floats(sh.normal))
+        origin = mi.Point3f(*_floats(sh.origin_mm)) + (delta - a * r) * n
+        ray = mi.Ray3f(origin, dr.normalize(_sheet_dir(mi, dr, sh, alpha) + a * n))
+        lo, hi = self.fan_interval_rad
+        flux = _fan_intensity(dr, sh, alpha) * ((hi - lo) / (4 * self.n_groups))
+        return ray, flux, mi.Point2f(u[1], u[2])
+
+    def _laser_splats(self, key: int) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (2, n) float32 [px] and flux (n,) float32 [W] of the laser splats."""
+        mi, dr = self._mi, self._dr
+        s = dr.opaque(mi.UInt32, key)
+        to_scene, to_rig = self._frame
+        ray, flux, u_ap = self._laser_rays(s, self._fan_rays(s))
+        si = self.scene.scene.ray_intersect(to_scene @ ray)
+        p = to_rig @ si.p
+        geo, uv, ok, a = self._to_sensor(p, si.is_valid(), u_ap)
+        wo = to_scene @ mi.Vector3f(dr.normalize(a - p))
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        f_cos = si.bsdf().eval(ctx, si, si.to_local(wo), ok)[self.channel]
+        ok &= ~self.scene.scene.ray_test(si.spawn_ray_to(to_scene @ a), ok)
+        value = dr.select(ok, flux * f_cos * geo, 0.0)
+        dr.eval(value, uv)
+        return np.asarray(uv, np.float32), np.asarray(value, np.float32)
+
+    def _ambient_image(self, key: int) -> np.ndarray:
+        e_amb = self.rig.environment.ambient_irradiance_w_m2
+        if not self.settings.ambient or e_amb == 0.0:
+            return np.zeros(self.shape, np.float32)
+        mi, dr = self._mi, self._dr
+        import cv2
+
+        s = dr.opaque(mi.UInt32, key) ^ 0x27D4EB2F
+        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), self._amb_dirs)
+        si = self.scene.scene.ray_intersect(ray)
+        valid = si.is_valid()
+        ctx = mi.BSDFContext(mi.TransportMode.Radiance)
+        bsdf = si.bsdf()
+        k_n = self.settings.ambient_bsdf_samples
+        i = dr.arange(mi.UInt32, dr.width(self._amb_dirs)) * (3 * k_n)
+        albedo = mi.Float(0.0)
+        for k in range(k_n):
+            smp = [mi.sample_tea_float32(s, i + 3 * k + c) for c in range(3)]
+            _, weight = bsdf.sample(ctx, si, smp[0], mi.Point2f(smp[1], smp[2]), valid)
+            albedo += dr.select(valid, weight[self.channel], 0.0)
+        radiance = albedo * (e_amb / (math.pi * k_n))  # [W/(m²·sr)]
+        coarse = (np.asarray(radiance, np.float64) * self._amb_e_per_radiance).astype(np.float32)
+        nr, nc = self._amb_grid
+        step = self.settings.ambient_step_px
+        big = cv2.resize(coarse.reshape(nr, nc), (nc * step, nr * step),
+                         interpolation=cv2.INTER_LINEAR)
+        return np.ascontiguousarray(big[: self.shape[0], : self.shape[1]])
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat_add(img, u, v, flux, scale, tent):  # pragma: no cover - compiled
+    """img[v, u] += flux·scale per splat, box or bilinear ("tent"), in order (deterministic)."""
+    rows, cols = img.shape
+    for i in range(u.shape[0]):
+        w = flux[i] * scale
+        if w == 0.0:
+            continue
+        if not tent:
+            iu, iv = int(math.floor(u[i] + 0.5)), int(math.floor(v[i] + 0.5))
+            if 0 <= iu < cols and 0 <= iv < rows:
+                img[iv, iu] += w
+            continue
+        fu, fv = math.floor(u[i]), math.floor(v[i])
+        au, av = u[i] - fu, v[i] - fv
+        iu, iv = int(fu), int(fv)
+        for dv in range(2):
+            wv = av if dv else 1.0 - av
+            if 0 <= iv + dv < rows:
+                for du in range(2):
+                    if 0 <= iu + du < cols:
+                        img[iv + dv, iu + du] += w * wv * (au if du else 1.0 - au)
+
+
+def _floats(v) -> list[float]:
+    return [float(c) for c in np.asarray(v, dtype=np.float64).ravel()]
+
+
+def _kronecker(mi, index, dim: int, s):
+    """Randomly shifted additive recurrence frac(index·c_dim + shift) ∈ [0, 1), exact in 32 bit."""
+    shift = mi.sample_tea_32(s, mi.UInt32(0x3C6EF372 + dim))[0]
+    return mi.Float((index * _KRONECKER_U32[dim] + shift) >> 8) * (1.0 / (1 << 24))
+
+
+def _norm_ppf(dr, u):
+    """Standard normal quantile Φ⁻¹(u) = √2·erfinv(2u − 1), u clamped to (0, 1)."""
+    return math.sqrt(2.0) * dr.erfinv(2.0 * dr.clip(u, 1e-7, 1.0 - 1e-7) - 1.0)
+
+
+def _sheet_dir(mi, dr, sheet, alpha):
+    """In-sheet direction d_s(α) = cos α·e_p + sin α·e_z."""
+    return dr.cos(alpha) * mi.Vector3f(*_floats(sheet.prop_dir)) + dr.sin(alpha) * mi.Vector3f(*_floats(sheet.up))
+
+
+def _fan_intensity(dr, sheet, alpha):
+    """I(α) = P/F·g(α) [W/rad] (Dr.Jit version of sim.lightsheet.radiant_intensity_w_per_rad)."""
+    half = 0.5 * sheet.fan_full_rad
+    scale = sheet.power_w / sheet.fan_full_rad
+    if sheet.edge_sigma_rad == 0.0:
+        return dr.select(dr.abs(alpha) <= half, scale, 0.0)
+    k = 1.0 / (math.sqrt(2.0) * sheet.edge_sigma_rad)
+    return scale * 0.5 * (dr.erf((alpha + half) * k) - dr.erf((alpha - half) * k))

@@ -1,0 +1,167 @@
+"""Mitsuba variant selection: the LLVM CPU JIT when a usable libLLVM exists, else scalar.
+
+Mitsuba 3.9 / Dr.Jit 1.5 JIT-compile their ``llvm_*`` variants with a shared
+libLLVM that must be version 17 or newer; with Debian's default LLVM 14–16 the
+process can die inside LLVM ("Cannot select … fminimum") or the backend stays
+inactive (DESIGN.md §6).  :func:`select_variant` therefore looks for the
+library *before* Dr.Jit does, points Dr.Jit at a good one through
+``DRJIT_LIBLLVM_PATH`` (only possible before ``drjit`` is imported), and falls
+back to ``scalar_rgb`` with a warning when none is found.
+
+Order of precedence
+-------------------
+1. ``SCHEIMPFLUG_VARIANT`` environment variable: used as given (a warning is
+   issued if it names an ``llvm_*`` variant and no libLLVM ≥ 17 was found).
+2. ``prefer`` (default ``llvm_ad_rgb``) when its backend is usable.
+3. ``scalar_rgb`` with a :class:`RuntimeWarning`.
+
+The scalar fallback can load scenes and answer ray queries one ray at a time
+only; :class:`sim.render.Renderer` needs a JIT variant and raises
+:class:`~scheimpflug.errors.RenderError` otherwise (install ``libllvm19``:
+``apt-get install libllvm19``).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import subprocess
+import sys
+import warnings
+
+from scheimpflug.errors import RenderError
+
+__all__ = [
+    "FALLBACK_VARIANT",
+    "MIN_LLVM_VERSION",
+    "find_libllvm",
+    "is_jit_variant",
+    "llvm_version_from_path",
+    "select_variant",
+]
+
+MIN_LLVM_VERSION = 17
+FALLBACK_VARIANT = "scalar_rgb"
+_ENV = "SCHEIMPFLUG_VARIANT"
+_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
+          "/usr/lib/libLLVM*.so*", "/usr/lib64/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*",
+          "/usr/lib/llvm-*/lib/libLLVM*.so*", "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib",
+          "/usr/local/opt/llvm/lib/libLLVM*.dylib")
+
+
+def llvm_version_from_path(path: str) -> int | None:
+    """Major version of a libLLVM file from its (resolved) name or folder [-].
+
+    ``libLLVM-19.so`` → 19, ``libLLVM.so.19.1`` → 19, ``/usr/lib/llvm-17/lib/libLLVM.so.1``
+    → 17 (the folder wins over a bare soname number), ``libLLVM.17.dylib`` → 17.
+    Returns None when neither name nor folder carries a version.
+    """
+    for candidate in (path, os.path.realpath(path)):
+        base = os.path.basename(candidate)
+        m = re.search(r"libLLVM-(\d+)", base) or re.search(r"llvm-(\d+)/", candidate) \
+            or re.search(r"libLLVM\.(\d+)\.dylib", base)
+        if m:
+            return int(m.group(1))
+        m = re.search(r"libLLVM\.so\.(\d+)", base)
+        if m and int(m.group(1)) >= 3:  # .so.1 is a soname counter, not the LLVM major
+            return int(m.group(1))
+    return None
+
+
+def _ldconfig_paths() -> list[str]:
+    try:
+        out = subprocess.run(["ldconfig", "-p"], capture_output=True, text=True, timeout=10,
+                             check=False).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [line.split("=>")[-1].strip() for line in out.splitlines() if "libLLVM" in line]
+
+
+def find_libllvm() -> tuple[str | None, int | None]:
+    """The newest libLLVM shared library on this machine: ``(path, major_version)``.
+
+    ``DRJIT_LIBLLVM_PATH`` wins when set (its version is read from the name,
+    None if unreadable).  Otherwise ``ldconfig -p`` and the usual library
+    folders are searched.  ``(None, None)`` when nothing is found.
+    """
+    forced = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if forced:
+        return forced, llvm_version_from_path(forced)
+    found: dict[str, int] = {}
+    for path in _ldconfig_paths() + [p for g in _GLOBS for p in glob.glob(g)]:
+        version = llvm_version_from_path(path)
+        if version is not None and os.path.exists(path):
+            found.setdefault(os.path.realpath(path), version)
+    if not found:
+        return None, None
+    path = max(found, key=lambda p: (found[p], p))
+    return path, found[path]
+
+
+def is_jit_variant(variant: str) -> bool:
+    """True for the vectorised JIT variants (``llvm_*``, ``cuda_*``)."""
+    return variant.startswith(("llvm_", "cuda_"))
+
+
+def _llvm_usable() -> tuple[bool, str]:
+    path, version = find_libllvm()
+    if path is None:
+        return False, "no libLLVM shared library was found"
+    if version is None:
+        return True, f"using {path} (version unknown)"
+    if version < MIN_LLVM_VERSION:
+        return False, f"the newest libLLVM found is version {version} ({path}); Dr.Jit needs ≥ 17"
+    if "drjit" not in sys.modules and not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        os.environ["DRJIT_LIBLLVM_PATH"] = path
+    return True, f"using {path} (LLVM {version})"
+
+
+def _set(variant: str) -> str:
+    import mitsuba as mi
+
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return variant
+
+
+def select_variant(prefer: str = "llvm_ad_rgb") -> str:
+    """Set and return the Mitsuba variant to render with.
+
+    Parameters
+    ----------
+    prefer : str
+        Variant wanted when its backend works (``llvm_ad_rgb`` by default).
+
+    Returns
+    -------
+    str
+        The variant now active in ``mitsuba``.
+
+    Warns
+    -----
+    RuntimeWarning
+        When falling back to ``scalar_rgb`` (no libLLVM ≥ 17), naming the reason.
+    """
+    import mitsuba as mi
+
+    wanted = os.environ.get(_ENV) or prefer
+    if wanted not in mi.variants():
+        raise RenderError(f"Mitsuba variant {wanted!r} is not available "
+                          f"(available: {', '.join(mi.variants())})")
+    if not wanted.startswith("llvm_"):
+        return _set(wanted)
+    ok, why = _llvm_usable()
+    if not ok and not os.environ.get(_ENV):
+        warnings.warn(f"Mitsuba variant {wanted} unusable: {why}; falling back to "
+                      f"{FALLBACK_VARIANT} (slow; install libllvm19 and/or set DRJIT_LIBLLVM_PATH)",
+                      RuntimeWarning, stacklevel=2)
+        return _set(FALLBACK_VARIANT)
+    if not ok:
+        warnings.warn(f"{_ENV}={wanted} forced although {why}", RuntimeWarning, stacklevel=2)
+    try:
+        return _set(wanted)
+    except (ImportError, RuntimeError, AttributeError) as exc:
+        warnings.warn(f"Mitsuba variant {wanted} failed to load ({exc}); falling back to "
+                      f"{FALLBACK_VARIANT}", RuntimeWarning, stacklevel=2)
+        return _set(FALLBACK_VARIANT)
