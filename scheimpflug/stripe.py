@@ -16,7 +16,9 @@ Per row
    ``flank_px`` pixels each, starting ``window_px + 1`` pixels either side of the
    peak (only the lower flank if their means differ by > 4 σ: another peak or
    an edge lies in the other).  ``noise = sqrt(var + 1/12)`` [DN] (the 1/12 DN² quantisation floor keeps
-   noise-free frames finite).
+   noise-free frames finite), but never below the median of that noise over
+   all rows of the frame (16 flank pixels can underestimate it badly on a dark,
+   quantised background, letting 2 DN noise peaks through).
 3. **Detection.**  ``score = (x[k] - background) / noise`` (a signal-to-noise
    ratio).  A row is kept when ``score >= min_snr`` (default 6: the largest of
    ≈ 1200 pure-noise pixels is ≈ 3.3 σ, so a blank row passes with probability
@@ -293,6 +295,7 @@ def _one_row(x, is_int, method, window, flank, min_snr, nearest, ratio, sat, edg
     if not np.isfinite(bg):
         return
     noise = math.sqrt(var + 1.0 / 12.0)
+    out[r, 7] = noise
     amp = float(x[k]) - bg
     npk = 1.0
     if nearest:
@@ -331,7 +334,8 @@ def _one_row(x, is_int, method, window, flank, min_snr, nearest, ratio, sat, edg
 def _extract_kernel(frame, is_int, method, window, flank, min_snr, nearest, ratio, sat,
                     edge_fraction, hot_fraction):
     rows = frame.shape[0]
-    out = np.zeros((rows, 7), dtype=np.float64)
+    out = np.zeros((rows, 8), dtype=np.float64)
+    out[:, 7] = np.nan
     for r in nb.prange(rows):
         _one_row(frame[r], is_int, method, window, flank, min_snr, nearest, ratio, sat,
                  edge_fraction, hot_fraction, out, r)
@@ -408,7 +412,26 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     out = _extract_kernel(arr, is_int, _METHOD_CODE[method], int(window_px), int(flank_px),
                           float(min_snr), multi_peak == "nearest", float(multi_peak_ratio),
                           sat, float(edge_fraction), float(hot_pixel_fraction))
+    _apply_frame_noise_floor(out, float(min_snr))
     return _profile_from_table(out, method)
+
+
+def _apply_frame_noise_floor(out: np.ndarray, min_snr: float) -> None:
+    """Re-test detections against the frame's median row noise (in place).
+
+    A 16-pixel flank can underestimate the noise badly (a dark, quantised
+    background often has almost no spread), which let ≈ 2 DN noise peaks pass
+    as stripes; the median of all rows' flank noise is a robust floor.
+    """
+    noise = out[:, 7]
+    finite = noise[np.isfinite(noise)]
+    if finite.size < 8:
+        return
+    floor = float(np.median(finite))
+    valid = out[:, 0] > 0.5
+    snr = out[:, 3] / np.maximum(noise, floor)
+    out[:, 2] = np.where(valid, np.minimum(out[:, 2], snr), out[:, 2])
+    out[:, 0] = np.where(valid & (snr >= min_snr), 1.0, 0.0)
 
 
 def _profile_from_table(out: np.ndarray, method: str) -> StripeProfile:

@@ -1,0 +1,340 @@
+"""The main job: the paper's experiments in the digital twin, scored against the truth.
+
+``run_demo`` renders the calibration sequence and calibrates; renders the
+blocker and locates the rotary axis; scans the paper's cylinder (0.5° steps)
+and the pile (1° steps); reconstructs both; scores them against the meshes that
+were rendered; and writes ``report.md`` with its figures, the clouds and the
+calibration JSON.  ``quick=True`` runs the same pipeline on a 4 × 4 binned
+sensor with fewer frames (about a minute).
+
+Everything the report says is measured in this run; the paper's numbers come
+from the seed paper (DESIGN.md §3–4) and are labelled as such.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import resource
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ScheimpflugError
+from .fileio import write_json_atomic
+from .rig import Rig, rig_to_toml
+
+__all__ = ["DemoPlan", "PAPER", "plan_for", "run_demo"]
+
+# The seed paper's numbers (Sections 3–4, DESIGN.md §3–4).
+PAPER = {
+    "hinge_px": [3196.0, 771.0], "F2_px_mm": -1.446e6, "F2_sigma_px_mm": 581.0, "d0_mm": -466.0,
+    "C_mm": 145.91, "C_sigma_mm": 0.2014, "endpoint_fit_r2": [0.9998, 0.9998],
+    "depth_range_mm": 276.7, "height_range_near_mm": 88.0, "height_range_far_mm": 143.0,
+    "distance_resolution_center_mm": 0.22, "height_resolution_center_mm": 0.05, "axis_mm": 179.45,
+    "axis_column_px": 965.0, "cylinder_height_mm": 108.0, "cylinder_diameter_mm": 100.0,
+    "ring_diameter_mm": 69.0, "ring_mean_error_mm": 2.0, "box_plane_rmse_mm": 0.1775,
+    "box_plane": [-67.24, 0.3902, 0.03029],
+}
+
+
+@dataclass(frozen=True)
+class DemoPlan:
+    """What the demo renders: sensor binning and the frames of each experiment."""
+
+    binning: int
+    calibration_steps: int
+    calibration_step_mm: float
+    cylinder_step_deg: float
+    pile_step_deg: float
+
+
+def plan_for(quick: bool) -> DemoPlan:
+    """The paper's resolution and step sizes, or the quick plan (4 × 4 binning, coarse steps)."""
+    if quick:
+        return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=30.0,
+                        cylinder_step_deg=10.0, pile_step_deg=10.0)
+    return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0,
+                    cylinder_step_deg=0.5, pile_step_deg=1.0)
+
+
+def _log(msg: str) -> None:
+    print(f"demo: {msg}", file=sys.stderr, flush=True)
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def run(self, name: str, fn, *args, **kw):
+        _log(f"── {name}")
+        t0 = time.perf_counter()
+        out = fn(*args, **kw)
+        self.seconds[name] = time.perf_counter() - t0
+        return out
+
+
+def _render(scenario: str, out: Path, rig_file: Path, plan: DemoPlan, seed: int, quiet: bool,
+            *opts: str) -> Path:
+    from .cli import main
+
+    args = ["render", scenario, "--rig", str(rig_file), "--out", str(out), "--seed", str(seed),
+            "--binning", str(plan.binning), *opts] + (["--quiet"] if quiet else [])
+    if main(args) != 0:
+        raise ScheimpflugError(f"rendering the {scenario} scenario into {out} failed (see above)")
+    return out
+
+
+# ------------------------------------------------------------------ experiments
+
+
+def _calibrate(folder: Path, out: Path, report: Path) -> dict:
+    from .calibration import calibrate_folder
+    from .calibration_plot import plot_calibration
+    from .frames import open_frame_folder
+    from .report_plots import plot_superimposed_frames
+
+    result = calibrate_folder(folder)
+    result.best.save(out / "calibration.json")
+    plot_calibration(result, report / "calibration_fits.png")
+    ff = open_frame_folder(folder)
+    pick = range(0, len(ff), max(1, len(ff) // 9))
+    plot_superimposed_frames([ff.read(i) for i in pick], report / "calibration_frames.png",
+                             "superimposed calibration frames (plate at several stage positions)")
+    truth = json.loads((folder / "truth" / "rig_truth.json").read_text())
+    return {"result": result, "truth": truth}
+
+
+def _axis(folder: Path, calibration) -> dict:
+    from .axis import locate_axis
+
+    res = locate_axis(folder, calibration)
+    return {"axis_mm": float(res.axis_mm), "detail": res.to_json_dict()}
+
+
+def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bool) -> dict:
+    """Extract, reconstruct, write the PLY and score against truth/mesh.ply."""
+    from .frames import open_frame_folder
+    from .plyio import read_mesh, write_point_cloud
+    from .reconstruct import extract_folder, reconstruct_profiles
+    from .scoring import PointToMesh, distance_stats
+
+    ff = open_frame_folder(folder)
+    rows, us, peaks, stats = extract_folder(ff, "gaussian3", quiet=quiet, label="reconstruct")
+    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], calibration, axis_mm,
+                                 intensity=peaks)
+    if len(cloud) == 0:
+        raise ScheimpflugError(f"{folder}: no stripe found in any frame")
+    write_point_cloud(cloud_path, cloud, comment=f"scheimpflug demo, axis_mm={axis_mm:.6g}")
+    vertices, faces, object_id = read_mesh(folder / "truth" / "mesh.ply")
+    dist = PointToMesh(vertices, faces).query(cloud.xyz_mm)
+    body = object_id[dist.face] if object_id is not None else np.zeros(len(cloud), np.int64)
+    return {"folder": ff, "rows": rows, "u": us, "cloud": cloud, "distance": dist.distance_mm,
+            "signed": bool(dist.signed), "body": body, "stats": distance_stats(dist.distance_mm, dist.signed),
+            "extract": stats}
+
+
+def _cylinder_metrics(scan: dict, rig: Rig) -> dict:
+    import scenes
+    from .fitting import fit_cylinder
+
+    part = scenes.load_part("cylinder").parts[0]
+    z_lo, z_hi = (np.asarray(part.analytic["smooth_z_range_mm"]) + rig.stage.rotary_table_z_mm)
+    xyz = scan["cloud"].xyz_mm
+    smooth = (xyz[:, 2] > z_lo + 1.0) & (xyz[:, 2] < z_hi - 1.0)
+    fit = fit_cylinder(xyz[smooth], axis_guess=np.array([0.0, 0.0, 1.0]))
+    from .scoring import distance_stats
+
+    z = xyz[:, 2]
+    return {"smooth": distance_stats(scan["distance"][smooth], scan["signed"]),
+            "smooth_z_range_mm": [float(z_lo), float(z_hi)],
+            "fit": fit.to_dict(), "diameter_mm": fit.diameter_mm,
+            "height_mm": float(np.percentile(z, 99.99) - np.percentile(z, 0.01)),
+            "true_diameter_mm": part.analytic["diameter_mm"], "true_height_mm": part.analytic["height_mm"]}
+
+
+def _box_side_plane(rig: Rig) -> tuple[np.ndarray, float, np.ndarray]:
+    """The box's long side facing +y (assembly frame → stage frame): normal, offset, extent."""
+    import scenes
+
+    box = next(p for p in scenes.load_part("pile").parts if p.analytic.get("kind") == "box")
+    m = np.asarray(box.analytic["mesh_from_part"], dtype=np.float64)
+    plane = next(p for p in box.analytic["planes"] if p["normal"] == [0.0, 1.0, 0.0])
+    n = m[:3, :3] @ np.asarray(plane["normal"], dtype=np.float64)
+    t = m[:3, 3] + np.array([0.0, 0.0, rig.stage.rotary_table_z_mm])
+    return n, float(n @ t + plane["offset_mm"]), m
+
+
+def _pile_metrics(scan: dict, rig: Rig) -> dict:
+    import scenes
+    from .fitting import fit_circle_top_view, fit_plane_paper
+    from .scoring import distance_stats
+
+    parts = {p.analytic.get("kind"): p for p in scenes.load_part("pile").parts}
+    xyz, dist = scan["cloud"].xyz_mm, scan["distance"]
+    table = rig.stage.rotary_table_z_mm
+    ring = parts["knurled_ring"].analytic
+    in_ring = (xyz[:, 2] > table + ring["z0_mm"] + 1.0) & (xyz[:, 2] < table + ring["z1_mm"] - 1.0)
+    circle = fit_circle_top_view(xyz[in_ring]) if in_ring.sum() >= 10 else None
+    n, off, _ = _box_side_plane(rig)
+    side = np.abs(xyz @ n - off) < 3.0
+    box_z = (xyz[:, 2] > table + 15.0 + 3.0) & (xyz[:, 2] < table + 15.0 + 62.0 - 3.0)
+    sel = side & box_z
+    plane = fit_plane_paper(xyz[sel]) if sel.sum() >= 10 else None
+    regions = {}
+    for oid, p in ((p.object_id, p) for p in parts.values()):
+        mask = scan["body"] == oid
+        if mask.any():
+            regions[p.name] = distance_stats(dist[mask], scan["signed"])
+    truth_plane = [off / n[1], -n[0] / n[1], -n[2] / n[1]]  # y = a + b x + c z of the true side
+    return {"ring": circle.to_dict() if circle else None, "ring_points": xyz[in_ring],
+            "ring_true_diameter_mm": ring["od_mm"],
+            "ring_root_diameter_mm": 2.0 * ring["knurl"]["root_radius_mm"],
+            "box_plane": plane.to_dict() if plane else None, "box_points": xyz[sel],
+            "box_plane_truth": truth_plane, "regions": regions}
+
+
+def _budget(cal: dict, axis_mm: float, scan: dict, rig_truth: dict, columns: int, rows: int) -> dict:
+    from .budget import calibration_error, error_budget, extraction_error
+
+    ff = scan["folder"]
+    truth_u = [np.load(ff.path / rec.extra["truth"])["stripe_u"] for rec in ff.frames]
+    extraction = extraction_error(scan["rows"], scan["u"], truth_u, cal)
+    calib = calibration_error(cal, rig_truth, columns, rows, axis_mm=axis_mm,
+                              axis_truth_mm=rig_truth.get("axis_mm"))
+    return error_budget(extraction, calib, scan["distance"], scan["signed"])
+
+
+# ------------------------------------------------------------------ driver
+
+
+def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, seed: int = 0,
+             quiet: bool = False) -> dict:
+    """Run the whole demo into ``out``; return the summary dict (also written as summary.json)."""
+    from .rig import load_preset
+
+    rig = rig or load_preset("paper")
+    plan = plan_for(quick)
+    out = Path(out)
+    report = out / "report"
+    report.mkdir(parents=True, exist_ok=True)
+    rig_file = out / "rig.toml"
+    rig_file.write_text(rig_to_toml(rig))
+    timer = _Timer()
+    t_start = time.perf_counter()
+
+    cal_dir = timer.run("render calibration", _render, "calibration", out / "calibration", rig_file, plan,
+                        seed, quiet, "--steps", str(plan.calibration_steps),
+                        "--step-mm", str(plan.calibration_step_mm))
+    cal = timer.run("calibrate", _calibrate, cal_dir, out, report)
+    calibration = cal["result"].best
+    blk_dir = timer.run("render blocker", _render, "blocker", out / "blocker", rig_file, plan, seed, quiet)
+    axis = timer.run("locate axis", _axis, blk_dir, calibration)
+    cyl_dir = timer.run("render cylinder scan", _render, "rotary", out / "cylinder", rig_file, plan, seed,
+                        quiet, "--part", "cylinder", "--step-deg", str(plan.cylinder_step_deg))
+    cyl = timer.run("reconstruct + score cylinder", _scan, cyl_dir, calibration, axis["axis_mm"],
+                    out / "cylinder.ply", quiet)
+    pile_dir = timer.run("render pile scan", _render, "rotary", out / "pile", rig_file, plan, seed, quiet,
+                         "--part", "pile", "--step-deg", str(plan.pile_step_deg))
+    pile = timer.run("reconstruct + score pile", _scan, pile_dir, calibration, axis["axis_mm"],
+                     out / "pile.ply", quiet)
+    cyl_m = _cylinder_metrics(cyl, rig)
+    pile_m = _pile_metrics(pile, rig)
+    ff = cyl["folder"]
+    budget = _budget(calibration, axis["axis_mm"], cyl, cal["truth"], ff.columns, ff.rows)
+    summary = _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, timer, t_start)
+    timer.run("figures + report", _write_report, out, report, summary, cyl, cyl_m, pile, pile_m)
+    summary["seconds"]["total"] = time.perf_counter() - t_start
+    summary["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    write_json_atomic(out / "summary.json", _jsonable(summary))
+    _print_summary(summary, out)
+    return summary
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    return obj
+
+
+def _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, timer, t_start) -> dict:
+    from .design import design_report
+
+    res = cal["result"]
+    best = res.best
+    truth = cal["truth"]
+    ff = cyl["folder"]
+    cols, rows = ff.columns, ff.rows
+    du_near, du_far = abs(-0.5 - best.hinge_u_px), abs(cols - 0.5 - best.hinge_u_px)
+    d_near, d_far = best.F2_px_mm / (0 - best.hinge_u_px), best.F2_px_mm / (cols - 1 - best.hinge_u_px)
+    twin_design = {
+        "depth_range_mm": d_far - d_near,
+        "height_range_near_mm": best.C_mm * rows / du_near,
+        "height_range_far_mm": best.C_mm * rows / du_far,
+        "distance_resolution_center_mm": abs(best.F2_px_mm) / (cols // 2 - best.hinge_u_px) ** 2,
+        "height_resolution_center_mm": best.C_mm / abs(cols // 2 - best.hinge_u_px),
+    }
+    from sim.sensor import binned_rig
+
+    true_design = design_report(binned_rig(rig, plan.binning))
+    return {
+        "quick": quick, "plan": plan.__dict__, "sensor": [rows, cols],
+        "calibration": {"best": best.to_json_dict(), "paper": res.paper.to_json_dict(),
+                        "refined": res.refined.to_json_dict(), "truth": truth, "twin_design": twin_design,
+                        "true_design": true_design, "skipped": [list(s) for s in res.skipped]},
+        "axis": {"axis_mm": axis["axis_mm"], "truth_mm": truth.get("axis_mm", rig.stage.axis_mm),
+                 "column_px": float(best.hinge_u_px + best.F2_px_mm / (axis["axis_mm"] - best.d0_mm))},
+        "cylinder": {"n_points": len(cyl["cloud"]), "all": cyl["stats"], "smooth": cyl_m["smooth"],
+                     "fit": cyl_m["fit"], "height_mm": cyl_m["height_mm"],
+                     "true_diameter_mm": cyl_m["true_diameter_mm"], "true_height_mm": cyl_m["true_height_mm"],
+                     "extract": cyl["extract"]},
+        "pile": {"n_points": len(pile["cloud"]), "all": pile["stats"], "regions": pile_m["regions"],
+                 "ring": pile_m["ring"], "ring_true_diameter_mm": pile_m["ring_true_diameter_mm"],
+                 "ring_root_diameter_mm": pile_m["ring_root_diameter_mm"],
+                 "box_plane": pile_m["box_plane"], "box_plane_truth": pile_m["box_plane_truth"],
+                 "extract": pile["extract"]},
+        "budget": budget, "seconds": dict(timer.seconds), "paper": PAPER,
+    }
+
+
+def _write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> None:
+    from .report_md import write_report
+
+    write_report(out, report, s, cyl, cyl_m, pile, pile_m)
+
+
+def _print_summary(s: dict, out: Path) -> None:
+    c = s["calibration"]["best"]
+    t = s["calibration"]["truth"]
+    lines = [
+        "",
+        "Summary (twin vs truth)",
+        f"  hinge        ({c['hinge_px'][0]:.2f}, {c['hinge_px'][1]:.2f}) px   truth "
+        f"({t['hinge_u_px']:.2f}, {t['hinge_v_px']:.2f})",
+        f"  F²           {c['F2_px_mm']:.6g} px·mm   truth {t['F2_px_mm']:.6g}",
+        f"  C            {c['C_mm']:.5g} mm   truth {t['C_mm']:.5g}",
+        f"  d0           {c['d0_mm']:.3f} mm   truth {t['d0_mm']:.3f}",
+        f"  axis         {s['axis']['axis_mm']:.3f} mm   truth {s['axis']['truth_mm']:.3f}",
+        f"  cylinder     Ø {s['cylinder']['fit']['diameter_mm']:.3f} mm (truth {s['cylinder']['true_diameter_mm']:g}), "
+        f"RMS to mesh {s['cylinder']['smooth']['rms_mm']:.4f} mm on the smooth part",
+    ]
+    if s["pile"]["ring"]:
+        lines.append(f"  ring         Ø {s['pile']['ring']['diameter_mm']:.2f} mm (truth "
+                     f"{s['pile']['ring_true_diameter_mm']:g}), mean |error| "
+                     f"{s['pile']['ring']['mean_abs_error_mm']:.3f} mm")
+    if s["pile"]["box_plane"]:
+        lines.append(f"  box side     plane RMSE {s['pile']['box_plane']['rmse_mm']:.4f} mm")
+    lines += [f"  time         {s['seconds']['total']:.1f} s, peak memory {s['peak_rss_mb']:.0f} MB",
+              f"  report       {out / 'report' / 'report.md'}", ""]
+    print("\n".join(lines), file=sys.stderr)
