@@ -48,6 +48,7 @@ class DemoPlan:
     binning: int
     calibration_steps: int
     calibration_step_mm: float
+    calibration_start_mm: float
     cylinder_step_deg: float
     pile_step_deg: float
 
@@ -55,9 +56,9 @@ class DemoPlan:
 def plan_for(quick: bool) -> DemoPlan:
     """The paper's resolution and step sizes, or the quick plan (4 × 4 binning, coarse steps)."""
     if quick:
-        return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=30.0,
+        return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=28.0, calibration_start_mm=15.0,
                         cylinder_step_deg=10.0, pile_step_deg=10.0)
-    return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0,
+    return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=0.0,
                     cylinder_step_deg=0.5, pile_step_deg=1.0)
 
 
@@ -228,7 +229,7 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
 
     cal_dir = timer.run("render calibration", _render, "calibration", out / "calibration", rig_file, plan,
                         seed, quiet, "--steps", str(plan.calibration_steps),
-                        "--step-mm", str(plan.calibration_step_mm))
+                        "--step-mm", str(plan.calibration_step_mm), "--start-mm", str(plan.calibration_start_mm))
     cal = timer.run("calibrate", _calibrate, cal_dir, out, report)
     calibration = cal["result"].best
     blk_dir = timer.run("render blocker", _render, "blocker", out / "blocker", rig_file, plan, seed, quiet)

@@ -124,7 +124,7 @@ class Sensor:
     dark_offset_dn: float = 16.0
     adc_bits: int = 12
     gain_e_per_dn: float = 0.0
-    exposure_ms: float = 2.0
+    exposure_ms: float = 0.5
 
 
 @dataclass(frozen=True)
