@@ -1,13 +1,170 @@
-"""`scheimpflug render` (placeholder until its issue lands)."""
+"""`scheimpflug render SCENARIO --out DIR`: the digital twin writes a frame folder.
 
-from ..errors import ScheimpflugError
+Scenarios (INTERFACE.md): ``calibration`` (plate on the translation stage),
+``blocker`` (thin plate on the rotary axis), ``rotary`` (a part on the rotary
+stage).  The folder layout, the truth files and the restart rules are
+documented in :mod:`sim.writer` and :mod:`sim.truth`.
+
+``--binning K`` renders a reduced sensor with the same geometry (k × k
+binning: pitch × k, columns, rows, hinge column and axis row / k; see
+:func:`sim.sensor.binned_rig`): the quick mode of the demo and of tests.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+from ..errors import RenderError, ScheimpflugError
+from ._common import add_rig_options, print_json, rig_from_args
+
+__all__ = ["add_parser"]
+
+_SCENARIOS = ("blocker", "calibration", "rotary")
+# option → scenarios it applies to
+_APPLIES = {
+    "steps": ("calibration",), "step_mm": ("calibration",), "start_mm": ("calibration",),
+    "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary",),
+    "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"),
+    "blocker_thickness_mm": ("blocker",),
+}
 
 
 def add_parser(sub):
-    p = sub.add_parser("render", help="(not available yet)")
+    p = sub.add_parser(
+        "render", help="render a scenario with the digital twin into a frame folder",
+        description="Render frames and exact ground truth of a scenario into DIR "
+                    "(manifest.json, frames/, truth/). An interrupted run restarts where it stopped.")
+    p.add_argument("scenario", metavar="SCENARIO", help="calibration | blocker | rotary")
+    add_rig_options(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output frame folder")
+    p.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    p.add_argument("--spp", type=int, default=None,
+                   help="laser samples per sensor row of the light tracer "
+                        "(RenderSettings.samples_per_row; default: the renderer's)")
+    p.add_argument("--binning", type=int, default=1, metavar="K",
+                   help="k × k binned sensor, same geometry (quick mode; default 1)")
+    p.add_argument("--truth-pixels", default=None, metavar="every|N|none",
+                   help="per-pixel truth maps: every frame, every N-th, or none "
+                        "(default: every frame for calibration/blocker, every 30th for rotary)")
+    g = p.add_argument_group("calibration")
+    g.add_argument("--steps", type=int, help="number of plate positions (default 27)")
+    g.add_argument("--step-mm", type=float, help="stage step [mm] (default 10; the paper used 20)")
+    g.add_argument("--start-mm", type=float, help="first stage position s [mm] (default 0)")
+    g.add_argument("--plate-height-mm", type=float, help="plate height [mm] (default 89)")
+    g = p.add_argument_group("blocker and rotary")
+    g.add_argument("--part", help="rotary: part name or mesh file (default cylinder)")
+    g.add_argument("--step-deg", type=float, help="rotary: angle step [deg] (default 0.5)")
+    g.add_argument("--axis-mm", type=float, help="rotary axis position [mm] (default: the rig's)")
+    g.add_argument("--frames", type=int, help="blocker: number of frames (default 1); "
+                                              "rotary: render only the first N")
+    g.add_argument("--blocker-thickness-mm", type=float, help="blocker thickness [mm] (default 2)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=_run)
     return p
 
 
-def _run(args):
-    raise ScheimpflugError("'render' is not available yet in this version")
+def _truth_every(value: str | None, scenario: str) -> int:
+    if value is None:
+        return 30 if scenario == "rotary" else 1
+    if value == "every":
+        return 1
+    if value == "none":
+        return 0
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ScheimpflugError(f"--truth-pixels {value!r}: expected 'every', 'none' or an integer >= 1")
+    return n
+
+
+def _scenario_options(args) -> dict:
+    for key, scen in _APPLIES.items():
+        if getattr(args, key) is not None and args.scenario not in scen:
+            flag = "--" + key.replace("_", "-")
+            raise ScheimpflugError(f"{flag} applies to the {' and '.join(scen)} scenario"
+                                   f"{'s' if len(scen) > 1 else ''} only, not {args.scenario!r}")
+    names = {"calibration": ("steps", "step_mm", "start_mm", "plate_height_mm"),
+             "blocker": ("frames",), "rotary": ("part", "step_deg", "frames")}[args.scenario]
+    opts = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+    if args.scenario == "blocker" and args.blocker_thickness_mm is not None:
+        opts["thickness_mm"] = args.blocker_thickness_mm
+    opts["truth_pixels_every"] = _truth_every(args.truth_pixels, args.scenario)
+    return opts
+
+
+def _rig(args):
+    from sim.sensor import binned_rig
+
+    rig = rig_from_args(args)
+    if args.axis_mm is not None and args.scenario in _APPLIES["axis_mm"]:
+        rig = rig.replace(stage={"axis_mm": args.axis_mm})
+    if args.binning < 1:
+        raise ScheimpflugError(f"--binning {args.binning}: must be an integer >= 1")
+    try:
+        return binned_rig(rig, args.binning)
+    except ValueError as exc:
+        raise ScheimpflugError(f"--binning {args.binning}: {exc}") from None
+
+
+def _check_out(path: str) -> None:
+    """Fail before any rendering when ``--out`` cannot be a writable folder."""
+    import os
+    from pathlib import Path
+
+    p = Path(path)
+    probe = p
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        what = "is not a folder" if not probe.is_dir() else "is not writable"
+        raise RenderError(f"output folder {path!r} is not writable: {str(probe)!r} {what}")
+
+
+def _run(args) -> int:
+    from sim.scenarios import SCENARIOS, build_scenario
+
+    if args.scenario not in SCENARIOS:
+        raise ScheimpflugError(f"unknown scenario {args.scenario!r} (known: {', '.join(SCENARIOS)})")
+    opts = _scenario_options(args)
+    if args.seed < 0:
+        raise ScheimpflugError(f"--seed {args.seed}: must be >= 0")
+    if args.spp is not None and args.spp < 1:
+        raise ScheimpflugError(f"--spp {args.spp}: must be >= 1")
+    rig = _rig(args)
+    _check_out(args.out)
+    scenario = build_scenario(args.scenario, rig, seed=args.seed, **opts)
+    for msg in scenario.warnings:
+        print(f"scheimpflug render: warning: {msg}", file=sys.stderr)
+    stats, manifest = _render(rig, scenario, args)
+    if args.json:
+        print_json(_summary(args, stats, manifest))
+    return 0
+
+
+def _render(rig, scenario, args):
+    from sim.writer import MitsubaTwin, build_manifest, generator_info, render_scenario
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        twin = MitsubaTwin(rig, scenario.assembly, spp=args.spp)
+    for w in caught:
+        print(f"scheimpflug render: warning: {w.message}", file=sys.stderr)
+    manifest = build_manifest(rig, scenario, args.seed, twin.spp, twin.variant, generator_info(),
+                              twin.describe())
+
+    def warn(msg):
+        print(f"scheimpflug render: warning: {msg}", file=sys.stderr)
+
+    return render_scenario(rig, scenario, args.out, twin, manifest, quiet=args.quiet, warn=warn), manifest
+
+
+def _summary(args, stats, manifest) -> dict:
+    return {"out": str(args.out), "scenario": manifest["scenario"], "frames": stats.frames_total,
+            "frames_rendered": stats.frames_rendered, "frames_skipped": stats.frames_skipped,
+            "frames_without_stripe": stats.frames_without_stripe, "wall_s": stats.wall_s,
+            "seconds": stats.seconds, "spp": manifest["render"]["spp"],
+            "variant": manifest["render"]["variant"]}

@@ -1,0 +1,447 @@
+"""Exact ground truth from geometry (never from the rendered image).
+
+Per frame the twin knows, from the posed meshes alone:
+
+**Stripe centre per row.**  The laser sheet's mid-plane (stage y = 0) cuts the
+posed mesh in a polyline (:func:`sheet_section`).  For every sensor row r the
+points of that polyline whose projection (:func:`scheimpflug.camera.project_points`,
+the camera's definition, misalignments and distortion included) lies exactly on
+the row's centre line v = r are found (:func:`row_crossings`; the projected
+v along each segment is solved to < 1e-9 px).  A crossing counts only if it is
+
+* visible: the ray from the lens centre to the point meets no surface more than
+  ``TruthTolerances.visibility_mm`` before it (the chief ray of the point);
+* lit: the segment from the laser origin to the point is likewise unobstructed,
+  and the point lies inside the fan (elevation from the laser origin, in the
+  sheet, within ±fan_angle_deg/2 — the nominal fan edge);
+* on the sensor: −0.5 ≤ u ≤ columns − 0.5.
+
+Several surviving crossings in one row (e.g. two surfaces at the same height
+both in view) are counted in ``stripe_count``; the *primary* one kept in
+``stripe_u`` / ``stripe_point_mm`` is the one with the smallest u, i.e. the
+smallest distance D from the object hinge along the sheet (the surface nearest
+the laser/camera side of the measuring range).
+
+**Per-pixel truth.**  One chief ray per pixel centre (from the lens centre along
+:func:`scheimpflug.camera.chief_ray_from_pixel`): the first surface it meets,
+its 3-D point and object id (0 = nothing).
+
+**Truth file** ``truth/NNNNN.npz`` (numpy ``savez_compressed``), keys:
+
+======================  =====================  ==============================================
+key                     shape, dtype            meaning
+======================  =====================  ==============================================
+``stripe_u``            (rows,) float64         exact stripe-centre column per row [px]; NaN = none
+``stripe_point_mm``     (rows, 3) float64       its 3-D point in the reference frame [mm]; NaN = none
+``stripe_object_id``    (rows,) int16           object id of that point (0 = none)
+``stripe_count``        (rows,) uint8           number of visible, lit crossings in the row
+``point_mm``            (rows, columns, 3) f32  per-pixel chief-ray hit, reference frame [mm]; NaN
+                                                = nothing (only in frames with pixel truth)
+``object_id``           (rows, columns) uint16  per-pixel object id, 0 = nothing (same frames)
+======================  =====================  ==============================================
+
+Reference frame: the stage frame of :mod:`sim.stages` with the part at
+θ = 0 for the rotary stage (``truth/mesh.ply`` is in this frame, so truth points
+lie on it); for the calibration plate, the stage frame itself (the plate moves
+in it; ``truth/mesh.ply`` is the plate at the first stage position).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numba
+import numpy as np
+
+from scheimpflug.camera import chief_ray_from_pixel, project_points, sensor_pose
+from scheimpflug.hinge import hinge_geometry
+from scheimpflug.rig import Rig
+
+from .stages import axis_distance_mm, invert, transform_points
+
+__all__ = [
+    "BruteForceCaster",
+    "RayCaster",
+    "SceneCaster",
+    "StripeTruth",
+    "TruthTolerances",
+    "laser_origin_mm",
+    "pixel_directions",
+    "pixel_truth",
+    "rig_truth",
+    "row_crossings",
+    "sheet_section",
+    "stripe_truth",
+]
+
+
+@dataclass(frozen=True)
+class TruthTolerances:
+    """Numerical tolerances of the truth (one place, one reason each)."""
+
+    #: a surface closer than this to a point along its camera/laser ray does not hide it [mm]:
+    #: ≫ float32 rounding of rig-frame vertices (≈ 3e-5 mm at 600 mm), ≪ any real occluder.
+    visibility_mm: float = 0.005
+    #: stop refining a row crossing when |v − r| is below this [px].
+    row_residual_px: float = 1e-9
+    #: at most this many secant steps per crossing.
+    max_iterations: int = 30
+
+
+class RayCaster(Protocol):
+    """First-hit ray queries in the rig frame, for the scene posed for the current frame."""
+
+    def first_hit(self, origins_mm: np.ndarray, directions: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) distance to the first hit [mm] (inf = none) and (n,) object id (0 = none)."""
+
+
+# ------------------------------------------------------------------ sheet section
+
+
+def sheet_section(vertices_mm, faces, face_ids, plane_point_mm, plane_normal
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Cut a triangle mesh by a plane.
+
+    Parameters
+    ----------
+    vertices_mm : (n, 3) float [mm]
+    faces : (m, 3) int
+    face_ids : (m,) int, object id per face
+    plane_point_mm : (3,) float, a point of the plane [mm]
+    plane_normal : (3,) float, its normal
+
+    Returns
+    -------
+    segments : (k, 2, 3) float64 [mm]
+    segment_ids : (k,) int, object id of each segment's face
+
+    Notes
+    -----
+    Vertices with signed distance ≥ 0 count as above the plane, so a plane
+    through vertices still gives a gap-free polyline (possibly with
+    zero-length segments).  Each crossing edge is interpolated from its
+    lower-indexed vertex, so neighbouring faces share bit-identical points.
+    """
+    v = np.asarray(vertices_mm, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    n = np.asarray(plane_normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    d = v @ n - np.asarray(plane_point_mm, dtype=np.float64) @ n
+    above_v = d >= 0
+    cut = _cut_faces(above_v, f)
+    fc = f[cut]
+    ac = above_v[fc]
+    pts = []
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        a, b = np.minimum(fc[:, i], fc[:, j]), np.maximum(fc[:, i], fc[:, j])
+        crosses = ac[:, i] != ac[:, j]
+        t = np.where(crosses, d[a], 0.0) / np.where(crosses, d[a] - d[b], 1.0)
+        p = v[a] + t[:, None] * (v[b] - v[a])
+        pts.append((p, crosses))
+    p_all = np.stack([p for p, _ in pts], axis=1)          # (k, 3 edges, 3)
+    m_all = np.stack([m for _, m in pts], axis=1)          # (k, 3) exactly two True
+    order = np.argsort(~m_all, axis=1, kind="stable")[:, :2]
+    segments = np.take_along_axis(p_all, order[:, :, None], axis=1)
+    return segments, np.asarray(face_ids)[cut]
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _cut_faces(above, faces):  # pragma: no cover - compiled
+    """(m,) bool: faces whose vertices lie on both sides (``above`` per vertex)."""
+    cut = np.empty(faces.shape[0], dtype=np.bool_)
+    for i in numba.prange(faces.shape[0]):
+        n = int(above[faces[i, 0]]) + int(above[faces[i, 1]]) + int(above[faces[i, 2]])
+        cut[i] = n == 1 or n == 2
+    return cut
+
+
+# ------------------------------------------------------------------ row crossings
+
+
+def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(), pose=None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where projected segments cross row centre lines v = r (r = 0 … rows − 1).
+
+    Parameters
+    ----------
+    segments_mm : (k, 2, 3) float, rig-frame segments [mm] (in front of the lens)
+
+    Returns
+    -------
+    rows : (c,) int, row index of each crossing
+    u_px : (c,) float64, column of the crossing [px]
+    points_mm : (c, 3) float64, rig-frame point of the crossing [mm]
+    segment_index : (c,) int, which segment it lies on
+
+    Notes
+    -----
+    Rows are taken half-open, min(v0, v1) ≤ r < max(v0, v1), so a polyline
+    vertex on a row centre is counted once.  The crossing parameter t along the
+    segment is found by the secant method on the exact projection, starting
+    from the linear interpolation of the projected end points.
+    """
+    pose = sensor_pose(rig) if pose is None else pose
+    seg = np.asarray(segments_mm, dtype=np.float64).reshape(-1, 2, 3)
+    v_end = project_points(rig, seg, pose).uv_px[..., 1]   # (k, 2)
+    lo, hi = np.minimum(v_end[:, 0], v_end[:, 1]), np.maximum(v_end[:, 0], v_end[:, 1])
+    r_lo = np.clip(np.ceil(lo), 0, rig.sensor.rows)
+    r_hi = np.clip(np.ceil(hi), 0, rig.sensor.rows)          # exclusive
+    ok = np.isfinite(lo) & np.isfinite(hi)
+    count = np.where(ok, r_hi - r_lo, 0).astype(np.int64)
+    idx = np.repeat(np.arange(len(seg)), count)
+    first = np.repeat(np.cumsum(count) - count, count)
+    rows = (np.repeat(r_lo, count) + np.arange(count.sum()) - first).astype(np.int64)
+    t = _solve_rows(rig, pose, seg[idx], v_end[idx], rows.astype(np.float64), tol)
+    pts = seg[idx, 0] + t[:, None] * (seg[idx, 1] - seg[idx, 0])
+    u = project_points(rig, pts, pose).uv_px[:, 0]
+    return rows, u, pts, idx
+
+
+def _solve_rows(rig, pose, seg, v_end, target, tol) -> np.ndarray:
+    """Secant solve of v(P(t)) = target on each segment; t in [0, 1]."""
+    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
+    f0, f1 = v_end[:, 0] - target, v_end[:, 1] - target
+    for _ in range(tol.max_iterations):
+        denom = f1 - f0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t2 = np.where(denom != 0, t1 - f1 * (t1 - t0) / denom, t1)
+        t2 = np.clip(t2, 0.0, 1.0)
+        p = seg[:, 0] + t2[:, None] * (seg[:, 1] - seg[:, 0])
+        f2 = project_points(rig, p, pose).uv_px[:, 1] - target
+        t0, f0, t1, f1 = t1, f1, t2, f2
+        if not np.any(np.abs(f1) > tol.row_residual_px):
+            break
+    return t1
+
+
+# ------------------------------------------------------------------ visibility
+
+
+def laser_origin_mm(rig: Rig) -> np.ndarray:
+    """Rig position (3,) of the laser origin: on the sheet at x = origin_x_mm, z = 0 [mm]."""
+    x = rig.laser.origin_x_mm
+    return np.array([x, rig.laser.scheimpflug_distance_mm - x * rig.laser.tan_phi, 0.0])
+
+
+def _unobstructed(caster: RayCaster, origin, points, tol: TruthTolerances) -> np.ndarray:
+    """(n,) bool: the segment origin → point meets no surface before the point."""
+    delta = points - origin
+    dist = np.linalg.norm(delta, axis=1)
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    hit_t, _ = caster.first_hit(np.broadcast_to(origin, points.shape).copy(), delta / dist[:, None])
+    return hit_t >= dist - tol.visibility_mm
+
+
+def _in_fan(rig: Rig, points) -> np.ndarray:
+    g = hinge_geometry(rig)
+    rel = points - laser_origin_mm(rig)
+    elevation = np.degrees(np.arctan2(rel[:, 2], rel @ g.propagation_dir))
+    return np.abs(elevation) <= 0.5 * rig.laser.fan_angle_deg
+
+
+# ------------------------------------------------------------------ stripe truth
+
+
+@dataclass(frozen=True, eq=False)
+class StripeTruth:
+    """Per-row stripe truth of one frame (see the module docstring for the meaning).
+
+    stripe_u : (rows,) float64 [px]; stripe_point_mm : (rows, 3) float64 [mm, reference frame];
+    stripe_object_id : (rows,) int16; stripe_count : (rows,) uint8.
+    """
+
+    stripe_u: np.ndarray
+    stripe_point_mm: np.ndarray
+    stripe_object_id: np.ndarray
+    stripe_count: np.ndarray
+
+    def arrays(self) -> dict:
+        return {"stripe_u": self.stripe_u, "stripe_point_mm": self.stripe_point_mm,
+                "stripe_object_id": self.stripe_object_id, "stripe_count": self.stripe_count}
+
+
+def stripe_truth(rig: Rig, vertices_part_mm, faces, face_ids, rig_from_part, ref_from_part,
+                 caster: RayCaster, tol: TruthTolerances = TruthTolerances()) -> StripeTruth:
+    """Exact stripe centre per row of one frame.
+
+    Parameters
+    ----------
+    vertices_part_mm, faces, face_ids : the scene mesh in the part frame [mm]
+        ((n, 3) float, (m, 3) int, (m,) int object ids).
+    rig_from_part, ref_from_part : (4, 4) poses of this frame.
+    caster : first-hit queries in the rig frame for the scene posed by ``rig_from_part``.
+    """
+    g = hinge_geometry(rig)
+    part_from_rig = invert(rig_from_part)
+    # cut in the part frame (no mesh transform), then move the few segment points
+    plane_point = transform_points(part_from_rig, g.object_hinge_mm)
+    plane_normal = part_from_rig[:3, :3] @ g.sheet_normal
+    seg, seg_ids = sheet_section(vertices_part_mm, faces, face_ids, plane_point, plane_normal)
+    seg = transform_points(rig_from_part, seg)
+    seg = seg[(seg[:, :, 0] > rig.lens.focal_length_mm).all(axis=1)]  # images exist in front of F
+    rows, u, pts, idx = row_crossings(rig, seg, tol)
+    ids = seg_ids[idx] if len(idx) else np.zeros(0, dtype=np.int64)
+    keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts)
+    rows, u, pts, ids = rows[keep], u[keep], pts[keep], ids[keep]
+    keep = _unobstructed(caster, np.zeros(3), pts, tol)
+    keep[keep] = _unobstructed(caster, laser_origin_mm(rig), pts[keep], tol)
+    return _primary_per_row(rig.sensor.rows, rows[keep], u[keep],
+                            transform_points(ref_from_part @ part_from_rig, pts[keep]), ids[keep])
+
+
+def _primary_per_row(n_rows, rows, u, pts_ref, ids) -> StripeTruth:
+    stripe_u = np.full(n_rows, np.nan)
+    points = np.full((n_rows, 3), np.nan)
+    obj = np.zeros(n_rows, dtype=np.int16)
+    count = np.minimum(np.bincount(rows, minlength=n_rows), 255).astype(np.uint8)
+    order = np.lexsort((u, rows))           # by row, then by u ascending
+    r_sorted = rows[order]
+    first = order[np.unique(r_sorted, return_index=True)[1]]   # smallest u of each row
+    stripe_u[rows[first]] = u[first]
+    points[rows[first]] = pts_ref[first]
+    obj[rows[first]] = ids[first]
+    return StripeTruth(stripe_u, points, obj, count)
+
+
+# ------------------------------------------------------------------ per-pixel truth
+
+
+def pixel_directions(rig: Rig) -> np.ndarray:
+    """Unit chief-ray directions of every pixel centre, (rows·columns, 3) float64, row-major.
+
+    They depend on the rig only: compute once per run and pass to :func:`pixel_truth`.
+    """
+    n_r, n_c = rig.sensor.rows, rig.sensor.columns
+    uv = np.stack(np.meshgrid(np.arange(n_c, dtype=np.float64),
+                              np.arange(n_r, dtype=np.float64)), axis=-1).reshape(-1, 2)
+    return chief_ray_from_pixel(rig, uv, sensor_pose(rig))
+
+
+def pixel_truth(rig: Rig, caster: RayCaster, ref_from_rig, directions=None,
+                rows_per_batch: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Chief-ray hit of every pixel centre.
+
+    Parameters
+    ----------
+    directions : (rows·columns, 3) float, optional
+        :func:`pixel_directions` of ``rig`` (computed here when not given).
+
+    Returns
+    -------
+    point_mm : (rows, columns, 3) float32, hit point in the reference frame [mm]; NaN = none
+    object_id : (rows, columns) uint16, 0 = none
+    """
+    n_r, n_c = rig.sensor.rows, rig.sensor.columns
+    w_all = pixel_directions(rig) if directions is None else directions
+    if w_all.shape != (n_r * n_c, 3):
+        raise ValueError(f"directions must have shape ({n_r * n_c}, 3), got {w_all.shape}")
+    point = np.empty((n_r, n_c, 3), dtype=np.float32)
+    obj = np.empty((n_r, n_c), dtype=np.uint16)
+    rot, shift = np.asarray(ref_from_rig)[:3, :3], np.asarray(ref_from_rig)[:3, 3]
+    for r0 in range(0, n_r, rows_per_batch):
+        r1 = min(n_r, r0 + rows_per_batch)
+        w = w_all[r0 * n_c:r1 * n_c]
+        t, ids = caster.first_hit(np.zeros_like(w), w)
+        hit = np.isfinite(t)
+        # p_ref = R·(t·w) + T = t·(R·w) + T; misses → NaN
+        p = np.where(hit, t, np.nan)[:, None] * (w @ rot.T) + shift
+        point[r0:r1] = p.reshape(r1 - r0, n_c, 3)
+        obj[r0:r1] = np.where(hit, ids, 0).reshape(r1 - r0, n_c)
+    return point, obj
+
+
+# ------------------------------------------------------------------ closed-form rig truth
+
+
+def rig_truth(rig: Rig) -> dict:
+    """Closed-form constants of ``rig`` (:mod:`scheimpflug.hinge`), JSON-ready.
+
+    ``hinge_px`` [u_h, v_h] (also as ``hinge_u_px``, ``hinge_v_px``) [px],
+    ``F2_px_mm`` [px·mm], ``C_mm`` [mm], ``d0_mm`` [mm],
+    ``axis_mm`` [mm] and ``D_axis_mm`` = axis_mm − d0_mm [mm], ``tilt_deg`` [deg].
+    These describe the *ideal* rig: misalignments and distortion are not in them.
+    """
+    g = hinge_geometry(rig)
+    return {"hinge_px": [g.hinge_column, g.axis_row], "hinge_u_px": g.hinge_column,
+            "hinge_v_px": g.axis_row, "F2_px_mm": g.F2_px_mm, "C_mm": g.C_mm,
+            "d0_mm": rig.stage.d0_mm, "axis_mm": rig.stage.axis_mm,
+            "D_axis_mm": axis_distance_mm(rig), "tilt_deg": g.tilt_deg,
+            "tan_beta": g.tan_beta,
+            "ideal": all(getattr(rig.sensor, k) == 0 for k in
+                         ("roll_deg", "tilt_error_deg", "offset_u_px", "offset_v_px",
+                          "offset_normal_um")) and rig.lens.k1 == 0 and rig.lens.k2 == 0
+            and rig.stage.axis_tilt_deg == 0 and rig.stage.runout_um == 0}
+
+
+# ------------------------------------------------------------------ casters
+
+
+class SceneCaster:
+    """:class:`RayCaster` over a :class:`sim.scene.SimScene` (Mitsuba BVH, float32 geometry).
+
+    The scene must already be posed for the frame (``SimScene.set_pose``).
+    Rays are sent in batches of ``batch`` to bound memory.
+    """
+
+    def __init__(self, scene, batch: int = 1 << 20) -> None:
+        self.scene = scene
+        self.batch = batch
+
+    def first_hit(self, origins_mm, directions) -> tuple[np.ndarray, np.ndarray]:
+        o = np.asarray(origins_mm, dtype=np.float64)
+        d = np.asarray(directions, dtype=np.float64)
+        t = np.full(len(o), np.inf)
+        ids = np.zeros(len(o), dtype=np.int64)
+        for i in range(0, len(o), self.batch):
+            hits = self.scene.intersect(o[i:i + self.batch], d[i:i + self.batch])
+            t[i:i + self.batch], ids[i:i + self.batch] = hits.t, hits.object_id
+        return t, ids
+
+
+
+class BruteForceCaster:
+    """First-hit queries against every triangle (Möller–Trumbore, float64, numpy).
+
+    Exact and dependency-free but O(rays × triangles): for small test scenes
+    and for cross-checking :class:`sim.scene.SimScene`.
+
+    Parameters
+    ----------
+    vertices_mm : (n, 3) float, rig frame [mm]; faces : (m, 3) int; face_ids : (m,) int.
+    """
+
+    def __init__(self, vertices_mm, faces, face_ids, chunk: int = 2_000_000) -> None:
+        v = np.asarray(vertices_mm, dtype=np.float64)
+        f = np.asarray(faces, dtype=np.int64)
+        self.a, self.e1, self.e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+        self.ids = np.asarray(face_ids)
+        self.chunk = chunk
+
+    def first_hit(self, origins_mm, directions) -> tuple[np.ndarray, np.ndarray]:
+        o = np.asarray(origins_mm, dtype=np.float64)
+        d = np.asarray(directions, dtype=np.float64)
+        t_best = np.full(len(o), np.inf)
+        id_best = np.zeros(len(o), dtype=np.int64)
+        step = max(1, self.chunk // max(1, len(self.a)))
+        for i in range(0, len(o), step):
+            t, k = self._hits(o[i:i + step], d[i:i + step])
+            t_best[i:i + step], id_best[i:i + step] = t, np.where(np.isfinite(t), self.ids[k], 0)
+        return t_best, id_best
+
+    def _hits(self, o, d):
+        p = np.cross(d[:, None, :], self.e2[None])                       # (r, m, 3)
+        det = np.einsum("mk,rmk->rm", self.e1, p)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / det
+            s = o[:, None, :] - self.a[None]
+            bu = np.einsum("rmk,rmk->rm", s, p) * inv
+            q = np.cross(s, self.e1[None])
+            bv = np.einsum("rk,rmk->rm", d, q) * inv
+            t = np.einsum("mk,rmk->rm", self.e2, q) * inv
+            ok = (np.abs(det) > 1e-300) & (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > 1e-9)
+        t = np.where(ok, t, np.inf)
+        k = np.argmin(t, axis=1)
+        return t[np.arange(len(o)), k], k

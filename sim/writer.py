@@ -1,0 +1,547 @@
+"""The frame folder of INTERFACE.md: render a scenario frame by frame, resumable.
+
+Layout::
+
+    DIR/manifest.json        rig, scenario, parameters, one entry per frame (below)
+    DIR/frames/NNNNN.png     16-bit grayscale PNG, raw ADC value (not shifted; see adc_bits)
+    DIR/truth/NNNNN.npz      per-frame truth (format: sim.truth module docstring)
+    DIR/truth/mesh.ply       the scene in the truth reference frame (object_id per face)
+    DIR/truth/mesh_NNNNN.ply calibration only: the plate at frame NNNNN's stage position
+    DIR/truth/rig_truth.json closed-form u_h, v_h, F², C, d0, axis of the rig (sim.truth.rig_truth)
+
+``manifest.json`` keys: ``format``, ``complete`` (false while rendering),
+``rig`` (rig_to_dict), ``scenario``, ``scenario_params``, ``seed``, ``render``
+({"spp", "variant", "settings": all RenderSettings}), ``adc_bits``, ``pixel_value`` (how DN are stored),
+``truth`` (format description, reference frame, which frames have per-pixel
+maps), ``generator`` (program and library versions) and ``frames``:
+``[{"file": "frames/00000.png", "truth": "truth/00000.npz", "stage_mm": s |
+"angle_deg": θ, "exposure_ms": ..., "seed": ..., "pixel_truth": bool}, ...]``.
+When finished it also lists ``frames_without_stripe``.
+
+Restart: the manifest is written first (``"complete": false``) listing every
+frame, and rewritten with ``"complete": true`` at the end.  A frame is complete
+when both its truth file and its PNG exist (each is written atomically, truth
+first).  Rendering into a folder that already has a manifest resumes it — frames
+already complete are skipped — if, and only if, the manifest describes the same
+run (same rig, scenario, parameters, seed, render settings, variant and frames); otherwise
+:class:`RenderError` names the first difference.  A non-empty folder without a
+manifest is refused.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Protocol
+
+import numpy as np
+
+from scheimpflug.errors import RenderError
+from scheimpflug.fileio import atomic_path, write_json_atomic
+from scheimpflug.progress import Progress
+from scheimpflug.rig import Rig, rig_to_dict
+
+from .scenarios import FrameSpec, Scenario
+from .sensor import SensorModel, apply_sensor, frame_rng
+from .stages import invert
+from .truth import RayCaster, pixel_directions, pixel_truth, rig_truth, stripe_truth
+
+__all__ = [
+    "FORMAT",
+    "MitsubaTwin",
+    "PNG_COMPRESSION",
+    "RenderStats",
+    "Twin",
+    "build_manifest",
+    "encode_png16",
+    "frame_paths",
+    "generator_info",
+    "prepare_folder",
+    "read_png",
+    "render_scenario",
+    "write_png",
+]
+
+FORMAT = "scheimpflug-frames/1"
+#: zlib level of the 16-bit PNGs (:func:`encode_png16`: filter "none", one zlib stream).
+#: Measured on a full paper frame of the cylinder scan: this encoder at level 1 ≈ 42 ms /
+#: 1.18 MB; OpenCV's imwrite at level 1 ≈ 66 ms / 1.26 MB (Huffman-only ≈ 59 ms / 1.11 MB),
+#: level 3 ≈ 124 ms / 1.15 MB, level 0 ≈ 32 ms / 4.7 MB (benchmarks/bench_scan.py prints
+#: the comparison).  Noise-dominated frames gain little from filters or higher levels.
+PNG_COMPRESSION = 1
+_IDENTITY_KEYS = ("format", "rig", "scenario", "scenario_params", "seed", "render", "frames")
+
+
+class Twin(Protocol):
+    """What the frame loop needs from the renderer (:class:`MitsubaTwin`, or a test double)."""
+
+    def render(self, frame: FrameSpec) -> np.ndarray:
+        """Expected photo-electrons (rows, columns) float32 of the scene posed for ``frame``."""
+
+    def caster(self, frame: FrameSpec) -> RayCaster:
+        """First-hit ray queries (rig frame) for the scene posed for ``frame``."""
+
+
+#: RenderSettings field that ``--spp`` sets (the light tracer's laser samples per sensor row).
+_SPP_FIELDS = ("samples_per_row", "samples_per_fan_ray", "spp")
+
+
+class MitsubaTwin:
+    """The Mitsuba digital twin behind the frame loop: :class:`sim.scene.SimScene` +
+    :class:`sim.render.Renderer`, one scene for the whole run (posed per frame).
+
+    Parameters
+    ----------
+    rig : Rig
+    assembly : scenes.Assembly (part frame)
+    spp : int or None
+        Laser samples of the light tracer (``RenderSettings.samples_per_row``: splats per
+        lit sensor row); None = the renderer's default.
+    settings : sim.render.RenderSettings, optional (``spp`` overrides its samples).
+    """
+
+    def __init__(self, rig: Rig, assembly, spp: int | None = None, settings=None) -> None:
+        import dataclasses
+
+        from .render import Renderer, RenderSettings
+        from .scene import SimScene
+
+        settings = settings or RenderSettings()
+        field_names = {f.name for f in dataclasses.fields(settings)}
+        self.spp_field = next(n for n in _SPP_FIELDS if n in field_names)
+        if spp is not None:
+            settings = dataclasses.replace(settings, **{self.spp_field: int(spp)})
+        self.scene = SimScene(assembly.parts)
+        self.renderer = Renderer(rig, self.scene, settings)
+        self.settings = settings
+        self.variant = self.scene.variant
+        self.spp = int(getattr(settings, self.spp_field))
+        self._posed = None
+
+    def describe(self) -> dict:
+        """JSON-ready render description for the manifest (part of a run's identity)."""
+        import dataclasses
+
+        return {"spp": self.spp, "spp_means": f"RenderSettings.{self.spp_field}",
+                "variant": self.variant, "settings": dataclasses.asdict(self.settings)}
+
+    def render(self, frame: FrameSpec) -> np.ndarray:
+        """Expected electrons (rows, columns) float32 of ``frame`` (poses the scene)."""
+        image = self.renderer.render(frame.rig_from_part, frame.seed)
+        self._posed = frame.index
+        return image
+
+    def caster(self, frame: FrameSpec) -> RayCaster:
+        """Ray queries on the scene posed for ``frame``."""
+        from .truth import SceneCaster
+
+        if self._posed != frame.index:
+            self.scene.set_pose(frame.rig_from_part)
+            self._posed = frame.index
+        return SceneCaster(self.scene)
+
+
+# ------------------------------------------------------------------ files
+
+
+def frame_paths(out: Path, index: int) -> tuple[Path, Path]:
+    """(PNG path, truth path) of frame ``index``."""
+    return out / "frames" / f"{index:05d}.png", out / "truth" / f"{index:05d}.npz"
+
+
+def encode_png16(image: np.ndarray, compression: int = PNG_COMPRESSION) -> bytes:
+    """A (rows, columns) uint16 image as 16-bit grayscale PNG bytes (ISO/IEC 15948).
+
+    Filter type 0 (none) on every row and one zlib stream at ``compression``:
+    on noise-dominated frames the PNG filters and zlib levels > 1 buy little
+    size for a lot of time (see :data:`PNG_COMPRESSION`).
+    """
+    import struct
+    import zlib
+
+    if image.dtype != np.uint16 or image.ndim != 2:
+        raise ValueError(f"a frame must be a 2-D uint16 array, got {image.dtype} {image.shape}")
+    rows, cols = image.shape
+    raw = np.empty((rows, 2 * cols + 1), dtype=np.uint8)
+    raw[:, 0] = 0                                                   # filter: none
+    raw[:, 1:] = image.astype(">u2").view(np.uint8).reshape(rows, 2 * cols)
+    idat = zlib.compress(raw.data, int(compression))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data \
+            + struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)) & 0xFFFFFFFF)
+
+    header = struct.pack(">IIBBBBB", cols, rows, 16, 0, 0, 0, 0)   # 16-bit grayscale
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", idat) \
+        + chunk(b"IEND", b"")
+
+
+def write_png(path, image: np.ndarray, compression: int = PNG_COMPRESSION) -> None:
+    """Write a (rows, columns) uint16 image as a 16-bit grayscale PNG, atomically."""
+    data = encode_png16(image, compression)
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+    except OSError as exc:
+        raise RenderError(f"cannot write frame {str(path)!r}: {exc.strerror or exc}") from None
+
+
+def read_png(path) -> np.ndarray:
+    """Read a 16-bit grayscale PNG as (rows, columns) uint16."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise RenderError(f"cannot read frame {str(path)!r}")
+    return img
+
+
+def _write_npz(path: Path, arrays: dict) -> None:
+    """A compressed ``.npz`` (what ``np.savez_compressed`` writes, read with ``np.load``) at
+    zlib level 1: for the per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB."""
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for key, value in arrays.items():
+            with zf.open(f"{key}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.getvalue())
+
+
+# ------------------------------------------------------------------ manifest
+
+
+def generator_info() -> dict:
+    """Program and library versions, for the manifest's ``generator`` key."""
+    import platform
+    from importlib import metadata
+
+    versions = {}
+    for dist in ("scheimpflug", "numpy", "mitsuba", "drjit", "opencv-python-headless", "trimesh"):
+        try:
+            versions[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            versions[dist] = None
+    return {"program": "scheimpflug render", "python": platform.python_version(),
+            "versions": versions}
+
+
+def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: str,
+                   generator: dict | None = None, render: dict | None = None) -> dict:
+    """The manifest of a run (``"complete": false``).
+
+    ``render`` (e.g. :meth:`MitsubaTwin.describe`) replaces the default
+    ``{"spp": spp, "variant": variant}`` render description.
+    """
+    frames = [{"file": f"frames/{f.index:05d}.png", "truth": f"truth/{f.index:05d}.npz",
+               **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms, "seed": f.seed,
+               "pixel_truth": scenario.wants_pixel_truth(f.index)}
+              for f in scenario.frames]
+    return {
+        "format": FORMAT,
+        "complete": False,
+        "rig": rig_to_dict(rig),
+        "scenario": scenario.name,
+        "scenario_params": dict(scenario.params, truth_pixels_every=scenario.truth_pixels_every),
+        "seed": int(seed),
+        "render": dict(render) if render else {"spp": int(spp), "variant": variant},
+        "adc_bits": rig.sensor.adc_bits,
+        "pixel_value": "raw ADC code in uint16, 0 … 2**adc_bits − 1 (not shifted to 16 bit)",
+        "truth": {
+            "per_frame": "truth/NNNNN.npz: stripe_u (rows,) f64 [px], stripe_point_mm (rows, 3) "
+                         "f64 [mm], stripe_object_id (rows,) i16, stripe_count (rows,) u8; frames "
+                         "with pixel_truth also point_mm (rows, columns, 3) f32 [mm] and "
+                         "object_id (rows, columns) u16. NaN / 0 = none. See sim/truth.py.",
+            "reference_frame": ("stage frame with the part at angle 0" if scenario.name != "calibration"
+                                else "stage frame (the plate moves in it)"),
+            "stripe_rule": "sheet mid-plane ∩ mesh, visible from the lens centre and lit by the "
+                           "laser, crossing each row centre; primary = smallest u; stripe_count = "
+                           "number of crossings",
+            "mesh": "truth/mesh.ply" + (" (plate at the first stage position; truth/mesh_NNNNN.ply "
+                                        "per frame)" if scenario.name == "calibration" else ""),
+            "rig_truth": "truth/rig_truth.json",
+        },
+        "generator": dict(generator or {}),
+        "frames": frames,
+    }
+
+
+def _first_difference(old: dict, new: dict) -> str:
+    for key in _IDENTITY_KEYS:
+        a, b = old.get(key), new.get(key)
+        if json.dumps(a, sort_keys=True) != json.dumps(b, sort_keys=True):
+            if isinstance(a, dict) and isinstance(b, dict):
+                for sub in sorted(set(a) | set(b)):
+                    if json.dumps(a.get(sub), sort_keys=True) != json.dumps(b.get(sub), sort_keys=True):
+                        return f"{key}.{sub}"
+            return key
+    return ""
+
+
+def prepare_folder(out, manifest: dict) -> set[int]:
+    """Create or reopen the frame folder; return the indices of frames already complete.
+
+    Raises :class:`RenderError` if ``out`` cannot be written, is a non-empty folder
+    without a manifest, or holds a different run.
+    """
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise RenderError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+    done = _existing_run(out, manifest)
+    for sub in ("frames", "truth"):
+        (out / sub).mkdir(exist_ok=True)
+    _remove_stale_temporaries(out)
+    write_json_atomic(out / "manifest.json", manifest)
+    return done
+
+
+def _existing_run(out: Path, manifest: dict) -> set[int]:
+    path = out / "manifest.json"
+    if not path.exists():
+        others = [p.name for p in out.iterdir() if p.name not in ("frames", "truth")]
+        others += [f"{d}/{p.name}" for d in ("frames", "truth") if (out / d).is_dir()
+                   for p in (out / d).iterdir()]
+        if others:
+            raise RenderError(f"output folder {str(out)!r} is not empty and holds no manifest.json "
+                              f"(found {others[0]!r}); choose a new or empty folder")
+        return set()
+    try:
+        old = json.loads(path.read_text("utf-8"))
+    except (OSError, ValueError) as exc:
+        raise RenderError(f"{str(path)!r} exists but cannot be read ({exc}); remove the folder "
+                          "or choose another --out") from None
+    diff = _first_difference(old, manifest)
+    if diff:
+        raise RenderError(f"output folder {str(out)!r} holds a different run ({diff!r} differs from "
+                          "this command's); choose another --out or delete the folder to start over")
+    indices = [int(Path(e["file"]).stem) for e in manifest["frames"]]
+    return {i for i in indices if all(p.exists() for p in frame_paths(out, i))}
+
+
+def _remove_stale_temporaries(out: Path) -> None:
+    for d in (out, out / "frames", out / "truth"):
+        for p in d.glob(".*.tmp*"):
+            p.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------ the loop
+
+
+@dataclass
+class RenderStats:
+    """What a run did and where the time went [s]."""
+
+    frames_total: int = 0
+    frames_rendered: int = 0
+    frames_skipped: int = 0
+    frames_without_stripe: list = field(default_factory=list)
+    seconds: dict = field(default_factory=lambda: {"render": 0.0, "noise": 0.0, "png": 0.0,
+                                                   "truth": 0.0, "truth_pixels": 0.0,
+                                                   "truth_write": 0.0})
+    wall_s: float = 0.0
+
+
+def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
+    write_json_atomic(out / "truth" / "rig_truth.json", rig_truth(rig))
+    if not (out / "truth" / "mesh.ply").exists():
+        scenario.assembly.transformed(scenario.mesh_ref_from_part).to_ply(out / "truth" / "mesh.ply")
+    if scenario.name == "calibration":
+        for f in scenario.frames:
+            p = out / "truth" / f"mesh_{f.index:05d}.ply"
+            if not p.exists():
+                scenario.assembly.transformed(f.ref_from_part).to_ply(p)
+
+
+def _frame_truth(rig, scenario, frame, caster, stats, mesh) -> dict:
+    t0 = time.perf_counter()
+    arrays = stripe_truth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"],
+                          frame.rig_from_part, frame.ref_from_part, caster).arrays()
+    t1 = time.perf_counter()
+    stats.seconds["truth"] += t1 - t0
+    if scenario.wants_pixel_truth(frame.index):
+        ref_from_rig = frame.ref_from_part @ invert(frame.rig_from_part)
+        if "directions" not in mesh:
+            mesh["directions"] = pixel_directions(rig)     # per rig, once per run
+        arrays["point_mm"], arrays["object_id"] = pixel_truth(rig, caster, ref_from_rig,
+                                                              mesh["directions"])
+        stats.seconds["truth_pixels"] += time.perf_counter() - t1
+    return arrays
+
+
+def _scene_arrays(scenario: Scenario) -> dict:
+    """Per-run truth inputs: vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,), part frame
+    (plus ``directions``, the pixel chief rays, added on first use)."""
+    m = scenario.assembly.combined_mesh()
+    return {"vertices": np.asarray(m.vertices, dtype=np.float64),
+            "faces": np.asarray(m.faces, dtype=np.int64),
+            "face_ids": scenario.assembly.face_object_ids()}
+
+
+def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dict,
+                    quiet: bool = False, warn: Callable[[str], None] | None = None,
+                    overlap: bool = False) -> RenderStats:
+    """Render every frame of ``scenario`` not yet complete in ``out``; return timings.
+
+    Per frame: render, sensor noise, geometric truth (these use the posed scene),
+    truth file, PNG.  With ``overlap=True`` the noise and the two writes run in
+    one background thread while the next frame renders; results are identical,
+    but on the 2-core reference machine it gained nothing (216 ms/frame either
+    way for the full-resolution cylinder scan: every stage is already CPU-bound
+    and parallel), so it is off by default.  Frames whose truth holds no stripe
+    are reported through ``warn`` (default: stderr).  With ``overlap=True`` the
+    ``noise``/``png``/``truth_write`` entries of ``RenderStats.seconds`` are
+    background-thread time and do not add up to the wall time.
+    """
+    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    overlap = overlap and _concurrent_numba_ok()
+    out = Path(out)
+    done = prepare_folder(out, manifest)
+    _scene_truth_files(out, rig, scenario)
+    stats = RenderStats(frames_total=len(scenario.frames), frames_skipped=len(done))
+    t_start = time.perf_counter()
+    todo = [f for f in scenario.frames if f.index not in done]
+    with Progress(len(todo), label=f"render {scenario.name}", quiet=quiet) as bar:
+        _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar)
+    stats.wall_s = time.perf_counter() - t_start
+    _finish(out, manifest, scenario, stats, done)
+    if stats.frames_without_stripe:
+        warn(f"{len(stats.frames_without_stripe)} of {stats.frames_rendered} rendered frames hold "
+             f"no stripe: {_ranges(stats.frames_without_stripe)}")
+    return stats
+
+
+def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    model = SensorModel.from_rig(rig)
+    mesh = _scene_arrays(scenario)
+    pending: list = []
+    with ThreadPoolExecutor(max_workers=1, initializer=_single_threaded_numba) as pool:
+        for frame in todo:
+            electrons = _timed(stats, "render", twin.render, frame)
+            # sequential: the noise right after the render, before the truth's ray queries
+            # (measured ≈ 40 ms/frame slower on 2 cores just after Dr.Jit's ray casts)
+            image = None if overlap else _noise(electrons, model, frame, stats)
+            arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh)
+            job = (out, model, frame, electrons if image is None else None, image, arrays, stats)
+            if not overlap:
+                _finish_frame(*job)
+                bar.update()
+                continue
+            pending.append(pool.submit(_finish_frame, *job))
+            while len(pending) > 1 or (pending and pending[0].done()):
+                pending.pop(0).result()              # re-raises a failed write here
+                bar.update()
+        for fut in pending:
+            fut.result()
+            bar.update()
+
+
+def _ranges(indices) -> str:
+    """'0, 3–7, 9' for [0, 3, 4, 5, 6, 7, 9]."""
+    parts, idx = [], sorted(indices)
+    start = prev = idx[0]
+    for i in idx[1:] + [None]:
+        if i is not None and i == prev + 1:
+            prev = i
+            continue
+        parts.append(f"{start}" if start == prev else f"{start}–{prev}")
+        if i is not None:
+            start = prev = i
+    return ", ".join(parts)
+
+
+def _timed(stats: RenderStats, key: str, fn, *args):
+    t0 = time.perf_counter()
+    result = fn(*args)
+    stats.seconds[key] += time.perf_counter() - t0
+    return result
+
+
+def _noise(electrons, model, frame, stats) -> np.ndarray:
+    """The frame's raw ADC image: sensor noise seeded by the frame seed."""
+    return _timed(stats, "noise", apply_sensor, electrons, model, frame_rng(frame.seed, 0))
+
+
+def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
+    """Truth arrays of one frame (main thread: uses the posed scene); warns if no stripe."""
+    arrays = _frame_truth(rig, scenario, frame, twin.caster(frame), stats, mesh)
+    stats.frames_rendered += 1
+    if not np.isfinite(arrays["stripe_u"]).any():
+        stats.frames_without_stripe.append(frame.index)
+        if frame.index not in scenario.expected_empty:
+            warn(f"frame {frame.index} ({_describe(frame)}) holds no stripe: nothing lit by the "
+                 "laser is in view")
+    return arrays
+
+
+def _concurrent_numba_ok() -> bool:
+    """Whether numba's threading layer allows parallel kernels from two threads at once.
+
+    The writer thread (sensor kernels) and the main thread (truth kernels) may
+    launch parallel regions concurrently: fine with the OpenMP and TBB layers,
+    fatal with ``workqueue`` (numba aborts the process), so then no overlap.
+    """
+    import numba
+
+    from .sensor import poisson_counts
+
+    poisson_counts(np.zeros(1, np.float32), frame_rng(0, 0))   # initialises the layer
+    try:
+        return numba.threading_layer() in ("omp", "tbb")
+    except ValueError:  # pragma: no cover - layer not initialised
+        return False
+
+
+def _single_threaded_numba() -> None:
+    """The writer thread runs numba kernels on one thread (numba's setting is per thread):
+    parallel kernels competing with the renderer's threads for 2 cores stall badly."""
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except ImportError:  # pragma: no cover
+        pass
+
+
+def _finish_frame(out, model, frame, electrons, image, arrays, stats) -> None:
+    """Sensor noise (unless ``image`` is given), truth file, then PNG (its presence marks
+    the frame complete)."""
+    png, npz = frame_paths(out, frame.index)
+    if image is None:
+        image = _noise(electrons, model, frame, stats)
+    _timed(stats, "truth_write", _write_npz, npz, arrays)
+    _timed(stats, "png", write_png, png, image)
+
+
+def _describe(frame: FrameSpec) -> str:
+    if frame.stage_mm is not None:
+        return f"stage {frame.stage_mm:g} mm"
+    return f"angle {frame.angle_deg:g}°"
+
+
+def _finish(out: Path, manifest: dict, scenario: Scenario, stats: RenderStats,
+            skipped: set) -> None:
+    missing = [e["file"] for e, f in zip(manifest["frames"], scenario.frames)
+               if not all(p.exists() for p in frame_paths(out, f.index))]
+    if missing:
+        raise RenderError(f"{len(missing)} frames are missing after rendering (first: {missing[0]})")
+    no_stripe = set(stats.frames_without_stripe)
+    for i in skipped:   # frames complete before this run: read their truth
+        with np.load(frame_paths(out, i)[1]) as z:
+            if not np.isfinite(z["stripe_u"]).any():
+                no_stripe.add(i)
+    final = dict(manifest, complete=True, frames_without_stripe=sorted(no_stripe))
+    write_json_atomic(out / "manifest.json", final)
