@@ -269,7 +269,7 @@ def test_ambient_lambertian_plate_matches_radiance_formula(variant):
     g = pose.pitch_mm**2 * math.pi * (0.5 * 55 / 5.6) ** 2 * np.abs(q[:, 0]) / qn \
         * np.abs(q @ pose.normal) / qn / qn**2 * 1e-6
     photon = 6.62607015e-34 * 299792458.0 / 450e-9
-    expected = 0.35 / math.pi * 1.0 * g * 5e-3 * 0.75 / photon
+    expected = 0.35 / math.pi * 1.0 * g * rig.sensor.exposure_ms * 1e-3 * 0.75 / photon
     got = img[uv[:, 1].astype(int), uv[:, 0].astype(int)]
     np.testing.assert_allclose(got, expected, rtol=0.01)
 
