@@ -83,7 +83,7 @@ def _render(scenario: str, out: Path, rig_file: Path, plan: DemoPlan, seed: int,
     from .cli import main
 
     args = ["render", scenario, "--rig", str(rig_file), "--out", str(out), "--seed", str(seed),
-            "--binning", str(plan.binning), *opts] + (["--quiet"] if quiet else [])
+            "--binning", str(plan.binning), "--truth-pixels", "none", *opts] + (["--quiet"] if quiet else [])
     if main(args) != 0:
         raise ScheimpflugError(f"rendering the {scenario} scenario into {out} failed (see above)")
     return out
@@ -169,6 +169,18 @@ def _box_side_plane(rig: Rig) -> tuple[np.ndarray, float, np.ndarray]:
     return n, float(n @ t + plane["offset_mm"]), m
 
 
+def _box_side_points(xyz: np.ndarray, rig: Rig, box: dict, inset_mm: float = 5.0,
+                     band_mm: float = 3.0) -> np.ndarray:
+    """Points within ``band_mm`` of the box's +y side and ``inset_mm`` inside its edges
+    (the paper's hand-drawn region of interest, Fig. 8), as a boolean mask."""
+    n, off, m = _box_side_plane(rig)
+    t = m[:3, 3] + np.array([0.0, 0.0, rig.stage.rotary_table_z_mm])
+    local = (xyz - t) @ m[:3, :3]  # box frame: x along the length, z up from its bottom
+    half_len = 0.5 * box["length_mm"] - inset_mm
+    return ((np.abs(xyz @ n - off) < band_mm) & (np.abs(local[:, 0]) < half_len)
+            & (local[:, 2] > inset_mm) & (local[:, 2] < box["height_mm"] - inset_mm))
+
+
 def _pile_metrics(scan: dict, rig: Rig) -> dict:
     import scenes
     from .fitting import fit_circle_top_view, fit_plane_paper
@@ -180,10 +192,7 @@ def _pile_metrics(scan: dict, rig: Rig) -> dict:
     ring = parts["knurled_ring"].analytic
     in_ring = (xyz[:, 2] > table + ring["z0_mm"] + 1.0) & (xyz[:, 2] < table + ring["z1_mm"] - 1.0)
     circle = fit_circle_top_view(xyz[in_ring]) if in_ring.sum() >= 10 else None
-    n, off, _ = _box_side_plane(rig)
-    side = np.abs(xyz @ n - off) < 3.0
-    box_z = (xyz[:, 2] > table + 15.0 + 3.0) & (xyz[:, 2] < table + 15.0 + 62.0 - 3.0)
-    sel = side & box_z
+    sel = _box_side_points(xyz, rig, parts["box"].analytic)
     plane = fit_plane_paper(xyz[sel]) if sel.sum() >= 10 else None
     regions = {}
     for oid, p in ((p.object_id, p) for p in parts.values()):

@@ -28,9 +28,13 @@ Statistics (unsaturated, away from the clip):
 distribution wide compared to 1 DN).
 
 Random numbers: a :class:`numpy.random.Generator` on PCG64 seeded by
-``numpy.random.SeedSequence((seed, frame_index, 0x5E45))`` — the same
-``(seed, frame_index)`` always gives bit-identical frames (with the same
-numpy version), independent of how many frames were rendered before.
+``numpy.random.SeedSequence((seed, frame_index, 0x5E45))`` gives one 64-bit key
+per frame; every pixel then draws from its own counter-based SplitMix64
+stream started from a hash of (key, pixel index), inside one parallel numba
+kernel (shot noise by exact Poisson sampling, read noise by the inverse normal
+CDF, Wichura's AS241).  The
+same ``(seed, frame_index)`` always gives bit-identical frames, independent of
+how many frames were rendered before and of the number of threads.
 """
 
 from __future__ import annotations
@@ -108,62 +112,155 @@ def _ptrs_once(lam, u, v):  # pragma: no cover - compiled
     return -1.0
 
 
+@numba.njit(inline="always")
+def _invert_one(mean, u, inv_k):  # pragma: no cover - compiled
+    """min{k : F(k; mean) ≥ u}: the Poisson CDF inverted by summing the pmf."""
+    p = math.exp(-mean)
+    cdf = p
+    k = 0
+    while u > cdf and k < _MAX_COUNT:
+        p *= mean * inv_k[k]
+        k += 1
+        cdf += p
+    return k
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _inversion_kernel(lam, u, out, inv_k, ptrs_lambda):  # pragma: no cover - compiled
     """out[i] = min{k : F(k; λ_i) ≥ u[i]} for λ_i < ptrs_lambda, −1 (left to PTRS) otherwise."""
     for i in numba.prange(lam.shape[0]):
         mean = np.float64(lam[i])
-        if mean >= ptrs_lambda:
-            out[i] = -1.0
-            continue
-        p = math.exp(-mean)
-        cdf = p
-        k = 0
-        while u[i] > cdf and k < _MAX_COUNT:
-            p *= mean * inv_k[k]
-            k += 1
-            cdf += p
-        out[i] = k
+        out[i] = -1.0 if mean >= ptrs_lambda else _invert_one(mean, u[i], inv_k)
+
+
+# ---------------------------------------------------------------- counter-based random numbers
+# Every pixel draws from its own SplitMix64 stream, started from a hash of (frame key,
+# pixel index): the kernels run fully parallel, need no pre-generated uniform arrays, and
+# the result depends only on the key — never on the thread count or scheduling.
+
+_GAMMA = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_STREAM = np.uint64(0xD1B54A32D192ED03)
+
+
+@numba.njit(inline="always")
+def _mix64(z):  # pragma: no cover - compiled
+    """SplitMix64 finaliser (Steele, Lea & Flood 2014): a bijective 64-bit hash."""
+    z = (z ^ (z >> np.uint64(30))) * _M1
+    z = (z ^ (z >> np.uint64(27))) * _M2
+    return z ^ (z >> np.uint64(31))
+
+
+@numba.njit(inline="always")
+def _next_uniform(state):  # pragma: no cover - compiled
+    """Advance a SplitMix64 state; return (state, u) with u uniform in (0, 1)."""
+    state = state + _GAMMA
+    u = (np.float64(_mix64(state) >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
+    return state, u
+
+
+@numba.njit(inline="always")
+def _pixel_state(key, i):  # pragma: no cover - compiled
+    return _mix64(key ^ _mix64(np.uint64(i) * _STREAM + _GAMMA))
+
+
+@numba.njit(inline="always")
+def _poisson_one(mean, state, inv_k, ptrs_lambda):  # pragma: no cover - compiled
+    """One Poisson(mean) count (exact): CDF inversion below ptrs_lambda, PTRS above."""
+    if mean < ptrs_lambda:
+        state, u = _next_uniform(state)
+        return np.float64(_invert_one(mean, u, inv_k)), state
+    while True:
+        state, u = _next_uniform(state)
+        state, v = _next_uniform(state)
+        k = _ptrs_once(mean, u, v)
+        if k >= 0:
+            return k, state
+
+
+# Wichura's AS241 (PPND16): the standard normal quantile to ≈ 1e-16 relative, with no
+# transcendental function in the central 85 % (M. J. Wichura, Appl. Statist. 37, 1988).
+_A = (3.3871328727963666080e0, 1.3314166789178437745e+2, 1.9715909503065514427e+3,
+      1.3731693765509461125e+4, 4.5921953931549871457e+4, 6.7265770927008700853e+4,
+      3.3430575583588128105e+4, 2.5090809287301226727e+3)
+_B = (1.0, 4.2313330701600911252e+1, 6.8718700749205790830e+2, 5.3941960214247511077e+3,
+      2.1213794301586595867e+4, 3.9307895800092710610e+4, 2.8729085735721942674e+4,
+      5.2264952788528545610e+3)
+_C = (1.42343711074968357734e0, 4.63033784615654529590e0, 5.76949722146069140550e0,
+      3.64784832476320460504e0, 1.27045825245236838258e0, 2.41780725177450611770e-1,
+      2.27238449892691845833e-2, 7.74545014278341407640e-4)
+_D = (1.0, 2.05319162663775882187e0, 1.67638483018380384940e0, 6.89767334985100004550e-1,
+      1.48103976427480074590e-1, 1.51986665636164571966e-2, 5.47593808499534494600e-4,
+      1.05075007164441684324e-9)
+_E = (6.65790464350110377720e0, 5.46378491116411436990e0, 1.78482653991729133580e0,
+      2.96560571828504891230e-1, 2.65321895265761230930e-2, 1.24266094738807843860e-3,
+      2.71155556874348757815e-5, 2.01033439929228813265e-7)
+_F = (1.0, 5.99832206555887937690e-1, 1.36929880922735805310e-1, 1.48753612908506148525e-2,
+      7.86869131145613259100e-4, 1.84631831751005468180e-5, 1.42151175831644588870e-7,
+      2.04426310338993978564e-15)
+
+
+@numba.njit(inline="always")
+def _poly7(c, x):  # pragma: no cover - compiled
+    return (((((((c[7] * x + c[6]) * x + c[5]) * x + c[4]) * x + c[3]) * x + c[2]) * x + c[1]) * x
+            + c[0])
+
+
+@numba.njit(inline="always")
+def _normal_quantile(p):  # pragma: no cover - compiled
+    """Φ⁻¹(p) for p in (0, 1) (AS241)."""
+    q = p - 0.5
+    if abs(q) <= 0.425:
+        r = 0.180625 - q * q
+        return q * _poly7(_A, r) / _poly7(_B, r)
+    r = math.sqrt(-math.log(p if q < 0.0 else 1.0 - p))
+    if r <= 5.0:
+        z = _poly7(_C, r - 1.6) / _poly7(_D, r - 1.6)
+    else:
+        z = _poly7(_E, r - 5.0) / _poly7(_F, r - 5.0)
+    return -z if q < 0.0 else z
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _ptrs_kernel(lam, uv, out):  # pragma: no cover - compiled
-    """One PTRS trial per pixel with uniforms (uv[i], uv[n + i]); −1 = rejected."""
-    n = lam.shape[0]
-    for i in numba.prange(n):
-        out[i] = _ptrs_once(np.float64(lam[i]), uv[i], uv[n + i])
+def _poisson_kernel(lam, key, inv_k, ptrs_lambda, out):  # pragma: no cover - compiled
+    for i in numba.prange(lam.shape[0]):
+        state = _pixel_state(key, i)
+        out[i], state = _poisson_one(np.float64(lam[i]), state, inv_k, ptrs_lambda)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _adc_kernel(charge, noise, full_well, read_noise, inv_gain, offset, full_scale, out):
-    # pragma: no cover - compiled
-    """DN = clip(rint(offset + (min(n_e, FW) + σ·N)/g), 0, full scale) → uint16."""
-    for i in numba.prange(charge.shape[0]):
-        e = min(charge[i], full_well) + read_noise * noise[i]
+def _sensor_kernel(lam, key, inv_k, ptrs_lambda, full_well, read_noise, inv_gain, offset,
+                   full_scale, out):  # pragma: no cover - compiled
+    """Shot noise, full well, read noise (inverse normal CDF), gain, offset and ADC, per pixel."""
+    for i in numba.prange(lam.shape[0]):
+        state = _pixel_state(key, i)
+        n, state = _poisson_one(np.float64(lam[i]), state, inv_k, ptrs_lambda)
+        e = min(n, full_well)
+        if read_noise > 0.0:
+            state, u = _next_uniform(state)
+            e += read_noise * _normal_quantile(u)
         dn = np.rint(e * inv_gain + offset)
         out[i] = np.uint16(min(max(dn, 0.0), full_scale))
+
+
+def _frame_key(rng: np.random.Generator) -> np.uint64:
+    """One 64-bit key per frame from the frame's generator."""
+    return np.uint64(rng.integers(0, 2**63, dtype=np.int64)) ^ np.uint64(0x5DEECE66D)
 
 
 def poisson_counts(lam, rng: np.random.Generator) -> np.ndarray:
     """Poisson-distributed counts with means ``lam`` (any shape), float32.
 
-    Exact in distribution.  λ < 10: CDF inversion with one uniform per pixel
-    (``rng.random(n)``, float64); λ ≥ 10: PTRS trials with two fresh uniforms each,
-    repeated for the rejected pixels until all are accepted (≈ 80–90 % per round),
-    which is PTRS exactly.  Pixels are independent and the kernels are parallel
-    over them, so the result is deterministic whatever the thread count: same
-    generator state → same counts.
+    Exact in distribution.  λ < 10: CDF inversion with one uniform per pixel;
+    λ ≥ 10: PTRS trials with two fresh uniforms each until one is accepted.
+    The uniforms come from a counter-based SplitMix64 stream per pixel keyed by
+    one draw of ``rng``, so the kernel is parallel over pixels and deterministic
+    whatever the thread count: same generator state → same counts.
     """
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
     counts = np.empty(flat.size, dtype=np.float32)
-    _inversion_kernel(flat, rng.random(flat.size), counts, _INV_K, _PTRS_LAMBDA)
-    todo = np.flatnonzero(counts < 0)
-    while todo.size:
-        sub = np.ascontiguousarray(flat[todo])
-        trial = np.empty(todo.size, dtype=np.float32)
-        _ptrs_kernel(sub, rng.random(2 * todo.size), trial)
-        counts[todo] = trial
-        todo = todo[trial < 0]
+    _poisson_kernel(flat, _frame_key(rng), _INV_K, _PTRS_LAMBDA, counts)
     return counts.reshape(np.shape(lam))
 
 
@@ -238,15 +335,11 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator) -> np.
         raise ValueError(f"electrons must be a (rows, columns) array, got shape {lam.shape}")
     if not np.all(lam >= 0):  # also catches NaN
         raise ValueError("electrons must be finite and >= 0 (expected photo-electrons per pixel)")
-    charge = poisson_counts(lam, rng).reshape(-1)
-    if model.read_noise_e > 0:
-        noise = rng.standard_normal(charge.size, dtype=np.float32)
-    else:
-        noise = np.zeros(charge.size, dtype=np.float32)
-    out = np.empty(charge.size, dtype=np.uint16)
-    _adc_kernel(charge, noise, np.float32(model.full_well_e), np.float32(model.read_noise_e),
-                np.float32(1.0 / model.gain_e_per_dn), np.float32(model.dark_offset_dn),
-                np.float32(model.full_scale_dn), out)
+    flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
+    out = np.empty(flat.size, dtype=np.uint16)
+    _sensor_kernel(flat, _frame_key(rng), _INV_K, _PTRS_LAMBDA, np.float64(model.full_well_e),
+                   np.float64(model.read_noise_e), np.float64(1.0 / model.gain_e_per_dn),
+                   np.float64(model.dark_offset_dn), np.float64(model.full_scale_dn), out)
     return out.reshape(lam.shape)
 
 
