@@ -199,6 +199,7 @@ def _pile_metrics(scan: dict, rig: Rig) -> dict:
         mask = scan["body"] == oid
         if mask.any():
             regions[p.name] = distance_stats(dist[mask], scan["signed"])
+    n, off, _ = _box_side_plane(rig)
     truth_plane = [off / n[1], -n[0] / n[1], -n[2] / n[1]]  # y = a + b x + c z of the true side
     return {"ring": circle.to_dict() if circle else None, "ring_points": xyz[in_ring],
             "ring_true_diameter_mm": ring["od_mm"],
