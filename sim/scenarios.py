@@ -7,7 +7,7 @@ and the frame's noise seed).  Three scenarios (INTERFACE.md):
 ``calibration``
     The calibration plate (:func:`scenes.generators.plate`, height
     ``plate_height_mm``) on the translation stage at s = start + i·step
-    (:func:`sim.stages.rig_from_plate`).  Defaults: 27 steps of 10 mm from 0.
+    (:func:`sim.stages.rig_from_plate`).  Defaults: 27 steps of 10 mm from −10 mm (s = −10 … 250, all inside the paper rig's −18.8 … 255.5 mm view).
     The paper used 27 × 20 mm, but that spans 520 mm while its depth range is
     only ≈ 277 mm, so half of those frames would be empty; ``step_mm=20``
     reproduces the paper literally and the out-of-view frames are listed in
@@ -142,7 +142,7 @@ def _positive(name: str, value: float) -> None:
 
 
 def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: float = 10.0,
-                         start_mm: float = 0.0, plate_height_mm: float = 89.0,
+                         start_mm: float = -10.0, plate_height_mm: float = 89.0,
                          truth_pixels_every: int = 1) -> Scenario:
     """The calibration plate on the translation stage at s = start + i·step [mm]."""
     _positive_int("steps", steps)

@@ -68,7 +68,7 @@ def _digest(folder):
 
 
 def test_frame_folder_layout_and_manifest(tmp_path, small_rig):
-    sc = calibration_scenario(small_rig, steps=3, step_mm=100.0)
+    sc = calibration_scenario(small_rig, steps=3, step_mm=100.0, start_mm=0.0)
     _, stats = _run(small_rig, sc, tmp_path / "cal")
     out = tmp_path / "cal"
     m = json.loads((out / "manifest.json").read_text())
@@ -142,7 +142,7 @@ def test_refuses_non_empty_folder_and_unwritable_out(tmp_path, small_rig):
 
 
 def test_out_of_view_frames_warn(tmp_path, small_rig):
-    sc = calibration_scenario(small_rig, steps=3, step_mm=200.0)     # s = 0, 200, 400
+    sc = calibration_scenario(small_rig, steps=3, step_mm=200.0, start_mm=0.0)  # s = 0, 200, 400
     assert sc.warnings and "1 of 3" in sc.warnings[0] and "400" in sc.warnings[0]
     assert sc.expected_empty == {2}
     warnings = []
@@ -152,7 +152,7 @@ def test_out_of_view_frames_warn(tmp_path, small_rig):
     assert len(warnings) == 1 and "1 of 3 rendered frames hold no stripe: 2" in warnings[0]
     # an unpredicted empty frame (plate outside the sensor rows) is warned when it happens
     high_rig = small_rig.replace(stage={"calibration_table_z_mm": 400.0})
-    sc_high = calibration_scenario(high_rig, steps=2, step_mm=50.0)
+    sc_high = calibration_scenario(high_rig, steps=2, step_mm=50.0, start_mm=0.0)
     warnings = []
     _run(high_rig, sc_high, tmp_path / "h", warn=warnings.append)
     assert len(warnings) == 3 and "frame 0 (stage 0 mm) holds no stripe" in warnings[0]
