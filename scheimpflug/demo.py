@@ -58,7 +58,7 @@ def plan_for(quick: bool) -> DemoPlan:
     if quick:
         return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=28.0, calibration_start_mm=15.0,
                         cylinder_step_deg=10.0, pile_step_deg=10.0)
-    return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=0.0,
+    return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=-10.0,
                     cylinder_step_deg=0.5, pile_step_deg=1.0)
 
 
