@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 
-def run(contrast: float, step_deg: float, binning: int, root: Path) -> dict:
+def run(contrast: float, step_deg: float, binning: int, root: Path, methods) -> list[dict]:
     import scenes
     from scheimpflug.axis import locate_axis
     from scheimpflug.calibration import calibrate_folder
@@ -39,16 +39,21 @@ def run(contrast: float, step_deg: float, binning: int, root: Path) -> dict:
     cal = calibrate_folder(out / "cal").best
     axis_mm = locate_axis(out / "blk", cal).axis_mm
     ff = open_frame_folder(out / "cyl")
-    rows, us, _, _ = extract_folder(ff, "gaussian3", quiet=True)
-    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm)
     part = scenes.load_part("cylinder").parts[0]
     z_lo, z_hi = np.asarray(part.analytic["smooth_z_range_mm"]) + rig.stage.rotary_table_z_mm
-    xyz = cloud.xyz_mm[(cloud.xyz_mm[:, 2] > z_lo + 1) & (cloud.xyz_mm[:, 2] < z_hi - 1)]
     v, f, _ = read_mesh(out / "cyl" / "truth" / "mesh.ply")
-    d = PointToMesh(v, f).query(xyz).distance_mm
-    fit = fit_cylinder(xyz, axis_guess=np.array([0.0, 0.0, 1.0]))
-    return {"contrast": contrast, "points": len(xyz), "rms_mm": float(np.sqrt(np.mean(d**2))),
-            "diameter_mm": fit.diameter_mm, "axis_mm": axis_mm, "u_h": cal.hinge_u_px, "d0": cal.d0_mm}
+    tree = PointToMesh(v, f)
+    results = []
+    for method in methods:
+        rows, us, _, _ = extract_folder(ff, method, quiet=True)
+        cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm)
+        xyz = cloud.xyz_mm[(cloud.xyz_mm[:, 2] > z_lo + 1) & (cloud.xyz_mm[:, 2] < z_hi - 1)]
+        d = tree.query(xyz).distance_mm
+        fit = fit_cylinder(xyz, axis_guess=np.array([0.0, 0.0, 1.0]))
+        results.append({"method": method, "contrast": contrast, "points": len(xyz),
+                        "rms_mm": float(np.sqrt(np.mean(d**2))), "diameter_mm": fit.diameter_mm,
+                        "axis_mm": axis_mm, "u_h": cal.hinge_u_px, "d0": cal.d0_mm})
+    return results
 
 
 def main() -> None:
@@ -56,15 +61,17 @@ def main() -> None:
     ap.add_argument("--step-deg", type=float, default=2.0)
     ap.add_argument("--speckle", type=float, nargs="+", default=[0.0, 0.5, 1.0])
     ap.add_argument("--binning", type=int, default=1)
+    ap.add_argument("--methods", nargs="+", default=["gaussian3", "cog"],
+                    help="stripe detectors used for the reconstruction")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-acc-") as tmp:
         for c in args.speckle:
             t0 = time.perf_counter()
-            r = run(c, args.step_deg, args.binning, Path(tmp))
-            print(f"speckle contrast {c:4.2f}: smooth-part RMS to mesh {r['rms_mm']:.4f} mm, "
-                  f"diameter {r['diameter_mm']:.4f} mm (truth 100), {r['points']} points, "
-                  f"axis {r['axis_mm']:.3f} mm, u_h {r['u_h']:.2f} px, d0 {r['d0']:.3f} mm "
-                  f"[{time.perf_counter() - t0:.0f} s]", flush=True)
+            for r in run(c, args.step_deg, args.binning, Path(tmp), args.methods):
+                print(f"speckle contrast {c:4.2f}, {r['method']:<9s}: smooth-part RMS to mesh "
+                      f"{r['rms_mm']:.4f} mm, diameter {r['diameter_mm']:.4f} mm (truth 100), "
+                      f"{r['points']} points, axis {r['axis_mm']:.3f} mm, u_h {r['u_h']:.2f} px, "
+                      f"d0 {r['d0']:.3f} mm [{time.perf_counter() - t0:.0f} s]", flush=True)
 
 
 if __name__ == "__main__":

@@ -124,7 +124,7 @@ def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bo
     from .scoring import PointToMesh, distance_stats
 
     ff = open_frame_folder(folder)
-    rows, us, peaks, stats = extract_folder(ff, "gaussian3", quiet=quiet, label="reconstruct")
+    rows, us, peaks, stats = extract_folder(ff, "cog", quiet=quiet, label="reconstruct")
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], calibration, axis_mm,
                                  intensity=peaks)
     if len(cloud) == 0:

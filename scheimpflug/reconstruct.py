@@ -182,7 +182,7 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
                       intensity=ii[ok])
 
 
-def extract_folder(folder, method: str = "gaussian3", *, min_snr: float = 6.0,
+def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
                    keep_saturated: bool = False, quiet: bool = False, label: str = "extract"):
     """Stripe samples of every frame of a :class:`~scheimpflug.frames.FrameFolder`.
 

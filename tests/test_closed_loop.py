@@ -80,7 +80,7 @@ def test_cylinder_scan_against_its_mesh(folders, calibration):
     axis_mm = locate_axis(folders / "blk", cal).axis_mm
     assert abs(axis_mm - 179.45) < 0.05
     ff = open_frame_folder(folders / "cyl")
-    rows, us, _, _ = extract_folder(ff, "gaussian3", quiet=True)
+    rows, us, _, _ = extract_folder(ff, "cog", quiet=True)
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm)
     part = scenes.load_part("cylinder").parts[0]
     z_lo, z_hi = np.asarray(part.analytic["smooth_z_range_mm"]) + load_preset("paper").stage.rotary_table_z_mm

@@ -25,7 +25,9 @@ def add_parser(sub):
                       help="rotary axis position, stage coordinate [mm]")
     axis.add_argument("--axis-from", metavar="DIR", help="locate the axis from a blocker folder")
     p.add_argument("--out", required=True, metavar="CLOUD.ply", help="output point cloud")
-    p.add_argument("--method", choices=_METHODS, default="gaussian3", help="sub-pixel stripe detector")
+    p.add_argument("--method", choices=_METHODS, default="cog",
+                   help="sub-pixel stripe detector (default cog: the most accurate on rendered "
+                        "and on speckled stripes, benchmarks/RESULTS.md)")
     p.add_argument("--min-snr", type=float, default=6.0,
                    help="detection threshold, peak over background noise [-] (default 6)")
     p.add_argument("--keep-saturated", action="store_true",
