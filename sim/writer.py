@@ -421,21 +421,19 @@ def _scene_arrays(scenario: Scenario) -> dict:
 
 def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dict,
                     quiet: bool = False, warn: Callable[[str], None] | None = None,
-                    overlap: bool = False) -> RenderStats:
+                    overlap: bool = True) -> RenderStats:
     """Render every frame of ``scenario`` not yet complete in ``out``; return timings.
 
     Per frame: render, sensor noise, geometric truth (these use the posed scene),
-    truth file, PNG.  With ``overlap=True`` the noise and the two writes run in
-    one background thread while the next frame renders; results are identical,
-    but on the 2-core reference machine it gained nothing (216 ms/frame either
-    way for the full-resolution cylinder scan: every stage is already CPU-bound
-    and parallel), so it is off by default.  Frames whose truth holds no stripe
-    are reported through ``warn`` (default: stderr).  With ``overlap=True`` the
-    ``noise``/``png``/``truth_write`` entries of ``RenderStats.seconds`` are
+    truth file, PNG.  With ``overlap=True`` (the default) the two writes (zlib
+    releases the GIL) run in one background thread while the next frame is
+    rendered and its truth computed (mostly single-threaded), at most one frame
+    behind; results are identical.  Frames whose truth holds no stripe are
+    reported through ``warn`` (default: stderr).  With ``overlap=True`` the
+    ``png``/``truth_write`` entries of ``RenderStats.seconds`` are
     background-thread time and do not add up to the wall time.
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
-    overlap = overlap and _concurrent_numba_ok()
     out = Path(out)
     done = prepare_folder(out, manifest)
     _scene_truth_files(out, rig, scenario)
@@ -458,14 +456,14 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar) -> No
     model = SensorModel.from_rig(rig)
     mesh = _scene_arrays(scenario)
     pending: list = []
-    with ThreadPoolExecutor(max_workers=1, initializer=_single_threaded_numba) as pool:
+    with ThreadPoolExecutor(max_workers=1) as pool:
         for frame in todo:
             electrons = _timed(stats, "render", twin.render, frame)
-            # sequential: the noise right after the render, before the truth's ray queries
+            # the noise right after the render, before the truth's ray queries
             # (measured ≈ 40 ms/frame slower on 2 cores just after Dr.Jit's ray casts)
-            image = None if overlap else _noise(electrons, model, frame, stats)
+            image = _noise(electrons, model, frame, stats)
             arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh)
-            job = (out, model, frame, electrons if image is None else None, image, arrays, stats)
+            job = (out, model, frame, None, image, arrays, stats)
             if not overlap:
                 _finish_frame(*job)
                 bar.update()
@@ -515,35 +513,6 @@ def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
             warn(f"frame {frame.index} ({_describe(frame)}) holds no stripe: nothing lit by the "
                  "laser is in view")
     return arrays
-
-
-def _concurrent_numba_ok() -> bool:
-    """Whether numba's threading layer allows parallel kernels from two threads at once.
-
-    The writer thread (sensor kernels) and the main thread (truth kernels) may
-    launch parallel regions concurrently: fine with the OpenMP and TBB layers,
-    fatal with ``workqueue`` (numba aborts the process), so then no overlap.
-    """
-    import numba
-
-    from .sensor import poisson_counts
-
-    poisson_counts(np.zeros(1, np.float32), frame_rng(0, 0))   # initialises the layer
-    try:
-        return numba.threading_layer() in ("omp", "tbb")
-    except ValueError:  # pragma: no cover - layer not initialised
-        return False
-
-
-def _single_threaded_numba() -> None:
-    """The writer thread runs numba kernels on one thread (numba's setting is per thread):
-    parallel kernels competing with the renderer's threads for 2 cores stall badly."""
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except ImportError:  # pragma: no cover
-        pass
 
 
 def _finish_frame(out, model, frame, electrons, image, arrays, stats) -> None:
