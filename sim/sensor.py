@@ -249,7 +249,102 @@ def _frame_key(rng: np.random.Generator) -> np.uint64:
     return np.uint64(rng.integers(0, 2**63, dtype=np.int64)) ^ np.uint64(0x5DEECE66D)
 
 
-def poisson_counts(lam, rng: np.random.Generator) -> np.ndarray:
+# ---------------------------------------------------------------- Dr.Jit (LLVM, SIMD) backend
+# The same model as the numba kernels, vectorised by Dr.Jit's LLVM backend (≈ 5× faster on
+# 2 cores).  Each pixel gets its own PCG32 stream, seeded with a SplitMix64 hash of (frame
+# key, pixel index): PCG32 streams seeded with consecutive values are correlated.
+
+
+def _drjit_llvm():
+    """The ``drjit.llvm`` module when Dr.Jit's LLVM backend is usable, else None."""
+    global _DR
+    if _DR is None:
+        try:
+            from .variant import select_variant
+
+            if not select_variant().startswith("llvm"):
+                raise ImportError("no LLVM variant")
+            import drjit.llvm as llvm
+
+            _DR = llvm
+        except Exception:  # noqa: BLE001 - any failure means: use numba
+            _DR = False
+    return _DR or None
+
+
+_DR = None
+
+
+def _dr_streams(llvm, n: int, key: np.uint64):
+    import drjit as dr
+
+    U64 = llvm.UInt64
+
+    def mix(z):
+        z = (z ^ (z >> 30)) * U64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> 27)) * U64(0x94D049BB133111EB)
+        return z ^ (z >> 31)
+
+    h1 = mix(dr.opaque(U64, int(key)) + dr.arange(U64, n) * U64(0x9E3779B97F4A7C15))
+    rng = llvm.PCG32(size=n)
+    rng.seed(h1, mix(h1 ^ U64(0xD1B54A32D192ED03)))
+    return rng
+
+
+def _dr_poisson(llvm, lam, rng):
+    """Exact Poisson counts (Float64) of means ``lam`` (Float64): inversion below
+    _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; ``rng`` is advanced."""
+    import drjit as dr
+
+    F64 = llvm.Float64
+    u = rng.next_float64()
+    small = lam < _PTRS_LAMBDA
+
+    def cond(k, p, cdf):
+        return small & (u > cdf) & (k < float(_MAX_COUNT))
+
+    def body(k, p, cdf):
+        p = p * lam / (k + 1.0)
+        return k + 1.0, p, cdf + p
+
+    p0 = dr.exp(-lam)
+    k, _, _ = dr.while_loop(state=(F64(0.0), p0, F64(p0)), cond=cond, body=body)
+    b = 0.931 + 2.53 * dr.sqrt(lam)
+    a = -0.059 + 0.02483 * b
+    vr = 0.9277 - 3.6224 / (b - 2.0)
+    log_invalpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
+    loglam = dr.log(lam)
+
+    def body2(rng, k, done):
+        uu = rng.next_float64() - 0.5
+        vv = rng.next_float64()
+        us = 0.5 - dr.abs(uu)
+        kk = dr.floor((2.0 * a / us + b) * uu + lam + 0.43)
+        quick = (us >= 0.07) & (vv <= vr)
+        reject = (kk < 0.0) | ((us < 0.013) & (vv > us))
+        slow = dr.log(vv) + log_invalpha - dr.log(a / (us * us) + b) <= \
+            -lam + kk * loglam - dr.lgamma(kk + 1.0)
+        accept = ~done & (quick | (~reject & slow))
+        return rng, dr.select(accept, kk, k), done | accept
+
+    _, k, _ = dr.while_loop(state=(rng, k, small), cond=lambda rng, k, done: ~done, body=body2)
+    return k
+
+
+def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: "SensorModel") -> np.ndarray:
+    import drjit as dr
+
+    rng = _dr_streams(llvm, flat.size, key)
+    lam = llvm.Float64(llvm.Float(flat))
+    e = dr.minimum(_dr_poisson(llvm, lam, rng), model.full_well_e)
+    if model.read_noise_e > 0:
+        z = llvm.Float64(dr.sqrt(2.0) * dr.erfinv(2.0 * rng.next_float32() - 1.0))
+        e = e + model.read_noise_e * z
+    dn = dr.clip(dr.round(e / model.gain_e_per_dn + model.dark_offset_dn), 0.0, float(model.full_scale_dn))
+    return llvm.UInt32(dn).numpy().astype(np.uint16)
+
+
+def poisson_counts(lam, rng: np.random.Generator, backend: str | None = None) -> np.ndarray:
     """Poisson-distributed counts with means ``lam`` (any shape), float32.
 
     Exact in distribution.  λ < 10: CDF inversion with one uniform per pixel;
@@ -259,6 +354,11 @@ def poisson_counts(lam, rng: np.random.Generator) -> np.ndarray:
     whatever the thread count: same generator state → same counts.
     """
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
+    llvm = _backend(backend)
+    if llvm is not None:
+        rng_dr = _dr_streams(llvm, flat.size, _frame_key(rng))
+        counts = _dr_poisson(llvm, llvm.Float64(llvm.Float(flat)), rng_dr).numpy().astype(np.float32)
+        return counts.reshape(np.shape(lam))
     counts = np.empty(flat.size, dtype=np.float32)
     _poisson_kernel(flat, _frame_key(rng), _INV_K, _PTRS_LAMBDA, counts)
     return counts.reshape(np.shape(lam))
@@ -314,7 +414,20 @@ class SensorModel:
         return (lam + self.read_noise_e**2) / self.gain_e_per_dn**2 + 1.0 / 12.0
 
 
-def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator) -> np.ndarray:
+def _backend(backend: str | None):
+    """drjit.llvm for "drjit" (or None = automatic, when usable); None for "numba"."""
+    if backend not in (None, "drjit", "numba"):
+        raise ValueError(f"unknown sensor backend {backend!r} (drjit, numba)")
+    if backend == "numba":
+        return None
+    llvm = _drjit_llvm()
+    if llvm is None and backend == "drjit":
+        raise ValueError("the drjit sensor backend needs Dr.Jit's LLVM backend (libLLVM >= 17)")
+    return llvm
+
+
+def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
+                 backend: str | None = None) -> np.ndarray:
     """Turn expected electrons (rows, columns) into a raw ADC frame, (rows, columns) uint16.
 
     Parameters
@@ -324,6 +437,9 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator) -> np.
     model : SensorModel
     rng : numpy.random.Generator
         Use :func:`frame_rng` for reproducible frames.
+    backend : {None, "drjit", "numba"}
+        Dr.Jit's vectorised LLVM kernel (default when usable) or the numba
+        kernel; both sample the same model exactly, with different streams.
 
     Returns
     -------
@@ -336,6 +452,9 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator) -> np.
     if not np.all(lam >= 0):  # also catches NaN
         raise ValueError("electrons must be finite and >= 0 (expected photo-electrons per pixel)")
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
+    llvm = _backend(backend)
+    if llvm is not None:
+        return _dr_sensor(llvm, flat, _frame_key(rng), model).reshape(lam.shape)
     out = np.empty(flat.size, dtype=np.uint16)
     _sensor_kernel(flat, _frame_key(rng), _INV_K, _PTRS_LAMBDA, np.float64(model.full_well_e),
                    np.float64(model.read_noise_e), np.float64(1.0 / model.gain_e_per_dn),

@@ -431,14 +431,15 @@ def _scene_arrays(scenario: Scenario) -> dict:
 
 def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dict,
                     quiet: bool = False, warn: Callable[[str], None] | None = None,
-                    overlap: bool = True) -> RenderStats:
+                    overlap: bool = False) -> RenderStats:
     """Render every frame of ``scenario`` not yet complete in ``out``; return timings.
 
     Per frame: render, sensor noise, geometric truth (these use the posed scene),
-    truth file, PNG.  With ``overlap=True`` (the default) the two writes (zlib
-    releases the GIL) run in one background thread while the next frame is
-    rendered and its truth computed (mostly single-threaded), at most one frame
-    behind; results are identical.  Frames whose truth holds no stripe are
+    truth file, PNG.  With ``overlap=True`` the two writes (libdeflate/zlib
+    release the GIL) run in one background thread while the next frame is
+    rendered and its truth computed, at most one frame behind; results are
+    identical.  Off by default: with the Dr.Jit sensor kernel both cores are
+    busy and it measured 91 against 87 ms per frame (benchmarks/RESULTS.md).  Frames whose truth holds no stripe are
     reported through ``warn`` (default: stderr).  With ``overlap=True`` the
     ``png``/``truth_write`` entries of ``RenderStats.seconds`` are
     background-thread time and do not add up to the wall time.

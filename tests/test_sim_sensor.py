@@ -18,10 +18,10 @@ def rig():
     return load_preset("paper")
 
 
-def _flat(rig, electrons, shape=(1000, 1000), seed=3, **sensor):
+def _flat(rig, electrons, shape=(1000, 1000), seed=3, backend=None, **sensor):
     r = rig.replace(sensor=sensor) if sensor else rig
     model = SensorModel.from_rig(r)
-    frame = apply_sensor(np.full(shape, electrons, np.float32), model, frame_rng(seed, 0))
+    frame = apply_sensor(np.full(shape, electrons, np.float32), model, frame_rng(seed, 0), backend=backend)
     return model, frame.astype(np.float64)
 
 
@@ -39,10 +39,11 @@ def test_default_gain_maps_full_well_plus_offset_to_full_scale(rig):
     (3.0, {"gain_e_per_dn": 0.25, "read_noise_e": 0.5}),   # small λ: CDF-inversion path
     (23.5, {"gain_e_per_dn": 0.5, "read_noise_e": 1.0}),   # just below the path switch
 ])
-def test_flat_field_mean_and_variance(rig, electrons, sensor):
+@pytest.mark.parametrize("backend", ["drjit", "numba"])
+def test_flat_field_mean_and_variance(rig, electrons, sensor, backend):
     # 1e6 pixels: the relative standard error of a sample variance is sqrt(2/n) = 0.14 %,
     # well inside the 2 % acceptance.
-    model, dn = _flat(rig, electrons, **sensor)
+    model, dn = _flat(rig, electrons, backend=backend, **sensor)
     g = model.gain_e_per_dn
     mean_expected = model.dark_offset_dn + electrons / g
     var_expected = (electrons + model.read_noise_e**2) / g**2 + 1 / 12
@@ -51,8 +52,9 @@ def test_flat_field_mean_and_variance(rig, electrons, sensor):
     assert model.variance_dn2(electrons) == pytest.approx(var_expected, rel=1e-12)
 
 
-def test_dark_frame_reads_offset_and_read_noise(rig):
-    model, dn = _flat(rig, 0.0, gain_e_per_dn=1.0, read_noise_e=4.0, dark_offset_dn=100.0)
+@pytest.mark.parametrize("backend", ["drjit", "numba"])
+def test_dark_frame_reads_offset_and_read_noise(rig, backend):
+    model, dn = _flat(rig, 0.0, backend=backend, gain_e_per_dn=1.0, read_noise_e=4.0, dark_offset_dn=100.0)
     assert dn.mean() == pytest.approx(100.0, abs=0.02)
     assert dn.var() == pytest.approx(16 + 1 / 12, rel=0.02)
 
@@ -97,9 +99,10 @@ def test_bad_input(rig):
 
 
 @pytest.mark.parametrize("lam", [0.05, 2.5, 9.9, 10.0, 30.0, 150.0, 3000.0])
-def test_poisson_counts_follow_the_pmf(lam):
+@pytest.mark.parametrize("backend", ["drjit", "numba"])
+def test_poisson_counts_follow_the_pmf(lam, backend):
     # both branches: CDF inversion (λ < 10) and PTRS + fallback (λ ≥ 10)
-    counts = poisson_counts(np.full(400_000, lam, np.float32), frame_rng(11, 0)).astype(int)
+    counts = poisson_counts(np.full(400_000, lam, np.float32), frame_rng(11, 0), backend=backend).astype(int)
     k = np.arange(counts.max() + 1)
     observed = np.bincount(counts, minlength=len(k))
     expected = stats.poisson.pmf(k, np.float32(lam)) * counts.size
