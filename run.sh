@@ -11,8 +11,12 @@ venv="$here/.venv"
 log() { printf 'run.sh: %s\n' "$*" >&2; }
 
 have_llvm17() {
-    ls /usr/lib/*/libLLVM.so.{17,18,19,20,21}* /usr/lib/*/libLLVM-{17,18,19,20,21}*.so* \
-       /usr/lib/llvm-{17,18,19,20,21}/lib/libLLVM*.so* >/dev/null 2>&1
+    local f
+    for f in /usr/lib/*/libLLVM.so.{17,18,19,20,21}* /usr/lib/*/libLLVM-{17,18,19,20,21}*.so* \
+             /usr/lib/llvm-{17,18,19,20,21}/lib/libLLVM*.so*; do
+        [ -e "$f" ] && return 0
+    done
+    return 1
 }
 
 if ! have_llvm17; then
