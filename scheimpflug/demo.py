@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ScheimpflugError
-from .fileio import write_json_atomic
+from .fileio import write_json_atomic, write_text_atomic
 from .rig import Rig, rig_to_toml
 
 __all__ = ["DemoPlan", "PAPER", "plan_for", "run_demo"]
@@ -231,9 +231,12 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
     plan = plan_for(quick)
     out = Path(out)
     report = out / "report"
-    report.mkdir(parents=True, exist_ok=True)
     rig_file = out / "rig.toml"
-    rig_file.write_text(rig_to_toml(rig))
+    try:
+        report.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(rig_file, rig_to_toml(rig))
+    except OSError as exc:
+        raise ScheimpflugError(f"cannot write the demo into {str(out)!r}: {exc.strerror or exc}") from None
     timer = _Timer()
     t_start = time.perf_counter()
 
