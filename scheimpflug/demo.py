@@ -104,7 +104,7 @@ def _calibrate(folder: Path, out: Path, report: Path) -> dict:
     ff = open_frame_folder(folder)
     pick = range(0, len(ff), max(1, len(ff) // 9))
     plot_superimposed_frames([ff.read(i) for i in pick], report / "calibration_frames.png",
-                             "superimposed calibration frames (plate at several stage positions)")
+                             "superimposed calibration frames\n(the plate at several stage positions, paper Fig. 3a)")
     truth = json.loads((folder / "truth" / "rig_truth.json").read_text())
     return {"result": result, "truth": truth}
 

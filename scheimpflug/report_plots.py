@@ -42,7 +42,7 @@ def plot_superimposed_frames(frames: list[np.ndarray], path, title: str,
     """
     plt = _plt()
     stack = np.max(np.stack([np.asarray(f, dtype=np.float32) for f in frames]), axis=0)
-    fig, ax = plt.subplots(figsize=(5.2, 7.2))
+    fig, ax = plt.subplots(figsize=(6.4, 7.6))
     hi = np.percentile(stack, 99.9) or 1.0
     im = ax.imshow(stack, cmap="gray", vmin=0, vmax=hi, aspect="equal", interpolation="nearest")
     for uv in stripe_uv or []:
