@@ -110,7 +110,14 @@ class MitsubaTwin:
 
         from .render import Renderer, RenderSettings
         from .scene import SimScene
+        from .variant import is_jit_variant, select_variant
 
+        variant = select_variant()
+        if not is_jit_variant(variant):
+            raise RenderError(
+                f"the renderer needs one of Mitsuba's JIT variants (llvm_* or cuda_*), but only "
+                f"{variant!r} is usable here: install a libLLVM >= 17 (Debian 12: 'apt-get install "
+                "libllvm19', which 'bash run.sh' does as root) or set DRJIT_LIBLLVM_PATH")
         settings = settings or RenderSettings()
         field_names = {f.name for f in dataclasses.fields(settings)}
         self.spp_field = next(n for n in _SPP_FIELDS if n in field_names)
