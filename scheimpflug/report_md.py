@@ -118,19 +118,26 @@ def _score_table(s: dict) -> list[str]:
 
 
 _BUDGET_LABELS = {
-    "extraction_rms_mm": "stripe extraction (measured vs exact stripe centre per row), in-sheet RMS",
+    "extraction_rms_mm": "stripe extraction (measured vs exact stripe centre of the sheet's mid-plane per "
+                         "row), in-sheet RMS",
     "calibration_rms_mm": "calibration constants vs the rig's, effect over the whole sensor, RMS",
-    "total_rms_mm": "total: point-to-mesh RMS of the whole scan",
+    "total_rms_mm": "total: point-to-mesh RMS of the reconstructed points",
     "quadrature_mm": "extraction ⊕ calibration (root sum of squares)",
-    "unexplained_rms_mm": "total not explained by the two (rendering, knurl, outliers)",
+    "unexplained_rms_mm": "total not explained by the two",
 }
 
 
 def _budget_lines(s: dict) -> list[str]:
     b = s["budget"]
-    lines = ["| stage | RMS [mm] |", "|---|---|"]
-    for k, v in (b.get("summary") or {}).items():
-        lines.append(f"| {_BUDGET_LABELS.get(k, k)} | {_f(v)} |")
+    regions = list(b)
+    lines = ["| stage | " + " | ".join(f"{r} [mm]" for r in regions) + " |",
+             "|---|" + "---|" * len(regions)]
+    keys = []
+    for r in regions:
+        keys += [k for k in (b[r].get("summary") or {}) if k not in keys]
+    for k in keys:
+        vals = " | ".join(_f((b[r].get("summary") or {}).get(k)) for r in regions)
+        lines.append(f"| {_BUDGET_LABELS.get(k, k)} | {vals} |")
     return lines
 
 
