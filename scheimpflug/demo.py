@@ -138,32 +138,32 @@ def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bo
             "extract": stats}
 
 
+_EDGE_MARGIN_MM = 1.0  # points this close to the smooth band's ends count as neither smooth nor knurled
+
+
 def _cylinder_metrics(scan: dict, rig: Rig) -> dict:
     import scenes
     from .fitting import fit_cylinder
+    from .scoring import distance_stats
 
     part = scenes.load_part("cylinder").parts[0]
     z_lo, z_hi = (np.asarray(part.analytic["smooth_z_range_mm"]) + rig.stage.rotary_table_z_mm)
-    xyz = scan["cloud"].xyz_mm
-    smooth = (xyz[:, 2] > z_lo + 1.0) & (xyz[:, 2] < z_hi - 1.0)
-    fit = fit_cylinder(xyz[smooth], axis_guess=np.array([0.0, 0.0, 1.0]))
-    from .scoring import distance_stats
-
-    z = xyz[:, 2]
+    z = scan["cloud"].xyz_mm[:, 2]
+    smooth = (z > z_lo + _EDGE_MARGIN_MM) & (z < z_hi - _EDGE_MARGIN_MM)
+    fit = fit_cylinder(scan["cloud"].xyz_mm[smooth], axis_guess=np.array([0.0, 0.0, 1.0]))
     return {"smooth": distance_stats(scan["distance"][smooth], scan["signed"]),
             "smooth_z_range_mm": [float(z_lo), float(z_hi)],
+            "smooth_mask": smooth, "knurl_mask": z < z_lo - _EDGE_MARGIN_MM,
             "fit": fit.to_dict(), "diameter_mm": fit.diameter_mm,
             "height_mm": float(np.percentile(z, 99.99) - np.percentile(z, 0.01)),
             "true_diameter_mm": part.analytic["diameter_mm"], "true_height_mm": part.analytic["height_mm"]}
 
 
-def _box_side_plane(rig: Rig) -> tuple[np.ndarray, float, np.ndarray]:
-    """The box's long side facing +y (assembly frame → stage frame): normal, offset, extent."""
-    import scenes
-
-    box = next(p for p in scenes.load_part("pile").parts if p.analytic.get("kind") == "box")
-    m = np.asarray(box.analytic["mesh_from_part"], dtype=np.float64)
-    plane = next(p for p in box.analytic["planes"] if p["normal"] == [0.0, 1.0, 0.0])
+def _box_side_plane(rig: Rig, box: dict) -> tuple[np.ndarray, float, np.ndarray]:
+    """The long side facing +y of the box with analytic description ``box``, in the stage
+    frame: unit normal, offset (n·x = offset) [mm] and the box's mesh_from_part (4, 4)."""
+    m = np.asarray(box["mesh_from_part"], dtype=np.float64)
+    plane = next(p for p in box["planes"] if p["normal"] == [0.0, 1.0, 0.0])
     n = m[:3, :3] @ np.asarray(plane["normal"], dtype=np.float64)
     t = m[:3, 3] + np.array([0.0, 0.0, rig.stage.rotary_table_z_mm])
     return n, float(n @ t + plane["offset_mm"]), m
@@ -173,7 +173,7 @@ def _box_side_points(xyz: np.ndarray, rig: Rig, box: dict, inset_mm: float = 5.0
                      band_mm: float = 3.0) -> np.ndarray:
     """Points within ``band_mm`` of the box's +y side and ``inset_mm`` inside its edges
     (the paper's hand-drawn region of interest, Fig. 8), as a boolean mask."""
-    n, off, m = _box_side_plane(rig)
+    n, off, m = _box_side_plane(rig, box)
     t = m[:3, 3] + np.array([0.0, 0.0, rig.stage.rotary_table_z_mm])
     local = (xyz - t) @ m[:3, :3]  # box frame: x along the length, z up from its bottom
     half_len = 0.5 * box["length_mm"] - inset_mm
@@ -199,7 +199,7 @@ def _pile_metrics(scan: dict, rig: Rig) -> dict:
         mask = scan["body"] == oid
         if mask.any():
             regions[p.name] = distance_stats(dist[mask], scan["signed"])
-    n, off, _ = _box_side_plane(rig)
+    n, off, _ = _box_side_plane(rig, parts["box"].analytic)
     truth_plane = [off / n[1], -n[0] / n[1], -n[2] / n[1]]  # y = a + b x + c z of the true side
     return {"ring": circle.to_dict() if circle else None, "ring_points": xyz[in_ring],
             "ring_true_diameter_mm": ring["od_mm"],
@@ -208,7 +208,7 @@ def _pile_metrics(scan: dict, rig: Rig) -> dict:
             "box_plane_truth": truth_plane, "regions": regions}
 
 
-def _budget(axis_mm: float, scan: dict, rig_truth: dict, calibration, smooth_z_mm) -> dict:
+def _budget(axis_mm: float, scan: dict, rig_truth: dict, calibration, cyl_m: dict) -> dict:
     """Error budget of the cylinder scan, for the whole scan and for its smooth part.
 
     Extraction: measured stripe columns vs the exact per-row truth, converted to
@@ -220,14 +220,14 @@ def _budget(axis_mm: float, scan: dict, rig_truth: dict, calibration, smooth_z_m
 
     ff = scan["folder"]
     truths = [np.load(ff.path / rec.extra["truth"]) for rec in ff.frames]
-    z_lo, z_hi = smooth_z_mm[0] + 1.0, smooth_z_mm[1] - 1.0
+    z_lo = cyl_m["smooth_z_range_mm"][0] + _EDGE_MARGIN_MM
+    z_hi = cyl_m["smooth_z_range_mm"][1] - _EDGE_MARGIN_MM
     truth_u = [t["stripe_u"] for t in truths]
     smooth_u = [np.where((t["stripe_point_mm"][:, 2] > z_lo) & (t["stripe_point_mm"][:, 2] < z_hi),
                          t["stripe_u"], np.nan) for t in truths]
     calib = calibration_error(calibration, rig_truth, ff.columns, ff.rows, axis_mm=axis_mm,
                               axis_truth_mm=rig_truth.get("axis_mm"))
-    z = scan["cloud"].xyz_mm[:, 2]
-    smooth = (z > z_lo) & (z < z_hi)
+    smooth = cyl_m["smooth_mask"]
     return {
         "whole scan": error_budget(extraction_error(scan["rows"], scan["u"], truth_u, rig_truth), calib,
                                    scan["distance"], scan["signed"]),
@@ -274,7 +274,7 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
                      out / "pile.ply", quiet)
     cyl_m = _cylinder_metrics(cyl, rig)
     pile_m = _pile_metrics(pile, rig)
-    budget = _budget(axis["axis_mm"], cyl, cal["truth"], calibration, cyl_m["smooth_z_range_mm"])
+    budget = _budget(axis["axis_mm"], cyl, cal["truth"], calibration, cyl_m)
     summary = _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, timer, t_start)
     timer.run("figures + report", _write_report, out, report, summary, cyl, cyl_m, pile, pile_m)
     summary["seconds"]["total"] = time.perf_counter() - t_start

@@ -44,10 +44,8 @@ def _figures(report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> list[tuple[str,
         plot_plane_fit(pile_m["box_points"], (box["a_mm"], box["b"], box["c"]), report / "box_plane.png",
                        "one side of the box: plane fit y = a + b·x + c·z (paper Fig. 8)")
         figs.append(("box_plane.png", "Plane fit of one box side: residual map and histogram."))
-    smooth_lo, smooth_hi = cyl_m["smooth_z_range_mm"]
-    z = cyl["cloud"].xyz_mm[:, 2]
-    errors = {"cylinder, smooth part": cyl["distance"][(z > smooth_lo + 1) & (z < smooth_hi - 1)],
-              "cylinder, knurled band": cyl["distance"][z < smooth_lo - 1],
+    errors = {"cylinder, smooth part": cyl["distance"][cyl_m["smooth_mask"]],
+              "cylinder, knurled band": cyl["distance"][cyl_m["knurl_mask"]],
               "pile, all": pile["distance"]}
     plot_error_histograms(errors, report / "error_histograms.png",
                           "signed point-to-mesh distance (+ outside the material)")
