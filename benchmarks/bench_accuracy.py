@@ -20,12 +20,12 @@ def run(contrast: float, step_deg: float, binning: int, root: Path, methods) -> 
     import scenes
     from scheimpflug.axis import locate_axis
     from scheimpflug.calibration import calibrate_folder
-    from scheimpflug.cli import main
+    from scheimpflug.app.cli import main
     from scheimpflug.fitting import fit_cylinder
-    from scheimpflug.frames import open_frame_folder
-    from scheimpflug.plyio import read_mesh
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.ply import read_mesh
     from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
-    from scheimpflug.rig import load_preset, rig_to_toml
+    from scheimpflug.model.rig import load_preset, rig_to_toml
     from scheimpflug.scoring import PointToMesh
 
     rig = load_preset("paper").replace(laser={"speckle_contrast": contrast})
@@ -45,7 +45,7 @@ def run(contrast: float, step_deg: float, binning: int, root: Path, methods) -> 
     tree = PointToMesh(v, f)
     results = []
     for method in methods:
-        rows, us, _, _ = extract_folder(ff, method, quiet=True)
+        rows, us, _, _ = extract_folder(ff, method)
         cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm)
         xyz = cloud.xyz_mm[(cloud.xyz_mm[:, 2] > z_lo + 1) & (cloud.xyz_mm[:, 2] < z_hi - 1)]
         d = tree.query(xyz).distance_mm

@@ -20,8 +20,8 @@ import time
 import numpy as np
 import trimesh
 
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset
 
 
 def plate_pose(rig, distance_mm):

@@ -33,10 +33,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from scheimpflug.rig import load_preset  # noqa: E402
+from scheimpflug.model.rig import load_preset  # noqa: E402
 from sim.scenarios import rotary_scenario  # noqa: E402
 from sim.writer import (MitsubaTwin, build_manifest, generator_info, read_png,  # noqa: E402
                         render_scenario)
+
+from scheimpflug.app.progress import Progress  # noqa: E402
 
 
 def _png_table(image: np.ndarray) -> None:
@@ -88,8 +90,9 @@ def main() -> int:
     setup_s = time.perf_counter() - t0
     manifest = build_manifest(rig, scenario, 0, twin.spp, twin.variant, generator_info(),
                               twin.describe())
-    stats = render_scenario(rig, scenario, out, twin, manifest, quiet=False,
-                            overlap=args.overlap)
+    with Progress(0, label="render") as bar:
+        stats = render_scenario(rig, scenario, out, twin, manifest, progress=bar,
+                                overlap=args.overlap)
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     n = stats.frames_rendered
     disk_mb = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6

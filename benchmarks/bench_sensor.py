@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from scheimpflug.rig import load_preset
+from scheimpflug.model.rig import load_preset
 from sim.sensor import SensorModel, apply_sensor, frame_rng
 
 

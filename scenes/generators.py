@@ -16,7 +16,7 @@ import trimesh
 
 from scheimpflug.errors import MeshError
 
-from . import knurl as _knurl
+from scenes import knurl as _knurl
 from .part import Part
 from .revolve import box_mesh, revolved_mesh, segments_for_sagitta
 

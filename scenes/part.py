@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from scheimpflug.errors import MeshError
-from scheimpflug.fileio import atomic_path
+from scheimpflug.io.atomic import atomic_path
 
 __all__ = [
     "MATERIALS",

@@ -31,7 +31,7 @@ import numpy as np
 
 from scheimpflug.errors import MeshError
 
-from . import generators as g
+from scenes import generators as g
 from .part import Assembly, Part, yaw_matrix
 
 __all__ = ["PART_NAMES", "PILE_LAYOUT", "build_preset", "pile", "preset_parameters"]

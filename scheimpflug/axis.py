@@ -37,10 +37,10 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from .calibration import Calibration
-from .errors import CalibrationError, FrameError
-from .frames import FrameFolder, open_frame_folder
-from .stripe import extract_stripes
+from scheimpflug.calibration import Calibration
+from scheimpflug.errors import CalibrationError, FrameError
+from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.stripe import extract_stripes
 
 __all__ = [
     "AxisResult",

@@ -27,8 +27,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .reconstruct import SheetCalibration, sheet_from_pixel
-from .scoring import distance_stats
+from scheimpflug.model.hinge import stage_from_pixel, stage_jacobian
+from scheimpflug.reconstruct import SheetCalibration
+from scheimpflug.scoring import distance_stats
 
 __all__ = [
     "CALIBRATION_PARAMETERS",
@@ -63,9 +64,9 @@ def sheet_shift_mm(du_px, u_px, v_px, calibration: SheetCalibration) -> tuple[np
         −F² du/(u − u_h)² and −C (v − v_h) du/(u − u_h)².
     """
     du = np.asarray(du_px, np.float64)
-    w = np.asarray(u_px, np.float64) - _get(calibration, "hinge_u_px")
-    dv = np.asarray(v_px, np.float64) - _get(calibration, "hinge_v_px")
-    return -_get(calibration, "F2_px_mm") * du / w ** 2, -_get(calibration, "C_mm") * dv * du / w ** 2
+    ds_du, dh_du, _ = stage_jacobian(u_px, v_px, *(_get(calibration, k) for k in
+                                                   ("hinge_u_px", "hinge_v_px", "F2_px_mm", "C_mm")))
+    return ds_du * du, dh_du * du
 
 
 def _abs_stats(x: np.ndarray, unit: str) -> dict:
@@ -170,8 +171,8 @@ def calibration_error(calibration: SheetCalibration, truth: SheetCalibration, co
         params[name] = {"value": value, "truth": true, "error": value - true,
                         "relative_error": (value - true) / true if true else None}
     u, v = np.meshgrid(np.linspace(0, columns - 1, grid), np.linspace(0, rows - 1, grid))
-    s1, h1 = sheet_from_pixel(u, v, *(_get(calibration, k) for k in CALIBRATION_PARAMETERS))
-    s0, h0 = sheet_from_pixel(u, v, *(_get(truth, k) for k in CALIBRATION_PARAMETERS))
+    s1, h1 = stage_from_pixel(u, v, *(_get(calibration, k) for k in CALIBRATION_PARAMETERS))
+    s0, h0 = stage_from_pixel(u, v, *(_get(truth, k) for k in CALIBRATION_PARAMETERS))
     ds, dh = s1 - s0, h1 - h0
     out = {"parameters": params, "stage_error_mm": _field_stats(ds), "height_error_mm": _field_stats(dh)}
     radial = ds

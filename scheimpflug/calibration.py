@@ -57,10 +57,12 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from .errors import CalibrationError
-from .fileio import write_json_atomic
-from .frames import FrameFolder, open_frame_folder
-from .stripe import extract_stripes
+from scheimpflug.callbacks import report
+from scheimpflug.errors import CalibrationError
+from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
+from scheimpflug.io.atomic import write_json_atomic
+from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.stripe import extract_stripes
 
 __all__ = [
     "Calibration",
@@ -126,29 +128,30 @@ class Calibration:
     hinge_u_sigma_px: float = math.nan
     estimates: dict = field(default_factory=dict, compare=False, hash=False, repr=False)
 
-    def stage_from_pixel(self, u, v):
-        """Stage coordinate and height of pixel (u, v).
+    def stage_from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
+        """Stage coordinate and height of pixel (u, v) (paper Eqs. 11–12).
 
         Parameters
         ----------
-        u, v : array_like float — column and row [px] (broadcast together).
+        u, v : array_like float
+            Column and row [px], broadcast together.
 
         Returns
         -------
-        stage_mm : ndarray float64 — ``F² / (u − u_h) + d0`` (paper Eq. 11) [mm].
-        h_mm : ndarray float64 — ``C (v − v_h) / (u − u_h)`` (paper Eq. 12) [mm].
+        stage_mm, h_mm : ndarray float64
+            ``F²/(u − u_h) + d0`` and ``C·(v − v_h)/(u − u_h)`` [mm]; NaN at u = u_h
+            (:func:`scheimpflug.model.hinge.stage_from_pixel`).
         """
-        u = np.asarray(u, dtype=np.float64)
-        v = np.asarray(v, dtype=np.float64)
-        du = u - self.hinge_u_px
-        return self.F2_px_mm / du + self.d0_mm, self.C_mm * (v - self.hinge_v_px) / du
+        return stage_from_pixel(u, v, *self.constants())
 
-    def pixel_from_stage(self, stage_mm, h_mm):
-        """Inverse of :meth:`stage_from_pixel`: (u, v) [px] of (stage_mm [mm], h_mm [mm])."""
-        s = np.asarray(stage_mm, dtype=np.float64)
-        h = np.asarray(h_mm, dtype=np.float64)
-        du = self.F2_px_mm / (s - self.d0_mm)
-        return self.hinge_u_px + du, self.hinge_v_px + du * h / self.C_mm
+    def pixel_from_stage(self, stage_mm, h_mm) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel (u, v) [px] of the sheet point (stage_mm, h_mm) [mm]: the inverse of
+        :meth:`stage_from_pixel` (:func:`scheimpflug.model.hinge.pixel_from_stage`)."""
+        return pixel_from_stage(stage_mm, h_mm, *self.constants())
+
+    def constants(self) -> tuple[float, float, float, float, float]:
+        """(u_h [px], v_h [px], F² [px·mm], d0 [mm], C [mm]) in the order of the hinge functions."""
+        return self.hinge_u_px, self.hinge_v_px, self.F2_px_mm, self.d0_mm, self.C_mm
 
     def _core_dict(self) -> dict[str, Any]:
         return {"hinge_px": [self.hinge_u_px, self.hinge_v_px], "F2_px_mm": self.F2_px_mm,
@@ -500,7 +503,8 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
         ``scenario_params.plate_height_mm`` or 89 mm (the paper's).
     method : "best", "paper" or "refined" — which estimate becomes ``best``.
     detector : stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
-    progress : optional callable(iterable, total, label) wrapping the frame loop.
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
 
     Frames without a stripe, without both plate edges in view or saturated are
     skipped with a warning (``CalibrationResult.skipped``).
@@ -513,9 +517,8 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; "
                                f"{missing[0]!r} has none")
     ms, skipped = [], []
-    indices = range(len(ff))
-    it = progress(indices, len(ff), "calibrate") if progress else indices
-    for i in it:
+    for i in range(len(ff)):
+        report(progress, i, len(ff))
         rec = ff.frames[i]
         frame = ff.read(i)
         try:
@@ -530,5 +533,6 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
             warnings.warn(f"{rec.file}: skipped: plate edge outside the frame", stacklevel=2)
             continue
         ms.append(m)
+    report(progress, len(ff), len(ff))
     return calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
                                   rows=ff.rows, method=method, tol=tol, skipped=skipped)

@@ -16,7 +16,7 @@ plane (the optical axis), +z up and +x along the laser propagation at θ = 0,
 i.e. the frame of the twin's ``truth/mesh.ply``.
 
 Everything here is pure numpy; reading frames, extracting stripes and writing
-the PLY happen in ``scheimpflug.commands.reconstruct``.
+the PLY happen in ``scheimpflug.app.commands.reconstruct``.
 """
 
 from __future__ import annotations
@@ -26,6 +26,10 @@ from typing import Iterable, Protocol, Sequence
 
 import numpy as np
 
+from scheimpflug.callbacks import ProgressCallback, report
+from scheimpflug.model.hinge import stage_from_pixel
+from scheimpflug.stripe import extract_stripes
+
 __all__ = [
     "PointCloud",
     "SheetCalibration",
@@ -33,7 +37,6 @@ __all__ = [
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
-    "sheet_from_pixel",
 ]
 
 
@@ -80,34 +83,6 @@ class PointCloud:
         return int(self.xyz_mm.shape[0])
 
 
-def sheet_from_pixel(u, v, hinge_u_px: float, hinge_v_px: float, F2_px_mm: float,
-                     d0_mm: float, C_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """Stage coordinate and height of pixels on the light sheet (paper Eqs. 11–12).
-
-    Parameters
-    ----------
-    u, v : array_like float
-        Column and row of the stripe [px] (broadcast together).
-    hinge_u_px, hinge_v_px : float
-        Image hinge (u_h, v_h) [px].
-    F2_px_mm : float
-        Distance constant F² [px·mm].
-    d0_mm : float
-        Stage coordinate of the object hinge [mm].
-    C_mm : float
-        Height constant [mm].
-
-    Returns
-    -------
-    stage_mm, h_mm : ndarray float
-        ``F²/(u − u_h) + d0`` and ``C (v − v_h)/(u − u_h)`` [mm]; NaN where u = u_h.
-    """
-    du = np.asarray(u, dtype=np.float64) - hinge_u_px
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(du != 0, 1.0 / np.where(du != 0, du, 1.0), np.nan)
-    return F2_px_mm * inv + d0_mm, C_mm * (np.asarray(v, dtype=np.float64) - hinge_v_px) * inv
-
-
 def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
     """Part-frame points of sheet points seen at rotary angle θ.
 
@@ -133,7 +108,7 @@ def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
 
 def points_from_pixels(u, v, angle_deg, calibration: SheetCalibration, axis_mm: float) -> np.ndarray:
     """Part-frame points (n, 3) [mm] of stripe pixels (u, v) [px] seen at angles [deg]."""
-    s, h = sheet_from_pixel(u, v, calibration.hinge_u_px, calibration.hinge_v_px,
+    s, h = stage_from_pixel(u, v, calibration.hinge_u_px, calibration.hinge_v_px,
                             calibration.F2_px_mm, calibration.d0_mm, calibration.C_mm)
     return part_from_sheet(s, h, angle_deg, axis_mm)
 
@@ -183,29 +158,42 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
-                   keep_saturated: bool = False, quiet: bool = False, label: str = "extract"):
-    """Stripe samples of every frame of a :class:`~scheimpflug.frames.FrameFolder`.
+                   keep_saturated: bool = False, progress: ProgressCallback | None = None):
+    """Stripe samples of every frame of a frame folder.
 
-    Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`)
-    with a progress bar.  Returns ``(rows, u, peak, stats)``: three lists with
-    one array per frame, and counters ``blank_frames`` and ``saturated_rows``.
-    Saturated rows are dropped unless ``keep_saturated``.
+    Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
+
+    Parameters
+    ----------
+    folder : scheimpflug.io.frames.FrameFolder
+        The frames.
+    method : str
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+    min_snr : float
+        Detection threshold [-].
+    keep_saturated : bool
+        Keep rows whose stripe is saturated (dropped by default).
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+
+    Returns
+    -------
+    rows, u, peak : list of ndarray
+        One array per frame: rows [px], stripe columns [px], peak height [DN].
+    stats : dict
+        Counters ``blank_frames`` and ``saturated_rows``.
     """
-    from .progress import Progress
-    from .stripe import extract_stripes
-
     def one(rec, frame):
         return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame))
 
     rows, us, peaks = [], [], []
     stats = {"blank_frames": 0, "saturated_rows": 0}
-    with Progress(len(folder), label=label, quiet=quiet) as bar:
-        for prof in folder.map_frames(one):
-            keep = slice(None) if keep_saturated else ~prof.saturated
-            stats["saturated_rows"] += int(prof.saturated.sum())
-            stats["blank_frames"] += int(len(prof) == 0)
-            rows.append(prof.rows[keep])
-            us.append(prof.u[keep])
-            peaks.append(prof.peak[keep])
-            bar.update()
+    for prof in folder.map_frames(one):
+        keep = slice(None) if keep_saturated else ~prof.saturated
+        stats["saturated_rows"] += int(prof.saturated.sum())
+        stats["blank_frames"] += int(len(prof) == 0)
+        rows.append(prof.rows[keep])
+        us.append(prof.u[keep])
+        peaks.append(prof.peak[keep])
+        report(progress, len(rows), len(folder))
     return rows, us, peaks, stats

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .errors import MeshError
+from scheimpflug.errors import MeshError
 
 __all__ = [
     "MeshDistance",

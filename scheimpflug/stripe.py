@@ -74,7 +74,7 @@ from typing import Iterable, Iterator
 import numba as nb
 import numpy as np
 
-from .errors import FrameError
+from scheimpflug.errors import FrameError
 
 __all__ = [
     "METHODS",

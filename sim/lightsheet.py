@@ -56,8 +56,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import erf
 
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import Rig
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
 
 __all__ = [
     "LightSheet",
@@ -107,7 +107,7 @@ class LightSheet:
 
 
 def light_sheet(rig: Rig) -> LightSheet:
-    """The :class:`LightSheet` of ``rig`` (rig.laser, geometry from :mod:`scheimpflug.hinge`)."""
+    """The :class:`LightSheet` of ``rig`` (rig.laser, geometry from :mod:`scheimpflug.model.hinge`)."""
     g = hinge_geometry(rig)
     las = rig.laser
     x = las.origin_x_mm

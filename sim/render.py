@@ -33,8 +33,8 @@ Laser pass (per frame)
    per-frame transform), so a rigid motion of the parts costs no BVH rebuild.
 4. *Splat.*  Aperture point A on the lens disc (diameter f/N at x = 0); the
    thin lens sends the ray P→A toward the conjugate P' of P
-   (:func:`scheimpflug.camera.conjugate_point`, distortion included), and it
-   lands on the sensor plane (:func:`scheimpflug.camera.sensor_pose`) at
+   (:func:`scheimpflug.model.camera.conjugate_point`, distortion included), and it
+   lands on the sensor plane (:func:`scheimpflug.model.camera.sensor_pose`) at
    q = A + λ(P' − A).  Light-tracing estimator of the flux through the lens::
 
        Φ_pix += Φ_ray · f_r(ω_l, ω_c)·cos θ_c · A_ap · cos θ_A / |P − A|²
@@ -80,10 +80,10 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from scheimpflug.camera import (SensorPose, chief_ray_from_pixel, sensor_point_from_pixel,
+from scheimpflug.model.camera import (SensorPose, chief_ray_from_pixel, sensor_point_from_pixel,
                                 sensor_pose, sheet_point_from_pixel)
 from scheimpflug.errors import RenderError
-from scheimpflug.rig import Rig
+from scheimpflug.model.rig import Rig
 
 from .lightsheet import light_sheet, speckle_grain_um, speckle_pattern, visible_fan_interval
 from .materials import channel_for_wavelength
@@ -167,7 +167,7 @@ class Renderer:
     sim_scene : SimScene
     settings : RenderSettings, optional
     pose : SensorPose, optional
-        Sensor pose; default :func:`scheimpflug.camera.sensor_pose` (rig).  A custom pose
+        Sensor pose; default :func:`scheimpflug.model.camera.sensor_pose` (rig).  A custom pose
         (e.g. an untilted sensor) changes where light lands, not the lens.
 
     Raises

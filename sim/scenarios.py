@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scheimpflug.errors import ScheimpflugError
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import Rig
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
 
 from .stages import rig_from_plate, rig_from_stage, stage_from_part
 

@@ -45,12 +45,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from scheimpflug.rig import Rig, Sensor
+from scheimpflug.model.rig import Rig, Sensor
 
 __all__ = [
     "SensorModel",
     "apply_sensor",
-    "binned_rig",
     "conversion_gain_e_per_dn",
     "frame_rng",
     "full_scale_dn",
@@ -460,31 +459,3 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
                    np.float64(model.read_noise_e), np.float64(1.0 / model.gain_e_per_dn),
                    np.float64(model.dark_offset_dn), np.float64(model.full_scale_dn), out)
     return out.reshape(lam.shape)
-
-
-def binned_rig(rig: Rig, k: int) -> Rig:
-    """The same rig read out with k × k binning (a reduced-resolution sensor, same geometry).
-
-    A binned pixel j covers original pixels k·j … k·j + k − 1, so its centre is at
-    original coordinate u = k·j + (k − 1)/2.  Hence: pitch × k; columns and rows
-    // k (a remainder at the far edge is dropped); hinge_column, axis_row →
-    (x − (k − 1)/2)/k; pixel offsets / k.  Sensor plane, hinge and sheet are
-    unchanged, so F² [px·mm] scales by 1/k and C is unchanged.  Photometry:
-    a binned pixel has k² times the area, so the exposure time is divided by k²
-    — a binned pixel collects the charge an unbinned one would (the operator
-    re-exposes), and frames stay as far from saturation as at full resolution;
-    full well, read noise and ADC are those of the rig's sensor table.
-    """
-    if not isinstance(k, int) or isinstance(k, bool) or k < 1:
-        raise ValueError(f"binning must be an integer >= 1, got {k!r}")
-    if k == 1:
-        return rig
-    s = rig.sensor
-    if s.columns < k or s.rows < k:
-        raise ValueError(f"binning {k} leaves no pixel of a {s.columns} × {s.rows} sensor")
-    c = (k - 1) / 2
-    return rig.replace(sensor={
-        "pixel_pitch_um": s.pixel_pitch_um * k, "columns": s.columns // k, "rows": s.rows // k,
-        "hinge_column": (s.hinge_column - c) / k, "axis_row": (s.axis_row - c) / k,
-        "offset_u_px": s.offset_u_px / k, "offset_v_px": s.offset_v_px / k,
-        "exposure_ms": s.exposure_ms / (k * k)})

@@ -45,8 +45,8 @@ import math
 
 import numpy as np
 
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import Rig
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
 
 __all__ = [
     "axis_distance_mm",

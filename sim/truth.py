@@ -4,7 +4,7 @@ Per frame the twin knows, from the posed meshes alone:
 
 **Stripe centre per row.**  The laser sheet's mid-plane (stage y = 0) cuts the
 posed mesh in a polyline (:func:`sheet_section`).  For every sensor row r the
-points of that polyline whose projection (:func:`scheimpflug.camera.project_points`,
+points of that polyline whose projection (:func:`scheimpflug.model.camera.project_points`,
 the camera's definition, misalignments and distortion included) lies exactly on
 the row's centre line v = r are found (:func:`row_crossings`; the projected
 v along each segment is solved to < 1e-9 px).  A crossing counts only if it is
@@ -23,7 +23,7 @@ smallest distance D from the object hinge along the sheet (the surface nearest
 the laser/camera side of the measuring range).
 
 **Per-pixel truth.**  One chief ray per pixel centre (from the lens centre along
-:func:`scheimpflug.camera.chief_ray_from_pixel`): the first surface it meets,
+:func:`scheimpflug.model.camera.chief_ray_from_pixel`): the first surface it meets,
 its 3-D point and object id (0 = nothing).
 
 **Truth file** ``truth/NNNNN.npz`` (numpy ``savez_compressed``), keys:
@@ -54,9 +54,9 @@ from typing import Protocol
 import numba
 import numpy as np
 
-from scheimpflug.camera import chief_ray_from_pixel, project_points, sensor_pose
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import Rig
+from scheimpflug.model.camera import chief_ray_from_pixel, project_points, sensor_pose
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
 
 from .stages import axis_distance_mm, invert, transform_points
 
@@ -357,7 +357,7 @@ def pixel_truth(rig: Rig, caster: RayCaster, ref_from_rig, directions=None,
 
 
 def rig_truth(rig: Rig) -> dict:
-    """Closed-form constants of ``rig`` (:mod:`scheimpflug.hinge`), JSON-ready.
+    """Closed-form constants of ``rig`` (:mod:`scheimpflug.model.hinge`), JSON-ready.
 
     ``hinge_px`` [u_h, v_h] (also as ``hinge_u_px``, ``hinge_v_px``) [px],
     ``F2_px_mm`` [px·mm], ``C_mm`` [mm], ``d0_mm`` [mm],

@@ -42,9 +42,9 @@ from typing import Callable, Protocol
 import numpy as np
 
 from scheimpflug.errors import RenderError
-from scheimpflug.fileio import atomic_path, write_json_atomic
-from scheimpflug.progress import Progress
-from scheimpflug.rig import Rig, rig_to_dict
+from scheimpflug.io.atomic import atomic_path, write_json_atomic
+from scheimpflug.callbacks import ProgressCallback, report
+from scheimpflug.model.rig import Rig, rig_to_dict
 
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
@@ -63,6 +63,7 @@ __all__ = [
     "generator_info",
     "prepare_folder",
     "read_png",
+    "render_folder",
     "render_scenario",
     "write_png",
 ]
@@ -437,8 +438,8 @@ def _scene_arrays(scenario: Scenario) -> dict:
 
 
 def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dict,
-                    quiet: bool = False, warn: Callable[[str], None] | None = None,
-                    overlap: bool = False) -> RenderStats:
+                    progress: ProgressCallback | None = None,
+                    warn: Callable[[str], None] | None = None, overlap: bool = False) -> RenderStats:
     """Render every frame of ``scenario`` not yet complete in ``out``; return timings.
 
     Per frame: render, sensor noise, geometric truth (these use the posed scene),
@@ -447,7 +448,8 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     rendered and its truth computed, at most one frame behind; results are
     identical.  Off by default: with the Dr.Jit sensor kernel both cores are
     busy and it measured 91 against 87 ms per frame (benchmarks/RESULTS.md).  Frames whose truth holds no stripe are
-    reported through ``warn`` (default: stderr).  With ``overlap=True`` the
+    reported through ``warn`` (default: stderr); ``progress(done, total)`` is
+    called after each frame written (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the
     ``png``/``truth_write`` entries of ``RenderStats.seconds`` are
     background-thread time and do not add up to the wall time.
     """
@@ -458,14 +460,26 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     stats = RenderStats(frames_total=len(scenario.frames), frames_skipped=len(done))
     t_start = time.perf_counter()
     todo = [f for f in scenario.frames if f.index not in done]
-    with Progress(len(todo), label=f"render {scenario.name}", quiet=quiet) as bar:
-        _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar)
+    bar = _Counter(progress, len(todo))
+    _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar)
     stats.wall_s = time.perf_counter() - t_start
     _finish(out, manifest, scenario, stats, done)
     if stats.frames_without_stripe:
         warn(f"{len(stats.frames_without_stripe)} of {stats.frames_rendered} rendered frames hold "
              f"no stripe: {_ranges(stats.frames_without_stripe)}")
     return stats
+
+
+class _Counter:
+    """Counts finished frames and reports them through the progress callback."""
+
+    def __init__(self, progress: ProgressCallback | None, total: int) -> None:
+        self.progress, self.total, self.done = progress, total, 0
+        report(progress, 0, total)
+
+    def update(self) -> None:
+        self.done += 1
+        report(self.progress, self.done, self.total)
 
 
 def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar) -> None:
@@ -562,3 +576,66 @@ def _finish(out: Path, manifest: dict, scenario: Scenario, stats: RenderStats,
                 no_stripe.add(i)
     final = dict(manifest, complete=True, frames_without_stripe=sorted(no_stripe))
     write_json_atomic(out / "manifest.json", final)
+
+
+def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int | None = None,
+                  progress: ProgressCallback | None = None,
+                  warn: Callable[[str], None] | None = None,
+                  **scenario_options) -> tuple[RenderStats, dict]:
+    """Render a named scenario of ``rig`` into the frame folder ``out`` (the library's ``render``).
+
+    Builds the scenario (:func:`sim.scenarios.build_scenario`), the Mitsuba twin
+    and the manifest, then runs :func:`render_scenario` (resumable).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (binned already, if wanted).
+    scenario_name : {"calibration", "blocker", "rotary"}
+        The scenario.
+    out : path
+        Frame folder to write (created; an interrupted run resumes).
+    seed : int
+        Run seed; same seed, same frames and truth, bit for bit.
+    spp : int, optional
+        Laser samples per lit sensor row (default: the renderer's).
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` after each frame.
+    warn : callable, optional
+        Receives every warning (scenario, twin, frames without a stripe) as one
+        line; default: stderr.
+    **scenario_options
+        Options of the scenario (``steps``, ``step_mm``, ``part``, ``step_deg`` …;
+        :mod:`sim.scenarios`).
+
+    Returns
+    -------
+    stats : RenderStats
+        Frame counts and timings.
+    manifest : dict
+        The manifest as written (``complete`` false until the end).
+
+    Raises
+    ------
+    RenderError
+        No JIT variant of Mitsuba, an unwritable or foreign folder.
+    ScheimpflugError
+        An unknown scenario or option, a bad part.
+    """
+    import warnings
+
+    from .scenarios import build_scenario
+
+    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    scenario = build_scenario(scenario_name, rig, seed=seed, **scenario_options)
+    for msg in scenario.warnings:
+        warn(msg)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        twin = MitsubaTwin(rig, scenario.assembly, spp=spp)
+    for w in caught:
+        warn(str(w.message))
+    manifest = build_manifest(rig, scenario, seed, twin.spp, twin.variant, generator_info(),
+                              twin.describe())
+    stats = render_scenario(rig, scenario, out, twin, manifest, progress=progress, warn=warn)
+    return stats, manifest

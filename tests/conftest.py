@@ -14,6 +14,6 @@ def rng():
 
 @pytest.fixture
 def paper_rig():
-    from scheimpflug.rig import load_preset
+    from scheimpflug.model.rig import load_preset
 
     return load_preset("paper")

@@ -8,7 +8,7 @@ import pytest
 
 from scheimpflug.axis import axis_from_cylinder_scan, locate_axis, locate_axis_from_cylinder
 from scheimpflug.calibration import Calibration
-from scheimpflug.cli import main
+from scheimpflug.app.cli import main
 from scheimpflug.errors import CalibrationError
 from synth_frames import (C_NOMINAL, F2_NOMINAL, Camera, Geometry, PlateScene, plate_frame,
                           rig_dict, write_folder)

@@ -8,7 +8,7 @@ import pytest
 
 from scheimpflug.calibration import (Calibration, PlateMeasurement, calibrate_folder,
                                      calibrate_measurements, measure_plate_frame)
-from scheimpflug.cli import main
+from scheimpflug.app.cli import main
 from scheimpflug.errors import CalibrationError
 from synth_frames import (C_NOMINAL, F2_NOMINAL, Camera, Geometry, PlateScene, calibration_folder,
                           plate_frame, write_folder)

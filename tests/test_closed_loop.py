@@ -16,9 +16,9 @@ import math
 import numpy as np
 import pytest
 
-from scheimpflug.cli import main
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset
+from scheimpflug.app.cli import main
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset
 
 pytestmark = [pytest.mark.render, pytest.mark.slow]
 
@@ -71,8 +71,8 @@ def test_cylinder_scan_against_its_mesh(folders, calibration):
     import scenes
     from scheimpflug.axis import locate_axis
     from scheimpflug.fitting import fit_cylinder
-    from scheimpflug.frames import open_frame_folder
-    from scheimpflug.plyio import read_mesh
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.ply import read_mesh
     from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
     from scheimpflug.scoring import PointToMesh
 
@@ -80,7 +80,7 @@ def test_cylinder_scan_against_its_mesh(folders, calibration):
     axis_mm = locate_axis(folders / "blk", cal).axis_mm
     assert abs(axis_mm - 179.45) < 0.05
     ff = open_frame_folder(folders / "cyl")
-    rows, us, _, _ = extract_folder(ff, "cog", quiet=True)
+    rows, us, _, _ = extract_folder(ff, "cog")
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm)
     part = scenes.load_part("cylinder").parts[0]
     z_lo, z_hi = np.asarray(part.analytic["smooth_z_range_mm"]) + load_preset("paper").stage.rotary_table_z_mm
@@ -96,7 +96,7 @@ def test_cylinder_scan_against_its_mesh(folders, calibration):
 @pytest.mark.parametrize("part", ["cylinder", "pile"])
 def test_rotary_render_writes_the_paper_parts_as_truth_mesh(tmp_path, part):
     """scenes acceptance: truth/mesh.ply holds the paper's dimensions, the pile as three bodies."""
-    from scheimpflug.plyio import read_mesh
+    from scheimpflug.io.ply import read_mesh
 
     out = tmp_path / part
     assert main(["render", "rotary", "--part", part, "--frames", "1", "--binning", "8", "--truth-pixels", "none",

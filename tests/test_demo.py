@@ -17,7 +17,7 @@ pytestmark = [pytest.mark.render, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def quick_demo(tmp_path_factory):
-    from scheimpflug.cli import main
+    from scheimpflug.app.cli import main
 
     out = tmp_path_factory.mktemp("demo")
     assert main(["demo", "--quick", "--quiet", "--out", str(out)]) == 0

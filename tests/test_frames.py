@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from scheimpflug.errors import FrameError
-from scheimpflug.frames import open_frame_folder, read_frame
+from scheimpflug.io.frames import open_frame_folder, read_frame
 from synth_frames import write_folder
 
 RIG = {"sensor": {"rows": 12, "columns": 20, "adc_bits": 12}}

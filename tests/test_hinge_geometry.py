@@ -1,7 +1,7 @@
 """Hinge-rule geometry against closed forms (DESIGN.md §3, paper Eqs. 1, 5, 6, 8, 11–14).
 
 The expected values are computed here from the textbook formulas (Gaussian
-lens equation, Newton's form), independently of scheimpflug.hinge/camera.
+lens equation, Newton's form), independently of scheimpflug.model.hinge/camera.
 """
 
 import math
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from scheimpflug.camera import (
+from scheimpflug.model.camera import (
     SensorPose,
     blur_footprint_px,
     project_points,
@@ -17,9 +17,9 @@ from scheimpflug.camera import (
     sensor_pose,
     sheet_point_from_pixel,
 )
-from scheimpflug.design import design_report, focal_length_from_endpoint
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import Rig, rig_from_dict
+from scheimpflug.model.design import design_report, focal_length_from_endpoint
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig, rig_from_dict
 
 
 def _rig(f=55.0, d=150.0, t=0.2075, **sensor):

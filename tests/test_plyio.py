@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from scheimpflug.errors import MeshError
-from scheimpflug.plyio import height_colors, read_mesh, read_point_cloud, write_point_cloud
+from scheimpflug.io.ply import height_colors, read_mesh, read_point_cloud, write_point_cloud
 from scheimpflug.reconstruct import PointCloud
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from scheimpflug.budget import calibration_error, error_budget, extraction_error, sheet_shift_mm
-from scheimpflug.reconstruct import sheet_from_pixel
+from scheimpflug.model.hinge import stage_from_pixel as sheet_from_pixel
 
 TRUE = types.SimpleNamespace(hinge_u_px=3196.0, hinge_v_px=771.0, F2_px_mm=-1.4292e6,
                              d0_mm=-466.0, C_mm=149.10)

@@ -14,8 +14,8 @@ import pytest
 import trimesh
 
 from scheimpflug.calibration import Calibration
-from scheimpflug.cli import main
-from scheimpflug.plyio import read_point_cloud
+from scheimpflug.app.cli import main
+from scheimpflug.io.ply import read_point_cloud
 
 ROWS, COLS = 200, 300
 U_H, V_H, F2, D0, C = 800.0, 100.0, -1.0e5, -100.0, 100.0
@@ -176,7 +176,7 @@ def test_evaluate_bad_inputs(tmp_path, capsys):
 
 
 def test_evaluate_regions_from_object_ids(tmp_path, capsys):
-    from scheimpflug.plyio import write_point_cloud
+    from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import PointCloud
 
     a = trimesh.creation.box(extents=[10, 10, 10])

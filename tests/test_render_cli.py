@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scheimpflug.cli import main
+from scheimpflug.app.cli import main
 from scheimpflug.errors import RenderError
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset
 from sim.scenarios import blocker_scenario, calibration_scenario
-from sim.sensor import binned_rig
+from scheimpflug.model.binning import binned_rig
 from sim.stages import transform_points
 from sim.truth import BruteForceCaster
 from sim.writer import build_manifest, read_png, render_scenario
@@ -48,7 +48,7 @@ def small_rig():
 def _run(rig, scenario, out, seed=1, twin=None, warn=None, overlap=False):
     twin = twin or FakeTwin(rig, scenario.assembly)
     manifest = build_manifest(rig, scenario, seed, spp=1, variant="fake")
-    stats = render_scenario(rig, scenario, out, twin, manifest, quiet=True,
+    stats = render_scenario(rig, scenario, out, twin, manifest,
                             warn=warn or (lambda m: None), overlap=overlap)
     return twin, stats
 

@@ -8,11 +8,11 @@ import sys
 import numpy as np
 import pytest
 
-from scheimpflug.cli import main
-from scheimpflug.design import design_report, inverse_design
+from scheimpflug.app.cli import main
+from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.errors import RigError
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset, load_rig, rig_from_dict, rig_to_toml
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset, load_rig, rig_from_dict, rig_to_toml
 
 BAD = [
     ({"lens": {"focal_length_mm": 0.0}}, "focal_length_mm"),

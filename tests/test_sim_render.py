@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from scheimpflug.camera import SensorPose, blur_footprint_px, conjugate_point, project_points
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset
+from scheimpflug.model.camera import SensorPose, blur_footprint_px, conjugate_point, project_points
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset
 
 pytestmark = pytest.mark.render
 
@@ -255,7 +255,7 @@ def test_laser_energy_matches_closed_form(variant):
 
 def test_ambient_lambertian_plate_matches_radiance_formula(variant):
     """Ambient only: pixel electrons = ρ/π·E·A_pix·A_ap·cos θ_q·cos θ_A/|q|²·t·QE/(hν)."""
-    from scheimpflug.camera import sensor_point_from_pixel, sensor_pose
+    from scheimpflug.model.camera import sensor_point_from_pixel, sensor_pose
 
     rig = load_preset("paper").replace(sensor={"rows": 64, "axis_row": 32.0},
                                        laser={"power_mw": 0.0},

@@ -10,7 +10,7 @@ import pytest
 from scipy.integrate import quad
 
 from scheimpflug.errors import MeshError, RenderError
-from scheimpflug.rig import load_preset
+from scheimpflug.model.rig import load_preset
 from sim import lightsheet as ls
 from sim import variant as var
 from sim.materials import MaterialSettings, bsdf_dict, channel_for_wavelength

@@ -5,7 +5,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from scheimpflug.rig import load_preset
+from scheimpflug.model.rig import load_preset
 from scipy import stats
 
 from sim import sensor as sensor_module

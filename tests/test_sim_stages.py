@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset
 from sim.stages import (axis_distance_mm, invert, rig_from_plate, rig_from_stage, rotation_z,
                         stage_from_part, stage_from_plate, transform_points)
 

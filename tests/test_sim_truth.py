@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from scheimpflug.hinge import hinge_geometry
-from scheimpflug.rig import load_preset
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import load_preset
 from sim.scenarios import calibration_scenario
-from sim.sensor import binned_rig
+from scheimpflug.model.binning import binned_rig
 from sim.stages import rig_from_stage, stage_from_part, transform_points
 from sim.truth import (BruteForceCaster, laser_origin_mm, pixel_truth, rig_truth, row_crossings,
                        sheet_section, stripe_truth)
@@ -123,7 +123,7 @@ def test_row_crossings_on_a_misaligned_sensor_hit_the_row_centre(rig):
     g = hinge_geometry(r)
     seg = np.stack([g.rig_from_sheet(500.0, -40.0), g.rig_from_sheet(650.0, 60.0)])[None]
     rows, u, pts, _ = row_crossings(r, seg)
-    from scheimpflug.camera import project_points
+    from scheimpflug.model.camera import project_points
     uv = project_points(r, pts).uv_px
     np.testing.assert_allclose(uv[:, 1], rows, atol=1e-8)
     np.testing.assert_allclose(uv[:, 0], u, atol=1e-12)
@@ -165,7 +165,7 @@ def test_rig_truth_is_the_closed_form(rig):
 
 
 def test_binned_rig_keeps_the_geometry(rig):
-    from scheimpflug.camera import project_points
+    from scheimpflug.model.camera import project_points
     rb = binned_rig(rig, 4)
     P = hinge_geometry(rig).rig_from_sheet(np.array([480.0, 600.0, 700.0]), np.array([-30, 5, 50.]))
     uv, uvb = project_points(rig, P).uv_px, project_points(rb, P).uv_px
@@ -215,7 +215,7 @@ def test_scenes_cylinder_truth_with_the_mitsuba_scene(rig):
     p_stage = transform_points(stage_from_part(rig, 37.0) @ np.linalg.inv(f.ref_from_part), p)
     np.testing.assert_allclose(p_stage[:, 1], 0.0, atol=1e-9)
     # each truth point, projected with the camera model, lands on its row centre
-    from scheimpflug.camera import project_points
+    from scheimpflug.model.camera import project_points
     rig_from_ref = f.rig_from_part @ np.linalg.inv(f.ref_from_part)
     uv = project_points(rig, transform_points(rig_from_ref, p)).uv_px
     np.testing.assert_allclose(uv[:, 1], np.flatnonzero(ok), atol=1e-6)

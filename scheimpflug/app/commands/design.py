@@ -6,10 +6,10 @@ import argparse
 import math
 import sys
 
-from ..design import design_report, inverse_design
-from ..errors import RigError
-from ..rig import Rig, rig_to_toml
-from ._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.model.design import design_report, inverse_design
+from scheimpflug.errors import RigError
+from scheimpflug.model.rig import Rig, rig_to_toml
+from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
 
 __all__ = ["add_parser", "format_report"]
 
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
                   f"lens and sensor of {source}")
     report = design_report(rig)
     if args.plot:
-        from ..design_plot import plot_design
+        from scheimpflug.app.design_plot import plot_design
 
         plot_design(rig, args.plot)
         print(f"wrote {args.plot}", file=sys.stderr)
@@ -87,7 +87,7 @@ def _inverse(args: argparse.Namespace, rig: Rig) -> Rig:
                              "scheimpflug_distance_mm": choice.scheimpflug_distance_mm},
                       sensor={"hinge_column": choice.hinge_column})
     if args.write_rig:
-        from ..fileio import write_text_atomic
+        from scheimpflug.io.atomic import write_text_atomic
 
         write_text_atomic(args.write_rig, rig_to_toml(new))
         print(f"wrote {args.write_rig}", file=sys.stderr)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import print_json
+from scheimpflug.app.commands._common import print_json
 
 _FITS = ("plane", "plane-paper", "cylinder", "circle")
 
@@ -30,7 +30,7 @@ def add_parser(sub):
 
 
 def _fits(names, xyz) -> dict:
-    from ..fitting import fit_circle_top_view, fit_cylinder, fit_plane, fit_plane_paper
+    from scheimpflug.fitting import fit_circle_top_view, fit_cylinder, fit_plane, fit_plane_paper
 
     fns = {"plane": fit_plane, "plane-paper": fit_plane_paper, "circle": fit_circle_top_view,
            "cylinder": lambda p: fit_cylinder(p, axis_guess=[0.0, 0.0, 1.0])}
@@ -47,7 +47,7 @@ def _select(args, cloud):
     """Points kept by --z-range."""
     import numpy as np
 
-    from ..errors import MeshError
+    from scheimpflug.errors import MeshError
 
     xyz = cloud.xyz_mm
     if len(xyz) == 0:
@@ -66,8 +66,8 @@ def _select(args, cloud):
 def _run(args) -> int:
     import numpy as np
 
-    from ..plyio import read_mesh, read_point_cloud
-    from ..scoring import PointToMesh, body_labels, distance_stats
+    from scheimpflug.io.ply import read_mesh, read_point_cloud
+    from scheimpflug.scoring import PointToMesh, body_labels, distance_stats
 
     cloud = read_point_cloud(args.cloud)
     xyz = _select(args, cloud)
@@ -76,14 +76,14 @@ def _run(args) -> int:
     res = pm.query(xyz)
     labels_all = ids if ids is not None else body_labels(pm.faces)
     if ids is not None and len(ids) != len(pm.faces):
-        from ..errors import MeshError
+        from scheimpflug.errors import MeshError
         raise MeshError(f"{args.mesh!r}: object_id has {len(ids)} values for {len(pm.faces)} faces")
     labels = labels_all[res.face]
     keep = np.ones(len(xyz), bool)
     if args.region:
         keep = np.isin(labels, args.region)
         if not keep.any():
-            from ..errors import MeshError
+            from scheimpflug.errors import MeshError
             raise MeshError(f"no points lie nearest to region(s) {args.region} of {args.mesh!r} "
                             f"(known: {sorted(set(labels_all.tolist()))})")
     d = res.distance_mm[keep]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import add_rig_options, rig_from_args
+from scheimpflug.app.commands._common import add_rig_options, rig_from_args
 
 __all__ = ["add_parser"]
 
@@ -27,7 +27,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from ..demo import run_demo
+    from scheimpflug.app.demo import run_demo
 
     run_demo(args.out, quick=args.quick, rig=rig_from_args(args), seed=args.seed, quiet=args.quiet)
     return 0

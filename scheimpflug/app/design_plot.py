@@ -9,10 +9,10 @@ import math
 
 import numpy as np
 
-from .camera import sensor_point_from_pixel, sensor_pose
-from .fileio import atomic_path
-from .hinge import hinge_geometry
-from .rig import Rig
+from scheimpflug.model.camera import sensor_point_from_pixel, sensor_pose
+from scheimpflug.io.atomic import atomic_path
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
 
 __all__ = ["plot_design"]
 
@@ -96,7 +96,7 @@ def _draw_curves(ax, rig: Rig) -> None:
     ax.set_ylabel("resolution [µm/px]")
     ax.grid(alpha=0.3)
     ax2 = ax.twinx()
-    ax2.plot(D, g.C_mm * s.rows / np.abs(u - s.hinge_column), color="tab:green", ls="--",
+    ax2.plot(D, g.height_resolution(u) * s.rows, color="tab:green", ls="--",
              label="height range (full sensor)")
     ax2.set_ylabel("height range [mm]")
     lines = ax.get_lines() + ax2.get_lines()

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import CalibrationResult
-from .fileio import atomic_path
+from scheimpflug.calibration import CalibrationResult
+from scheimpflug.io.atomic import atomic_path
 
 __all__ = ["plot_calibration"]
 

@@ -1,4 +1,6 @@
-"""A small progress display on stderr for long jobs.
+"""A small progress display on stderr for long jobs (the application's side of
+:mod:`scheimpflug.callbacks`: a :class:`Progress` is a ``progress(done, total)``
+callback).
 
 Shows ``label  [#####     ] 123/720  4.2 it/s  ETA 0:02:10`` on a terminal,
 redrawn in place; when stderr is not a terminal (CI, logs) it prints a plain
@@ -37,7 +39,13 @@ class Progress:
         self.t0 = time.perf_counter()
         self._last = -1e9
 
+    def __call__(self, done: int, total: int) -> None:
+        """The library's callback convention: ``done`` of ``total`` steps finished."""
+        self.total = max(int(total), 0)
+        self.update(int(done) - self.done)
+
     def update(self, n: int = 1) -> None:
+        """Count ``n`` more finished steps and redraw when due."""
         self.done += n
         now = time.perf_counter()
         if self.quiet:
@@ -47,6 +55,7 @@ class Progress:
             self._draw(final=False)
 
     def close(self) -> None:
+        """Draw the final line (unless quiet)."""
         if not self.quiet:
             self._draw(final=True)
 

@@ -4,7 +4,7 @@ The rig is the single description of an instrument, real or simulated.  It is
 read from the TOML rig file of INTERFACE.md (one table per dataclass below) or
 taken from a built-in preset (``paper``).  Every key has a unit in its name
 where doubt is possible; derived quantities (tilt, hinge points, F², C) are
-computed in :mod:`scheimpflug.hinge`, never stored here.
+computed in :mod:`scheimpflug.model.hinge`, never stored here.
 
 Rig frame (DESIGN.md §2): origin at the lens centre, +x along the optical axis
 toward the object, +z up, +y = z × x; lengths in mm, angles in degrees at
@@ -22,7 +22,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
-from .errors import RigError
+from scheimpflug.errors import RigError
 
 __all__ = [
     "Environment",
@@ -369,5 +369,5 @@ def load_preset(name: str) -> Rig:
     """A built-in rig by name (``paper``: DESIGN.md §2 with f/5.6)."""
     if name not in PRESETS:
         raise RigError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
-    text = resources.files("scheimpflug").joinpath("presets", f"{name}.toml").read_text("utf-8")
+    text = resources.files("scheimpflug.model").joinpath("presets", f"{name}.toml").read_text("utf-8")
     return rig_from_dict(tomllib.loads(text))

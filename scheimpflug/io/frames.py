@@ -25,7 +25,7 @@ from typing import Any, Callable, Iterator
 import cv2
 import numpy as np
 
-from .errors import FrameError
+from scheimpflug.errors import FrameError
 
 __all__ = ["FrameFolder", "FrameRecord", "open_frame_folder", "read_frame"]
 

@@ -7,16 +7,15 @@ documented in :mod:`sim.writer` and :mod:`sim.truth`.
 
 ``--binning K`` renders a reduced sensor with the same geometry (k × k
 binning: pitch × k, columns, rows, hinge column and axis row / k; see
-:func:`sim.sensor.binned_rig`): the quick mode of the demo and of tests.
+:func:`scheimpflug.model.binning.binned_rig`): the quick mode of the demo and of tests.
 """
 
 from __future__ import annotations
 
 import sys
-import warnings
 
-from ..errors import RenderError, ScheimpflugError
-from ._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.errors import RenderError, ScheimpflugError
+from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
 
 __all__ = ["add_parser"]
 
@@ -97,7 +96,7 @@ def _scenario_options(args) -> dict:
 
 
 def _rig(args):
-    from sim.sensor import binned_rig
+    from scheimpflug.model.binning import binned_rig
 
     rig = rig_from_args(args)
     if args.axis_mm is not None and args.scenario in _APPLIES["axis_mm"]:
@@ -125,7 +124,10 @@ def _check_out(path: str) -> None:
 
 
 def _run(args) -> int:
-    from sim.scenarios import SCENARIOS, build_scenario
+    from sim.scenarios import SCENARIOS
+    from sim.writer import render_folder
+
+    from scheimpflug.app.progress import Progress
 
     if args.scenario not in SCENARIOS:
         raise ScheimpflugError(f"unknown scenario {args.scenario!r} (known: {', '.join(SCENARIOS)})")
@@ -136,30 +138,16 @@ def _run(args) -> int:
         raise ScheimpflugError(f"--spp {args.spp}: must be >= 1")
     rig = _rig(args)
     _check_out(args.out)
-    scenario = build_scenario(args.scenario, rig, seed=args.seed, **opts)
-    for msg in scenario.warnings:
-        print(f"scheimpflug render: warning: {msg}", file=sys.stderr)
-    stats, manifest = _render(rig, scenario, args)
-    if args.json:
-        print_json(_summary(args, stats, manifest))
-    return 0
-
-
-def _render(rig, scenario, args):
-    from sim.writer import MitsubaTwin, build_manifest, generator_info, render_scenario
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        twin = MitsubaTwin(rig, scenario.assembly, spp=args.spp)
-    for w in caught:
-        print(f"scheimpflug render: warning: {w.message}", file=sys.stderr)
-    manifest = build_manifest(rig, scenario, args.seed, twin.spp, twin.variant, generator_info(),
-                              twin.describe())
 
     def warn(msg):
         print(f"scheimpflug render: warning: {msg}", file=sys.stderr)
 
-    return render_scenario(rig, scenario, args.out, twin, manifest, quiet=args.quiet, warn=warn), manifest
+    with Progress(0, label=f"render {args.scenario}", quiet=args.quiet) as bar:
+        stats, manifest = render_folder(rig, args.scenario, args.out, seed=args.seed, spp=args.spp,
+                                        progress=bar, warn=warn, **opts)
+    if args.json:
+        print_json(_summary(args, stats, manifest))
+    return 0
 
 
 def _summary(args, stats, manifest) -> dict:

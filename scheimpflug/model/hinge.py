@@ -20,13 +20,110 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rig import Rig
+from scheimpflug.model.rig import Rig
 
 __all__ = [
     "HingeGeometry",
     "hinge_geometry",
+    "pixel_from_stage",
+    "stage_from_pixel",
+    "stage_jacobian",
     "tilt_rad",
 ]
+
+
+# ---------------------------------------------------------------- paper Eqs. 11–12, once
+
+
+def _inverse_or_nan(x: np.ndarray) -> np.ndarray:
+    """1/x, NaN where x = 0 (a point at infinity has no finite image or sheet point)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(x != 0, 1.0 / np.where(x != 0, x, 1.0), np.nan)
+
+
+def stage_from_pixel(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm: float,
+                     d0_mm: float, C_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Stage coordinate and height of a pixel on the light sheet (paper Eqs. 11–12).
+
+    The only implementation of the calibration relations; everything that maps
+    pixels to the sheet calls it (with ``d0_mm = 0`` for the distance ``D``
+    from the object hinge).
+
+    Parameters
+    ----------
+    u_px, v_px : array_like float
+        Column and row [px], broadcast together.
+    hinge_u_px, hinge_v_px : float
+        Image hinge (u_h, v_h) [px].
+    F2_px_mm : float
+        Distance constant F² [px·mm] (negative: columns increase toward the hinge).
+    d0_mm : float
+        Stage coordinate of the object hinge [mm].
+    C_mm : float
+        Height constant C [mm].
+
+    Returns
+    -------
+    stage_mm : ndarray float64
+        ``s = F²/(u − u_h) + d0`` (Eq. 11) [mm].
+    h_mm : ndarray float64
+        ``h = C·(v − v_h)/(u − u_h)`` (Eq. 12) [mm], positive above the
+        meridian plane for ``v < v_h``.
+
+    Notes
+    -----
+    At ``u = u_h`` (the image hinge) the sheet point lies at infinity: both
+    outputs are NaN there, never ±inf.
+    """
+    inv = _inverse_or_nan(np.asarray(u_px, dtype=np.float64) - hinge_u_px)
+    dv = np.asarray(v_px, dtype=np.float64) - hinge_v_px
+    return F2_px_mm * inv + d0_mm, C_mm * dv * inv
+
+
+def pixel_from_stage(stage_mm, h_mm, hinge_u_px: float, hinge_v_px: float, F2_px_mm: float,
+                     d0_mm: float, C_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel of a sheet point: the inverse of :func:`stage_from_pixel`.
+
+    Parameters
+    ----------
+    stage_mm, h_mm : array_like float
+        Stage coordinate along the sheet and height [mm], broadcast together.
+    hinge_u_px, hinge_v_px, F2_px_mm, d0_mm, C_mm : float
+        Calibration constants as in :func:`stage_from_pixel`.
+
+    Returns
+    -------
+    u_px, v_px : ndarray float64
+        ``u = u_h + F²/(s − d0)``, ``v = v_h + h·(u − u_h)/C`` [px]; NaN at
+        ``s = d0`` (the object hinge images at infinity).
+    """
+    du = F2_px_mm * _inverse_or_nan(np.asarray(stage_mm, dtype=np.float64) - d0_mm)
+    return hinge_u_px + du, hinge_v_px + du * np.asarray(h_mm, dtype=np.float64) / C_mm
+
+
+def stage_jacobian(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm: float,
+                   C_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Derivatives of :func:`stage_from_pixel` with respect to the pixel.
+
+    Parameters
+    ----------
+    u_px, v_px : array_like float
+        Column and row [px].
+    hinge_u_px, hinge_v_px, F2_px_mm, C_mm : float
+        Calibration constants as in :func:`stage_from_pixel`.
+
+    Returns
+    -------
+    ds_du : ndarray float64
+        ``−F²/(u − u_h)²`` [mm/px].
+    dh_du : ndarray float64
+        ``−C·(v − v_h)/(u − u_h)²`` [mm/px].
+    dh_dv : ndarray float64
+        ``C/(u − u_h)`` [mm/px] (negative: rows increase downward).
+    """
+    inv = _inverse_or_nan(np.asarray(u_px, dtype=np.float64) - hinge_u_px)
+    dv = np.asarray(v_px, dtype=np.float64) - hinge_v_px
+    return -F2_px_mm * inv ** 2, -C_mm * dv * inv ** 2, C_mm * inv
 
 
 def tilt_rad(focal_length_mm: float, scheimpflug_distance_mm: float, tan_phi: float) -> float:
@@ -118,25 +215,24 @@ class HingeGeometry:
         return self.focal_length_mm / math.sin(self.beta_rad)
 
     # ------------------------------------------------------------ sheet ↔ pixel (closed forms)
+    def _constants(self) -> tuple[float, float, float, float, float]:
+        return self.hinge_column, self.axis_row, self.F2_px_mm, 0.0, self.C_mm
+
     def distance_from_column(self, u_px) -> np.ndarray:
-        """D(u) = F²/(u − u_h), distance along the sheet from the object hinge [mm]."""
-        return self.F2_px_mm / (np.asarray(u_px, dtype=np.float64) - self.hinge_column)
+        """D(u) = F²/(u − u_h), distance along the sheet from the object hinge [mm] (NaN at u_h)."""
+        return stage_from_pixel(u_px, self.axis_row, *self._constants())[0]
 
     def column_from_distance(self, distance_mm) -> np.ndarray:
-        """u(D) = u_h + F²/D [px]."""
-        return self.hinge_column + self.F2_px_mm / np.asarray(distance_mm, dtype=np.float64)
+        """u(D) = u_h + F²/D [px] (NaN at D = 0)."""
+        return pixel_from_stage(distance_mm, 0.0, *self._constants())[0]
 
     def pixel_from_sheet(self, distance_mm, height_mm) -> tuple[np.ndarray, np.ndarray]:
         """Pixel (u, v) of the sheet point (D, h): u = u_h + F²/D, v = v_h + h·(u − u_h)/C [px]."""
-        u = self.column_from_distance(distance_mm)
-        v = self.axis_row + np.asarray(height_mm, dtype=np.float64) * (u - self.hinge_column) / self.C_mm
-        return u, v
+        return pixel_from_stage(distance_mm, height_mm, *self._constants())
 
     def sheet_from_pixel(self, u_px, v_px) -> tuple[np.ndarray, np.ndarray]:
-        """Sheet point (D, h) [mm] seen by pixel (u, v): paper Eqs. 11–12."""
-        du = np.asarray(u_px, dtype=np.float64) - self.hinge_column
-        dv = np.asarray(v_px, dtype=np.float64) - self.axis_row
-        return self.F2_px_mm / du, self.C_mm * dv / du
+        """Sheet point (D, h) [mm] seen by pixel (u, v): paper Eqs. 11–12 (NaN at u = u_h)."""
+        return stage_from_pixel(u_px, v_px, *self._constants())
 
     def rig_from_sheet(self, distance_mm, height_mm) -> np.ndarray:
         """Rig-frame point of sheet coordinates (D, h): H + D·e_prop + h·e_z, (..., 3) [mm]."""
@@ -156,13 +252,15 @@ class HingeGeometry:
     # ------------------------------------------------------------ resolution
     def distance_resolution(self, u_px) -> np.ndarray:
         """|dD/du| = |F²|/(u − u_h)² [mm/px]."""
-        du = np.asarray(u_px, dtype=np.float64) - self.hinge_column
-        return np.abs(self.F2_px_mm) / du**2
+        ds_du, _, _ = stage_jacobian(u_px, self.axis_row, self.hinge_column, self.axis_row,
+                                     self.F2_px_mm, self.C_mm)
+        return np.abs(ds_du)
 
     def height_resolution(self, u_px) -> np.ndarray:
         """|dh/dv| = C/|u − u_h| [mm/px]."""
-        du = np.asarray(u_px, dtype=np.float64) - self.hinge_column
-        return self.C_mm / np.abs(du)
+        _, _, dh_dv = stage_jacobian(u_px, self.axis_row, self.hinge_column, self.axis_row,
+                                     self.F2_px_mm, self.C_mm)
+        return np.abs(dh_dv)
 
 
 def hinge_geometry(rig: Rig) -> HingeGeometry:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 
-from ._common import print_json
+from scheimpflug.app.commands._common import print_json
 
 _METHODS = ("gaussian3", "cog", "blais-rioux", "edge")
 
@@ -41,13 +41,13 @@ def add_parser(sub):
 def _axis_mm(args, calibration) -> tuple[float, str]:
     if args.axis_mm is not None:
         return float(args.axis_mm), "option"
-    from ..axis import locate_axis
+    from scheimpflug.axis import locate_axis
 
     return float(locate_axis(args.axis_from, calibration).axis_mm), f"located from {args.axis_from}"
 
 
 def _check_folder(folder, calibration) -> None:
-    from ..errors import CalibrationError, FrameError
+    from scheimpflug.errors import CalibrationError, FrameError
 
     missing = [i for i, r in enumerate(folder.frames) if r.angle_deg is None]
     if missing:
@@ -61,18 +61,20 @@ def _check_folder(folder, calibration) -> None:
 
 def _extract(folder, args):
     """Per-frame (rows, u, intensity) of the detected stripe, and counters."""
-    from ..reconstruct import extract_folder
+    from scheimpflug.app.progress import Progress
+    from scheimpflug.reconstruct import extract_folder
 
-    return extract_folder(folder, args.method, min_snr=args.min_snr,
-                          keep_saturated=args.keep_saturated, quiet=args.quiet)
+    with Progress(0, label="extract", quiet=args.quiet) as bar:
+        return extract_folder(folder, args.method, min_snr=args.min_snr,
+                              keep_saturated=args.keep_saturated, progress=bar)
 
 
 def _run(args) -> int:
-    from ..calibration import Calibration
-    from ..errors import FrameError
-    from ..frames import open_frame_folder
-    from ..plyio import write_point_cloud
-    from ..reconstruct import reconstruct_profiles
+    from scheimpflug.calibration import Calibration
+    from scheimpflug.errors import FrameError
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.ply import write_point_cloud
+    from scheimpflug.reconstruct import reconstruct_profiles
 
     t0 = time.perf_counter()
     calibration = Calibration.load(args.calibration)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import write_text_atomic
-from .report_plots import (
+from scheimpflug.io.atomic import write_text_atomic
+from scheimpflug.app.report_plots import (
     plot_circle_fit,
     plot_cloud_views,
     plot_error_histograms,

@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any
 
-from ..rig import PRESETS, Rig, load_preset, load_rig
+from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig
 
 __all__ = ["add_rig_options", "print_json", "rig_from_args"]
 

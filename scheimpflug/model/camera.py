@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .hinge import hinge_geometry
-from .rig import Rig
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
 
 __all__ = [
     "Projection",
@@ -202,7 +202,7 @@ def project_points(rig: Rig, points_mm, pose: SensorPose | None = None) -> Proje
     """Project rig-frame points (…, 3) [mm] (x > f) onto the tilted sensor.
 
     Works for any point, on the sheet or off it; for sheet points of an ideal
-    rig the result equals the closed forms of :mod:`scheimpflug.hinge`.
+    rig the result equals the closed forms of :mod:`scheimpflug.model.hinge`.
     """
     pose = sensor_pose(rig) if pose is None else pose
     p = np.asarray(points_mm, dtype=np.float64)

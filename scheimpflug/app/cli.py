@@ -13,7 +13,7 @@ import argparse
 import importlib
 import sys
 
-from .errors import ScheimpflugError
+from scheimpflug.errors import ScheimpflugError
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -28,7 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"scheimpflug.commands.{name}").add_parser(sub)
+        importlib.import_module(f"scheimpflug.app.commands.{name}").add_parser(sub)
     return parser
 
 

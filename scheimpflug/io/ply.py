@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MeshError
-from .fileio import atomic_path
-from .reconstruct import PointCloud
+from scheimpflug.errors import MeshError
+from scheimpflug.io.atomic import atomic_path
+from scheimpflug.reconstruct import PointCloud
 
 __all__ = ["height_colors", "read_mesh", "read_point_cloud", "write_point_cloud"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import print_json
+from scheimpflug.app.commands._common import print_json
 
 
 def add_parser(sub):
@@ -28,8 +28,8 @@ def add_parser(sub):
 
 
 def _run(args) -> int:
-    from ..axis import locate_axis, locate_axis_from_cylinder
-    from ..calibration import Calibration
+    from scheimpflug.axis import locate_axis, locate_axis_from_cylinder
+    from scheimpflug.calibration import Calibration
 
     cal = Calibration.load(args.calibration)
     res = locate_axis(args.dir, cal, blocker_thickness_mm=args.blocker_thickness_mm)

@@ -23,9 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ScheimpflugError
-from .fileio import write_json_atomic, write_text_atomic
-from .rig import Rig, rig_to_toml
+from scheimpflug.errors import ScheimpflugError
+from scheimpflug.io.atomic import write_json_atomic, write_text_atomic
+from scheimpflug.model.binning import binned_rig
+from scheimpflug.model.rig import Rig, rig_to_toml
 
 __all__ = ["DemoPlan", "PAPER", "plan_for", "run_demo"]
 
@@ -78,14 +79,19 @@ class _Timer:
         return out
 
 
-def _render(scenario: str, out: Path, rig_file: Path, plan: DemoPlan, seed: int, quiet: bool,
-            *opts: str) -> Path:
-    from .cli import main
+def _render(scenario: str, out: Path, rig: Rig, plan: DemoPlan, seed: int, quiet: bool,
+            **options) -> Path:
+    """Render one scenario with the twin (the library, not the command line) into ``out``."""
+    from sim.writer import render_folder
 
-    args = ["render", scenario, "--rig", str(rig_file), "--out", str(out), "--seed", str(seed),
-            "--binning", str(plan.binning), "--truth-pixels", "none", *opts] + (["--quiet"] if quiet else [])
-    if main(args) != 0:
-        raise ScheimpflugError(f"rendering the {scenario} scenario into {out} failed (see above)")
+    from scheimpflug.app.progress import Progress
+
+    def warn(msg: str) -> None:
+        _log(f"warning: {msg}")
+
+    with Progress(0, label=f"render {scenario}", quiet=quiet) as bar:
+        render_folder(binned_rig(rig, plan.binning), scenario, out, seed=seed, progress=bar, warn=warn,
+                      truth_pixels_every=0, **options)
     return out
 
 
@@ -93,10 +99,10 @@ def _render(scenario: str, out: Path, rig_file: Path, plan: DemoPlan, seed: int,
 
 
 def _calibrate(folder: Path, out: Path, report: Path) -> dict:
-    from .calibration import calibrate_folder
-    from .calibration_plot import plot_calibration
-    from .frames import open_frame_folder
-    from .report_plots import plot_superimposed_frames
+    from scheimpflug.calibration import calibrate_folder
+    from scheimpflug.app.calibration_plot import plot_calibration
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.app.report_plots import plot_superimposed_frames
 
     result = calibrate_folder(folder)
     result.best.save(out / "calibration.json")
@@ -110,7 +116,7 @@ def _calibrate(folder: Path, out: Path, report: Path) -> dict:
 
 
 def _axis(folder: Path, calibration) -> dict:
-    from .axis import locate_axis
+    from scheimpflug.axis import locate_axis
 
     res = locate_axis(folder, calibration)
     return {"axis_mm": float(res.axis_mm), "detail": res.to_json_dict()}
@@ -118,13 +124,15 @@ def _axis(folder: Path, calibration) -> dict:
 
 def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bool) -> dict:
     """Extract, reconstruct, write the PLY and score against truth/mesh.ply."""
-    from .frames import open_frame_folder
-    from .plyio import read_mesh, write_point_cloud
-    from .reconstruct import extract_folder, reconstruct_profiles
-    from .scoring import PointToMesh, distance_stats
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.ply import read_mesh, write_point_cloud
+    from scheimpflug.app.progress import Progress
+    from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
+    from scheimpflug.scoring import PointToMesh, distance_stats
 
     ff = open_frame_folder(folder)
-    rows, us, peaks, stats = extract_folder(ff, "cog", quiet=quiet, label="reconstruct")
+    with Progress(0, label="reconstruct", quiet=quiet) as bar:
+        rows, us, peaks, stats = extract_folder(ff, "cog", progress=bar)
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], calibration, axis_mm,
                                  intensity=peaks)
     if len(cloud) == 0:
@@ -143,8 +151,8 @@ _EDGE_MARGIN_MM = 1.0  # points this close to the smooth band's ends count as ne
 
 def _cylinder_metrics(scan: dict, rig: Rig) -> dict:
     import scenes
-    from .fitting import fit_cylinder
-    from .scoring import distance_stats
+    from scheimpflug.fitting import fit_cylinder
+    from scheimpflug.scoring import distance_stats
 
     part = scenes.load_part("cylinder").parts[0]
     z_lo, z_hi = (np.asarray(part.analytic["smooth_z_range_mm"]) + rig.stage.rotary_table_z_mm)
@@ -183,8 +191,8 @@ def _box_side_points(xyz: np.ndarray, rig: Rig, box: dict, inset_mm: float = 5.0
 
 def _pile_metrics(scan: dict, rig: Rig) -> dict:
     import scenes
-    from .fitting import fit_circle_top_view, fit_plane_paper
-    from .scoring import distance_stats
+    from scheimpflug.fitting import fit_circle_top_view, fit_plane_paper
+    from scheimpflug.scoring import distance_stats
 
     parts = {p.analytic.get("kind"): p for p in scenes.load_part("pile").parts}
     xyz, dist = scan["cloud"].xyz_mm, scan["distance"]
@@ -216,7 +224,7 @@ def _budget(axis_mm: float, scan: dict, rig_truth: dict, calibration, cyl_m: dic
     rig's over the sensor; total: point-to-mesh distances.  The smooth part keeps
     the rows and points whose true height lies in the cylinder's smooth band.
     """
-    from .budget import calibration_error, error_budget, extraction_error
+    from scheimpflug.budget import calibration_error, error_budget, extraction_error
 
     ff = scan["folder"]
     truths = [np.load(ff.path / rec.extra["truth"]) for rec in ff.frames]
@@ -242,7 +250,7 @@ def _budget(axis_mm: float, scan: dict, rig_truth: dict, calibration, cyl_m: dic
 def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, seed: int = 0,
              quiet: bool = False) -> dict:
     """Run the whole demo into ``out``; return the summary dict (also written as summary.json)."""
-    from .rig import load_preset
+    from scheimpflug.model.rig import load_preset
 
     rig = rig or load_preset("paper")
     plan = plan_for(quick)
@@ -257,19 +265,19 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
     timer = _Timer()
     t_start = time.perf_counter()
 
-    cal_dir = timer.run("render calibration", _render, "calibration", out / "calibration", rig_file, plan,
-                        seed, quiet, "--steps", str(plan.calibration_steps),
-                        "--step-mm", str(plan.calibration_step_mm), "--start-mm", str(plan.calibration_start_mm))
+    cal_dir = timer.run("render calibration", _render, "calibration", out / "calibration", rig, plan,
+                        seed, quiet, steps=plan.calibration_steps, step_mm=plan.calibration_step_mm,
+                        start_mm=plan.calibration_start_mm)
     cal = timer.run("calibrate", _calibrate, cal_dir, out, report)
     calibration = cal["result"].best
-    blk_dir = timer.run("render blocker", _render, "blocker", out / "blocker", rig_file, plan, seed, quiet)
+    blk_dir = timer.run("render blocker", _render, "blocker", out / "blocker", rig, plan, seed, quiet)
     axis = timer.run("locate axis", _axis, blk_dir, calibration)
-    cyl_dir = timer.run("render cylinder scan", _render, "rotary", out / "cylinder", rig_file, plan, seed,
-                        quiet, "--part", "cylinder", "--step-deg", str(plan.cylinder_step_deg))
+    cyl_dir = timer.run("render cylinder scan", _render, "rotary", out / "cylinder", rig, plan, seed,
+                        quiet, part="cylinder", step_deg=plan.cylinder_step_deg)
     cyl = timer.run("reconstruct + score cylinder", _scan, cyl_dir, calibration, axis["axis_mm"],
                     out / "cylinder.ply", quiet)
-    pile_dir = timer.run("render pile scan", _render, "rotary", out / "pile", rig_file, plan, seed, quiet,
-                         "--part", "pile", "--step-deg", str(plan.pile_step_deg))
+    pile_dir = timer.run("render pile scan", _render, "rotary", out / "pile", rig, plan, seed, quiet,
+                         part="pile", step_deg=plan.pile_step_deg)
     pile = timer.run("reconstruct + score pile", _scan, pile_dir, calibration, axis["axis_mm"],
                      out / "pile.ply", quiet)
     cyl_m = _cylinder_metrics(cyl, rig)
@@ -299,24 +307,16 @@ def _jsonable(obj):
 
 
 def _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, timer, t_start) -> dict:
-    from .design import design_report
+    from scheimpflug.model.design import coverage, design_report
 
     res = cal["result"]
     best = res.best
     truth = cal["truth"]
     ff = cyl["folder"]
     cols, rows = ff.columns, ff.rows
-    du_near, du_far = abs(-0.5 - best.hinge_u_px), abs(cols - 0.5 - best.hinge_u_px)
-    d_near, d_far = best.F2_px_mm / (0 - best.hinge_u_px), best.F2_px_mm / (cols - 1 - best.hinge_u_px)
-    twin_design = {
-        "depth_range_mm": d_far - d_near,
-        "height_range_near_mm": best.C_mm * rows / du_near,
-        "height_range_far_mm": best.C_mm * rows / du_far,
-        "distance_resolution_center_mm": abs(best.F2_px_mm) / (cols // 2 - best.hinge_u_px) ** 2,
-        "height_resolution_center_mm": best.C_mm / abs(cols // 2 - best.hinge_u_px),
-    }
-    from sim.sensor import binned_rig
-
+    cov = coverage(best.hinge_u_px, best.hinge_v_px, best.F2_px_mm, best.C_mm, cols, rows)
+    twin_design = {k: cov[k] for k in ("depth_range_mm", "height_range_near_mm", "height_range_far_mm",
+                                       "distance_resolution_center_mm", "height_resolution_center_mm")}
     true_design = design_report(binned_rig(rig, plan.binning))
     return {
         "quick": quick, "plan": plan.__dict__, "sensor": [rows, cols],
@@ -324,7 +324,7 @@ def _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, time
                         "refined": res.refined.to_json_dict(), "truth": truth, "twin_design": twin_design,
                         "true_design": true_design, "skipped": [list(s) for s in res.skipped]},
         "axis": {"axis_mm": axis["axis_mm"], "truth_mm": truth.get("axis_mm", rig.stage.axis_mm),
-                 "column_px": float(best.hinge_u_px + best.F2_px_mm / (axis["axis_mm"] - best.d0_mm))},
+                 "column_px": float(best.pixel_from_stage(axis["axis_mm"], 0.0)[0])},
         "cylinder": {"n_points": len(cyl["cloud"]), "all": cyl["stats"], "smooth": cyl_m["smooth"],
                      "fit": cyl_m["fit"], "height_mm": cyl_m["height_mm"],
                      "true_diameter_mm": cyl_m["true_diameter_mm"], "true_height_mm": cyl_m["true_height_mm"],
@@ -339,7 +339,7 @@ def _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, time
 
 
 def _write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> None:
-    from .report_md import write_report
+    from scheimpflug.app.report_md import write_report
 
     write_report(out, report, s, cyl, cyl_m, pile, pile_m)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fileio import atomic_path
+from scheimpflug.io.atomic import atomic_path
 
 __all__ = [
     "plot_circle_fit",

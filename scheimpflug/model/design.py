@@ -4,7 +4,7 @@ Forward: :func:`design_report` gives the tilt, hinge, calibration constants,
 depth and height ranges and resolutions of a rig (DESIGN.md §3).  Inverse:
 :func:`inverse_design` finds, for a lens and a sensor, the sheet-angle /
 baseline pairs, tilts and sensor placements that cover a wanted working range.
-Pure functions; the command line lives in :mod:`scheimpflug.commands.design`.
+Pure functions; the command line lives in :mod:`scheimpflug.app.commands.design`.
 """
 
 from __future__ import annotations
@@ -15,17 +15,60 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from .errors import RigError
-from .hinge import HingeGeometry, hinge_geometry, tilt_rad
-from .rig import Rig
+from scheimpflug.errors import RigError
+from scheimpflug.model.hinge import (HingeGeometry, hinge_geometry, stage_from_pixel, stage_jacobian,
+                                     tilt_rad)
+from scheimpflug.model.rig import Rig
 
 __all__ = [
     "DesignChoice",
+    "coverage",
     "design_report",
     "focal_length_from_endpoint",
     "inverse_design",
     "resolution_maps",
 ]
+
+
+def coverage(hinge_u_px: float, hinge_v_px: float, F2_px_mm: float, C_mm: float,
+             columns: int, rows: int) -> dict[str, float]:
+    """What a sensor covers on the sheet, from the calibration constants alone.
+
+    Parameters
+    ----------
+    hinge_u_px, hinge_v_px : float
+        Image hinge (u_h, v_h) [px].
+    F2_px_mm, C_mm : float
+        Calibration constants F² [px·mm] and C [mm] (paper Eqs. 11–12).
+    columns, rows : int
+        Sensor size [px].
+
+    Returns
+    -------
+    dict
+        ``distance_range_mm`` ([D at column 0, D at the last column], from the
+        object hinge), ``depth_range_mm``, ``height_range_near_mm`` and
+        ``height_range_far_mm`` (the full sensor height mapped at the outer
+        edges of the first and last columns), ``distance_resolution_center_mm``
+        and ``height_resolution_center_mm`` (at column ``columns // 2``) [mm],
+        ``center_column_px``.
+    """
+    k = (hinge_u_px, hinge_v_px, F2_px_mm, 0.0, C_mm)
+    D, _ = stage_from_pixel(np.array([0.0, columns - 1.0]), hinge_v_px, *k)
+    edges = np.array([-0.5, columns - 0.5])
+    _, h_top = stage_from_pixel(edges, -0.5, *k)
+    _, h_bottom = stage_from_pixel(edges, rows - 0.5, *k)
+    u_mid = columns // 2
+    ds_du, _, dh_dv = stage_jacobian(u_mid, hinge_v_px, hinge_u_px, hinge_v_px, F2_px_mm, C_mm)
+    return {
+        "distance_range_mm": [float(D[0]), float(D[1])],
+        "depth_range_mm": float(D[1] - D[0]),
+        "distance_resolution_center_mm": float(abs(ds_du)),
+        "height_resolution_center_mm": float(abs(dh_dv)),
+        "center_column_px": u_mid,
+        "height_range_near_mm": float(abs(h_top[0] - h_bottom[0])),
+        "height_range_far_mm": float(abs(h_top[1] - h_bottom[1])),
+    }
 
 
 def design_report(rig: Rig) -> dict:
@@ -38,10 +81,8 @@ def design_report(rig: Rig) -> dict:
     """
     g = hinge_geometry(rig)
     s = rig.sensor
-    u_last = s.columns - 1
-    u_mid = s.columns // 2
-    d_near, d_far = (float(x) for x in g.distance_from_column([0.0, u_last]))
-    near_edge, far_edge = -0.5, s.columns - 0.5
+    cov = coverage(s.hinge_column, s.axis_row, g.F2_px_mm, g.C_mm, s.columns, s.rows)
+    d_near, d_far = cov["distance_range_mm"]
     d_hinge_stage0 = -rig.stage.d0_mm
     u_stage0 = float(g.column_from_distance(d_hinge_stage0))
     return {
@@ -50,13 +91,7 @@ def design_report(rig: Rig) -> dict:
         "hinge_px": [s.hinge_column, s.axis_row],
         "F2_px_mm": g.F2_px_mm,
         "C_mm": g.C_mm,
-        "distance_range_mm": [d_near, d_far],
-        "depth_range_mm": d_far - d_near,
-        "distance_resolution_center_mm": float(g.distance_resolution(u_mid)),
-        "height_resolution_center_mm": float(g.height_resolution(u_mid)),
-        "center_column_px": u_mid,
-        "height_range_near_mm": float(g.C_mm * s.rows / abs(near_edge - s.hinge_column)),
-        "height_range_far_mm": float(g.C_mm * s.rows / abs(far_edge - s.hinge_column)),
+        **cov,
         "object_hinge_mm": g.object_hinge_mm.tolist(),
         "image_hinge_mm": g.image_hinge_mm.tolist(),
         "sensor_distance_to_lens_mm": _sensor_centre_distance(rig, g),

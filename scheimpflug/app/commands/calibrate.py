@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import warnings
 
-from ._common import print_json
+from scheimpflug.app.commands._common import print_json
 
 
 def add_parser(sub):
@@ -44,22 +44,19 @@ def _summary(res) -> str:
 
 
 def _run(args) -> int:
-    from ..calibration import calibrate_folder
-    from ..progress import progress
+    from scheimpflug.app.progress import Progress
+    from scheimpflug.calibration import calibrate_folder
 
-    def prog(items, total, label):
-        return progress(items, total=total, label=label, quiet=args.quiet)
-
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
         warnings.simplefilter("ignore")
         res = calibrate_folder(args.dir, args.plate_height_mm, method=args.method,
-                               detector=args.detector, progress=prog)
+                               detector=args.detector, progress=bar)
     for name, reason in res.skipped:
         print(f"warning: {name}: skipped: {reason}", file=sys.stderr)
     if args.out:
         res.best.save(args.out)
     if args.plot:
-        from ..calibration_plot import plot_calibration
+        from scheimpflug.app.calibration_plot import plot_calibration
         plot_calibration(res, args.plot)
     if args.json:
         d = res.best.to_json_dict()
