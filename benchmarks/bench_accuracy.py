@@ -18,14 +18,14 @@ import numpy as np
 
 def run(contrast: float, step_deg: float, binning: int, root: Path, methods) -> list[dict]:
     import scenes
+    from scheimpflug.app.cli import main
     from scheimpflug.axis import locate_axis
     from scheimpflug.calibration import calibrate_folder
-    from scheimpflug.app.cli import main
     from scheimpflug.fitting import fit_cylinder
     from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.io.ply import read_mesh
-    from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
     from scheimpflug.model.rig import load_preset, rig_to_toml
+    from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
     from scheimpflug.scoring import PointToMesh
 
     rig = load_preset("paper").replace(laser={"speckle_contrast": contrast})

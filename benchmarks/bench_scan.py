@@ -33,12 +33,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
+from scheimpflug.app.progress import Progress  # noqa: E402
 from scheimpflug.model.rig import load_preset  # noqa: E402
 from sim.scenarios import rotary_scenario  # noqa: E402
-from sim.writer import (MitsubaTwin, build_manifest, generator_info, read_png,  # noqa: E402
-                        render_scenario)
-
-from scheimpflug.app.progress import Progress  # noqa: E402
+from sim.writer import MitsubaTwin, build_manifest, generator_info, read_png, render_scenario  # noqa: E402
 
 
 def _png_table(image: np.ndarray) -> None:

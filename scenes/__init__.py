@@ -39,8 +39,17 @@ Knurled faces are flat facets: render them with face normals, not
 interpolated vertex normals.
 """
 
-from .generators import (ball_bar, blocker, box, cylinder, knurled_cylinder, knurled_ring, plate,
-                         sphere, tape_roll)
+from .generators import (
+                         ball_bar,
+                         blocker,
+                         box,
+                         cylinder,
+                         knurled_cylinder,
+                         knurled_ring,
+                         plate,
+                         sphere,
+                         tape_roll,
+)
 from .knurl import knurl_radius_mm
 from .loading import load_part
 from .meshfile import load_mesh

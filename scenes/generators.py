@@ -14,9 +14,9 @@ import math
 import numpy as np
 import trimesh
 
+from scenes import knurl as _knurl
 from scheimpflug.errors import MeshError
 
-from scenes import knurl as _knurl
 from .part import Part
 from .revolve import box_mesh, revolved_mesh, segments_for_sagitta
 

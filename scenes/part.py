@@ -109,7 +109,7 @@ class Part:
         """(4, 4) float: own (analytic) frame → mesh frame."""
         return np.asarray(self.analytic.get("mesh_from_part", np.eye(4).tolist()), dtype=float)
 
-    def transformed(self, b_from_mesh: np.ndarray) -> "Part":
+    def transformed(self, b_from_mesh: np.ndarray) -> Part:
         """The part moved by the rigid 4 × 4 transform ``b_from_mesh`` (analytic pose updated)."""
         m = np.asarray(b_from_mesh, dtype=float)
         mesh = self.mesh.copy()
@@ -117,7 +117,7 @@ class Part:
         analytic = dict(self.analytic, mesh_from_part=(m @ self.mesh_from_part).tolist())
         return replace(self, mesh=mesh, analytic=analytic)
 
-    def posed(self, position_mm=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> "Part":
+    def posed(self, position_mm=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> Part:
         """The part turned by ``yaw_deg`` about its ``z`` axis, then moved by ``position_mm``."""
         return self.transformed(yaw_matrix(yaw_deg, position_mm))
 
@@ -171,7 +171,7 @@ class Assembly:
     def triangle_count(self) -> int:
         return sum(p.triangle_count for p in self.parts)
 
-    def transformed(self, b_from_assembly: np.ndarray) -> "Assembly":
+    def transformed(self, b_from_assembly: np.ndarray) -> Assembly:
         """The whole assembly moved by a rigid 4 × 4 transform (e.g. ``stage_from_part``)."""
         return replace(self, parts=tuple(p.transformed(b_from_assembly) for p in self.parts))
 

@@ -24,14 +24,14 @@ Values other than the paper's quoted dimensions are assumptions.
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Callable
 
 import numpy as np
 
+from scenes import generators as g
 from scheimpflug.errors import MeshError
 
-from scenes import generators as g
 from .part import Assembly, Part, yaw_matrix
 
 __all__ = ["PART_NAMES", "PILE_LAYOUT", "build_preset", "pile", "preset_parameters"]

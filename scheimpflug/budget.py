@@ -23,7 +23,7 @@ All functions are pure; the demo reads the truth files and calls them.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 

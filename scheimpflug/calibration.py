@@ -50,7 +50,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -59,9 +59,9 @@ from scipy import optimize
 
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
-from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
 from scheimpflug.io.atomic import write_json_atomic
 from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
 from scheimpflug.stripe import extract_stripes
 
 __all__ = [
@@ -146,7 +146,8 @@ class Calibration:
 
     def pixel_from_stage(self, stage_mm, h_mm) -> tuple[np.ndarray, np.ndarray]:
         """Pixel (u, v) [px] of the sheet point (stage_mm, h_mm) [mm]: the inverse of
-        :meth:`stage_from_pixel` (:func:`scheimpflug.model.hinge.pixel_from_stage`)."""
+        :meth:`stage_from_pixel` (:func:`scheimpflug.model.hinge.pixel_from_stage`).
+        """
         return pixel_from_stage(stage_mm, h_mm, *self.constants())
 
     def constants(self) -> tuple[float, float, float, float, float]:
@@ -172,7 +173,7 @@ class Calibration:
         write_json_atomic(path, self.to_json_dict())
 
     @classmethod
-    def from_json_dict(cls, d: dict) -> "Calibration":
+    def from_json_dict(cls, d: dict) -> Calibration:
         try:
             r2 = d.get("endpoint_fit_r2", [math.nan, math.nan])
             return cls(hinge_u_px=float(d["hinge_px"][0]), hinge_v_px=float(d["hinge_px"][1]),
@@ -191,7 +192,7 @@ class Calibration:
             raise CalibrationError(f"calibration data lacks or garbles a field: {exc!r}") from None
 
     @classmethod
-    def load(cls, path: str | Path) -> "Calibration":
+    def load(cls, path: str | Path) -> Calibration:
         """Read a calibration JSON written by :meth:`save` (or by ``scheimpflug calibrate``)."""
         p = Path(path)
         try:
@@ -342,7 +343,7 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
 
 
 def _line_fit(x: np.ndarray, y: np.ndarray):
-    """y = m x + b: (m, b), R², and the 2×2 covariance of (m, b)."""
+    """Y = m x + b: (m, b), R², and the 2×2 covariance of (m, b)."""
     A = np.column_stack([x, np.ones_like(x)])
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     r = y - A @ coef

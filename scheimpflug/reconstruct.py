@@ -21,8 +21,9 @@ the PLY happen in ``scheimpflug.app.commands.reconstruct``.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 

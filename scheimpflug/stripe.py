@@ -68,8 +68,8 @@ Pixel convention: column ``u = k`` is the centre of pixel ``k`` (0-based).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import Iterable, Iterator
 
 import numba as nb
 import numpy as np

@@ -80,9 +80,14 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from scheimpflug.model.camera import (SensorPose, chief_ray_from_pixel, sensor_point_from_pixel,
-                                sensor_pose, sheet_point_from_pixel)
 from scheimpflug.errors import RenderError
+from scheimpflug.model.camera import (
+    SensorPose,
+    chief_ray_from_pixel,
+    sensor_point_from_pixel,
+    sensor_pose,
+    sheet_point_from_pixel,
+)
 from scheimpflug.model.rig import Rig
 
 from .lightsheet import light_sheet, speckle_grain_um, speckle_pattern, visible_fan_interval
@@ -251,7 +256,8 @@ class Renderer:
 
     def render_components(self, rig_from_part, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """(laser, ambient) expected electrons, float32 (rows, columns) each; their sum is
-        :meth:`render` (up to float32 rounding of the sum)."""
+        :meth:`render` (up to float32 rounding of the sum).
+        """
         self.scene.set_pose(rig_from_part)
         key = self._key(seed)
         self._frame = self.scene.transforms_dr()
@@ -314,7 +320,7 @@ class Renderer:
         return h & 0xFFFFFFFF
 
     def _splat_into(self, img: np.ndarray, uv: np.ndarray, flux: np.ndarray) -> None:
-        """img += electrons of splats at pixel coordinates uv (2, n) with flux (n,) [W]."""
+        """Img += electrons of splats at pixel coordinates uv (2, n) with flux (n,) [W]."""
         _splat_add(img, uv[0], uv[1], flux, self.electrons_per_watt,
                    self.settings.pixel_filter == "tent")
 

@@ -19,8 +19,9 @@ float32 (≈ 0.05 µm at 1 m, far below a pixel footprint).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

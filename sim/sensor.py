@@ -292,7 +292,8 @@ def _dr_streams(llvm, n: int, key: np.uint64):
 
 def _dr_poisson(llvm, lam, rng):
     """Exact Poisson counts (Float64) of means ``lam`` (Float64): inversion below
-    _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; ``rng`` is advanced."""
+    _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; ``rng`` is advanced.
+    """
     import drjit as dr
 
     F64 = llvm.Float64
@@ -330,7 +331,7 @@ def _dr_poisson(llvm, lam, rng):
     return k
 
 
-def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: "SensorModel") -> np.ndarray:
+def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel) -> np.ndarray:
     import drjit as dr
 
     rng = _dr_streams(llvm, flat.size, key)
@@ -393,7 +394,7 @@ class SensorModel:
     adc_bits: int
 
     @classmethod
-    def from_rig(cls, rig: Rig) -> "SensorModel":
+    def from_rig(cls, rig: Rig) -> SensorModel:
         s = rig.sensor
         return cls(s.full_well_e, s.read_noise_e, s.dark_offset_dn,
                    conversion_gain_e_per_dn(s), s.adc_bits)

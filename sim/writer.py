@@ -35,15 +35,16 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import RenderError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
-from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.model.rig import Rig, rig_to_dict
 
 from .scenarios import FrameSpec, Scenario
@@ -251,7 +252,8 @@ def read_png(path) -> np.ndarray:
 
 def _write_npz(path: Path, arrays: dict) -> None:
     """A compressed ``.npz`` (what ``np.savez_compressed`` writes, read with ``np.load``) at
-    zlib level 1: for the per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB."""
+    zlib level 1: for the per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB.
+    """
     import zipfile
 
     buf = io.BytesIO()
@@ -430,7 +432,8 @@ def _frame_truth(rig, scenario, frame, caster, stats, mesh) -> dict:
 
 def _scene_arrays(scenario: Scenario) -> dict:
     """Per-run truth inputs: vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,), part frame
-    (plus ``directions``, the pixel chief rays, added on first use)."""
+    (plus ``directions``, the pixel chief rays, added on first use).
+    """
     m = scenario.assembly.combined_mesh()
     return {"vertices": np.asarray(m.vertices, dtype=np.float64),
             "faces": np.asarray(m.faces, dtype=np.int64),
@@ -549,7 +552,8 @@ def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
 
 def _finish_frame(out, model, frame, electrons, image, arrays, stats) -> None:
     """Sensor noise (unless ``image`` is given), truth file, then PNG (its presence marks
-    the frame complete)."""
+    the frame complete).
+    """
     png, npz = frame_paths(out, frame.index)
     if image is None:
         image = _noise(electrons, model, frame, stats)

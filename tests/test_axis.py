@@ -5,13 +5,19 @@ import math
 
 import numpy as np
 import pytest
+from synth_frames import (
+    Camera,
+    Geometry,
+    PlateScene,
+    plate_frame,
+    rig_dict,
+    write_folder,
+)
 
+from scheimpflug.app.cli import main
 from scheimpflug.axis import axis_from_cylinder_scan, locate_axis, locate_axis_from_cylinder
 from scheimpflug.calibration import Calibration
-from scheimpflug.app.cli import main
 from scheimpflug.errors import CalibrationError
-from synth_frames import (C_NOMINAL, F2_NOMINAL, Camera, Geometry, PlateScene, plate_frame,
-                          rig_dict, write_folder)
 
 GEO = Geometry()
 AXIS_MM = 179.45

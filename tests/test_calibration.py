@@ -5,13 +5,26 @@ import math
 
 import numpy as np
 import pytest
+from synth_frames import (
+    C_NOMINAL,
+    F2_NOMINAL,
+    Camera,
+    Geometry,
+    PlateScene,
+    calibration_folder,
+    plate_frame,
+    write_folder,
+)
 
-from scheimpflug.calibration import (Calibration, PlateMeasurement, calibrate_folder,
-                                     calibrate_measurements, measure_plate_frame)
 from scheimpflug.app.cli import main
+from scheimpflug.calibration import (
+    Calibration,
+    PlateMeasurement,
+    calibrate_folder,
+    calibrate_measurements,
+    measure_plate_frame,
+)
 from scheimpflug.errors import CalibrationError
-from synth_frames import (C_NOMINAL, F2_NOMINAL, Camera, Geometry, PlateScene, calibration_folder,
-                          plate_frame, write_folder)
 
 # the paper's own numbers (Section 3; DESIGN.md §3)
 PAPER = {"u_h": 3196.0, "v_h": 771.0, "F2": -1.446e6, "C": 145.91, "d0": -466.0}

@@ -9,7 +9,6 @@ d0 within 0.1 mm, the axis within 0.05 mm, the cylinder's diameter within
 
 import json
 
-import numpy as np
 import pytest
 
 pytestmark = [pytest.mark.render, pytest.mark.slow]

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from scheimpflug.fitting import (fit_circle, fit_circle_top_view, fit_cylinder, fit_plane,
-                                 fit_plane_paper)
+from scheimpflug.fitting import fit_circle, fit_circle_top_view, fit_cylinder, fit_plane, fit_plane_paper
 
 
 @pytest.fixture

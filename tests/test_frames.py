@@ -5,10 +5,10 @@ import json
 import cv2
 import numpy as np
 import pytest
+from synth_frames import write_folder
 
 from scheimpflug.errors import FrameError
 from scheimpflug.io.frames import open_frame_folder, read_frame
-from synth_frames import write_folder
 
 RIG = {"sensor": {"rows": 12, "columns": 20, "adc_bits": 12}}
 

@@ -19,7 +19,7 @@ from scheimpflug.model.camera import (
 )
 from scheimpflug.model.design import design_report, focal_length_from_endpoint
 from scheimpflug.model.hinge import hinge_geometry
-from scheimpflug.model.rig import Rig, rig_from_dict
+from scheimpflug.model.rig import rig_from_dict
 
 
 def _rig(f=55.0, d=150.0, t=0.2075, **sensor):

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from scheimpflug.calibration import Calibration
 from scheimpflug.app.cli import main
+from scheimpflug.calibration import Calibration
 from scheimpflug.io.ply import read_point_cloud
 
 ROWS, COLS = 200, 300

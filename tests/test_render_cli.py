@@ -9,10 +9,10 @@ import pytest
 
 from scheimpflug.app.cli import main
 from scheimpflug.errors import RenderError
+from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import load_preset
 from sim.scenarios import blocker_scenario, calibration_scenario
-from scheimpflug.model.binning import binned_rig
 from sim.stages import transform_points
 from sim.truth import BruteForceCaster
 from sim.writer import build_manifest, read_png, render_scenario

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from scheimpflug.app.cli import main
-from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.errors import RigError
+from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import load_preset, load_rig, rig_from_dict, rig_to_toml
 

@@ -5,8 +5,14 @@ import pytest
 import trimesh
 
 from scheimpflug.errors import MeshError
-from scheimpflug.scoring import (PointToMesh, body_labels, distance_stats, is_closed_mesh,
-                                 point_to_mesh, score_points)
+from scheimpflug.scoring import (
+    PointToMesh,
+    body_labels,
+    distance_stats,
+    is_closed_mesh,
+    point_to_mesh,
+    score_points,
+)
 
 
 @pytest.fixture

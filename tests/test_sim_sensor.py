@@ -4,13 +4,18 @@ import hashlib
 
 import numpy as np
 import pytest
-
-from scheimpflug.model.rig import load_preset
 from scipy import stats
 
+from scheimpflug.model.rig import load_preset
 from sim import sensor as sensor_module
-from sim.sensor import (SensorModel, apply_sensor, conversion_gain_e_per_dn, frame_rng,
-                        full_scale_dn, poisson_counts)
+from sim.sensor import (
+    SensorModel,
+    apply_sensor,
+    conversion_gain_e_per_dn,
+    frame_rng,
+    full_scale_dn,
+    poisson_counts,
+)
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,16 @@ import pytest
 
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import load_preset
-from sim.stages import (axis_distance_mm, invert, rig_from_plate, rig_from_stage, rotation_z,
-                        stage_from_part, stage_from_plate, transform_points)
+from sim.stages import (
+    axis_distance_mm,
+    invert,
+    rig_from_plate,
+    rig_from_stage,
+    rotation_z,
+    stage_from_part,
+    stage_from_plate,
+    transform_points,
+)
 
 
 @pytest.fixture(scope="module")

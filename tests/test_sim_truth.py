@@ -7,13 +7,20 @@ import numpy as np
 import pytest
 import trimesh
 
+from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import load_preset
 from sim.scenarios import calibration_scenario
-from scheimpflug.model.binning import binned_rig
 from sim.stages import rig_from_stage, stage_from_part, transform_points
-from sim.truth import (BruteForceCaster, laser_origin_mm, pixel_truth, rig_truth, row_crossings,
-                       sheet_section, stripe_truth)
+from sim.truth import (
+    BruteForceCaster,
+    laser_origin_mm,
+    pixel_truth,
+    rig_truth,
+    row_crossings,
+    sheet_section,
+    stripe_truth,
+)
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 from scipy.special import ndtr
+from synth_frames import Camera, stripe_profile, to_dn
 
 from scheimpflug.errors import FrameError
 from scheimpflug.stripe import METHODS, extract_stripes, extract_stripes_batch
-from synth_frames import Camera, stripe_profile, to_dn
 
 COLS = 64
 BG_E = 40.0

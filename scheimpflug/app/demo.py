@@ -82,9 +82,8 @@ class _Timer:
 def _render(scenario: str, out: Path, rig: Rig, plan: DemoPlan, seed: int, quiet: bool,
             **options) -> Path:
     """Render one scenario with the twin (the library, not the command line) into ``out``."""
-    from sim.writer import render_folder
-
     from scheimpflug.app.progress import Progress
+    from sim.writer import render_folder
 
     def warn(msg: str) -> None:
         _log(f"warning: {msg}")
@@ -99,10 +98,10 @@ def _render(scenario: str, out: Path, rig: Rig, plan: DemoPlan, seed: int, quiet
 
 
 def _calibrate(folder: Path, out: Path, report: Path) -> dict:
-    from scheimpflug.calibration import calibrate_folder
     from scheimpflug.app.calibration_plot import plot_calibration
-    from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.app.report_plots import plot_superimposed_frames
+    from scheimpflug.calibration import calibrate_folder
+    from scheimpflug.io.frames import open_frame_folder
 
     result = calibrate_folder(folder)
     result.best.save(out / "calibration.json")
@@ -124,9 +123,9 @@ def _axis(folder: Path, calibration) -> dict:
 
 def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bool) -> dict:
     """Extract, reconstruct, write the PLY and score against truth/mesh.ply."""
+    from scheimpflug.app.progress import Progress
     from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.io.ply import read_mesh, write_point_cloud
-    from scheimpflug.app.progress import Progress
     from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
     from scheimpflug.scoring import PointToMesh, distance_stats
 

@@ -5,12 +5,10 @@ matplotlib with the Agg backend (no screen needed).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from scheimpflug.model.camera import sensor_point_from_pixel, sensor_pose
 from scheimpflug.io.atomic import atomic_path
+from scheimpflug.model.camera import sensor_point_from_pixel, sensor_pose
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from scheimpflug.io.atomic import write_text_atomic
 from scheimpflug.app.report_plots import (
     plot_circle_fit,
     plot_cloud_views,
     plot_error_histograms,
     plot_plane_fit,
 )
+from scheimpflug.io.atomic import write_text_atomic
 
 __all__ = ["write_report"]
 

@@ -17,10 +17,11 @@ import json
 import math
 import os
 from collections import deque
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import cv2
 import numpy as np
@@ -110,7 +111,8 @@ class FrameFolder:
 
     def saturation_dn(self, frame: np.ndarray) -> float:
         """Saturation level of ``frame`` [DN]: ``2**adc_bits − 1`` when the rig gives the
-        ADC depth and the frame stays within it, else the dtype's maximum."""
+        ADC depth and the frame stays within it, else the dtype's maximum.
+        """
         top = float(np.iinfo(frame.dtype).max)
         if self.adc_bits is not None and frame.dtype == np.uint16:
             level = float(2 ** self.adc_bits - 1)

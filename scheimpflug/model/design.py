@@ -16,8 +16,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from scheimpflug.errors import RigError
-from scheimpflug.model.hinge import (HingeGeometry, hinge_geometry, stage_from_pixel, stage_jacobian,
-                                     tilt_rad)
+from scheimpflug.model.hinge import HingeGeometry, hinge_geometry, stage_from_pixel, stage_jacobian, tilt_rad
 from scheimpflug.model.rig import Rig
 
 __all__ = [

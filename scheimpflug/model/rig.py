@@ -17,10 +17,11 @@ import dataclasses
 import math
 import tomllib
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from scheimpflug.errors import RigError
 
@@ -173,7 +174,7 @@ class Rig:
     def __post_init__(self) -> None:
         validate_rig(self)
 
-    def replace(self, **tables: Mapping[str, Any]) -> "Rig":
+    def replace(self, **tables: Mapping[str, Any]) -> Rig:
         """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``."""
         data = rig_to_dict(self)
         for table, values in tables.items():

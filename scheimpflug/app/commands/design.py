@@ -6,10 +6,10 @@ import argparse
 import math
 import sys
 
-from scheimpflug.model.design import design_report, inverse_design
-from scheimpflug.errors import RigError
-from scheimpflug.model.rig import Rig, rig_to_toml
 from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.errors import RigError
+from scheimpflug.model.design import design_report, inverse_design
+from scheimpflug.model.rig import Rig, rig_to_toml
 
 __all__ = ["add_parser", "format_report"]
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import sys
 
-from scheimpflug.errors import RenderError, ScheimpflugError
 from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.errors import RenderError, ScheimpflugError
 
 __all__ = ["add_parser"]
 
@@ -124,10 +124,9 @@ def _check_out(path: str) -> None:
 
 
 def _run(args) -> int:
+    from scheimpflug.app.progress import Progress
     from sim.scenarios import SCENARIOS
     from sim.writer import render_folder
-
-    from scheimpflug.app.progress import Progress
 
     if args.scenario not in SCENARIOS:
         raise ScheimpflugError(f"unknown scenario {args.scenario!r} (known: {', '.join(SCENARIOS)})")
