@@ -1,3 +1,5 @@
+"""``python -m scheimpflug``: the command line."""
+
 import sys
 
 from scheimpflug.app.cli import main

@@ -80,7 +80,8 @@ def _layout_lines(ax, rig: Rig, annotate: bool) -> None:
         ax.annotate(name, (pt[0], pt[1]), textcoords="offset points", xytext=(4, 4))
     for Dk in (D[0], D[1]) if annotate else ():
         p = H + Dk * g.propagation_dir
-        ax.annotate(f"D = {Dk:.1f} mm", (p[0], p[1]), textcoords="offset points", xytext=(0, 10), ha="center", fontsize=8)
+        ax.annotate(f"D = {Dk:.1f} mm", (p[0], p[1]), textcoords="offset points", xytext=(0, 10),
+                    ha="center", fontsize=8)
 
 
 def _draw_curves(ax, rig: Rig) -> None:

@@ -146,7 +146,8 @@ def plot_error_histograms(errors: dict[str, np.ndarray], path, title: str) -> No
         lim = np.percentile(np.abs(e), 99.5) if len(e) else 1.0
         ax.hist(np.clip(e, -lim, lim), bins=100, color="tab:purple")
         rms = np.sqrt(np.mean(e ** 2)) if len(e) else float("nan")
-        ax.set_title(f"{name}: RMS {rms:.4f} mm, n = {len(e)}\n(tails clipped at the 99.5th percentile of |d|)", fontsize=9)
+        ax.set_title(f"{name}: RMS {rms:.4f} mm, n = {len(e)}\n(tails clipped at the 99.5th percentile of |d|)",
+                     fontsize=9)
         ax.set_xlabel("signed distance to the true surface [mm]")
         ax.set_ylabel("points")
     fig.suptitle(title)

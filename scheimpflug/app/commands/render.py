@@ -49,7 +49,9 @@ def add_parser(sub):
     g = p.add_argument_group("calibration")
     g.add_argument("--steps", type=int, help="number of plate positions (default 27)")
     g.add_argument("--step-mm", type=float, help="stage step [mm] (default 10; the paper used 20)")
-    g.add_argument("--start-mm", type=float, help="first stage position s [mm] (default −10: with 27 × 10 mm, every frame of the paper rig in view)")
+    g.add_argument("--start-mm", type=float,
+                   help="first stage position s [mm] (default −10: with 27 × 10 mm, every frame of the "
+                        "paper rig in view)")
     g.add_argument("--plate-height-mm", type=float, help="plate height [mm] (default 89)")
     g = p.add_argument_group("blocker and rotary")
     g.add_argument("--part", help="rotary: part name or mesh file (default cylinder)")

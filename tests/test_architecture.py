@@ -1,0 +1,118 @@
+"""The house rules, checked with the suite: the import contract, ruff, numpydoc docstrings.
+
+The import contract (``[tool.importlinter]`` in pyproject.toml) fixes one import
+direction — application → twin → parts → instrument core; ARCHITECTURE.md
+explains it.  A test here also plants a wrong-way import in a copy of the tree
+and checks that the contract catches it, so the contract cannot silently stop
+biting.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import inspect
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+#: Modules whose public API must carry numpydoc docstrings (the instrument core and the twin).
+DOCUMENTED_MODULES = [
+    "scheimpflug.errors", "scheimpflug.callbacks", "scheimpflug.stripe", "scheimpflug.calibration",
+    "scheimpflug.axis", "scheimpflug.reconstruct", "scheimpflug.scoring", "scheimpflug.fitting",
+    "scheimpflug.budget", "scheimpflug.model.rig", "scheimpflug.model.hinge", "scheimpflug.model.camera",
+    "scheimpflug.model.design", "scheimpflug.model.binning", "scheimpflug.io.frames", "scheimpflug.io.ply",
+    "scheimpflug.io.atomic", "sim.variant", "sim.scene", "sim.materials", "sim.lightsheet", "sim.render",
+    "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
+]
+#: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
+#: parameter is documented with a type and a description and no unknown one is, a function that
+#: returns or yields something says what.
+NUMPYDOC_CHECKS = {"GL08", "PR01", "PR02", "PR04", "PR07", "RT01", "RT03", "YD01"}
+
+
+def _tool(name: str) -> str:
+    exe = BIN / name
+    if not exe.exists():
+        pytest.fail(f"{name} is not installed in this environment (pip install -e '.[test]')")
+    return str(exe)
+
+
+def test_import_contract_is_kept():
+    res = subprocess.run([_tool("lint-imports")], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
+
+
+def test_import_contract_catches_a_wrong_way_import(tmp_path):
+    """The core importing the twin must break the contract (the test of the test)."""
+    for pkg in ("scheimpflug", "sim", "scenes"):
+        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    target = tmp_path / "scheimpflug" / "stripe.py"
+    target.write_text(target.read_text() + "\n\ndef _wrong_way():\n    import sim.render  # noqa\n")
+    env = {"PYTHONPATH": str(tmp_path), "PATH": str(BIN)}
+    res = subprocess.run([_tool("lint-imports")], cwd=tmp_path, capture_output=True, text=True, env=env)
+    assert res.returncode != 0
+    assert "scheimpflug.stripe -> sim.render" in res.stdout
+
+
+def test_ruff_is_clean():
+    res = subprocess.run([_tool("ruff"), "check", "--no-cache", "."], cwd=ROOT, capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stdout[-4000:]
+
+
+def _public_objects():
+    for modname in DOCUMENTED_MODULES:
+        mod = importlib.import_module(modname)
+        for name in getattr(mod, "__all__", []):
+            obj = getattr(mod, name)
+            if getattr(obj, "__module__", None) != modname:
+                continue
+            if inspect.isfunction(obj):
+                yield f"{modname}.{name}", obj
+            elif inspect.isclass(obj):
+                yield f"{modname}.{name}", obj
+                for attr, member in vars(obj).items():
+                    if attr.startswith("_") or not inspect.isfunction(member):
+                        continue
+                    yield f"{modname}.{name}.{attr}", member
+
+
+def _raises_directly(fn) -> bool:
+    """Whether the function's own body (not nested functions) has a ``raise`` with an exception."""
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(fn)))
+    except (OSError, TypeError, SyntaxError):
+        return False
+    body = tree.body[0]
+
+    def walk(node):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+                continue
+            if isinstance(child, ast.Raise) and child.exc is not None:
+                yield child
+            yield from walk(child)
+
+    return any(True for _ in walk(body))
+
+
+def test_public_api_has_numpydoc_docstrings():
+    from numpydoc.validate import validate
+
+    problems = []
+    for path, obj in _public_objects():
+        errors = [f"{code} {msg}" for code, msg in validate(path)["errors"] if code in NUMPYDOC_CHECKS]
+        doc = inspect.getdoc(obj) or ""
+        if inspect.isfunction(obj) and _raises_directly(obj) and "Raises\n------" not in doc:
+            errors.append("RA01 raises an exception but has no Raises section")
+        problems += [f"{path}: {e}" for e in errors]
+    assert not problems, f"{len(problems)} docstring problems:\n" + "\n".join(problems)
