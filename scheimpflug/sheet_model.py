@@ -781,8 +781,9 @@ class SheetModelResult:
     ----------
     chosen : Calibration or GeneralCalibration
         The model the requested choice (paper, general, auto) gives.
-    general : GeneralCalibration
-        The general model.
+    general : GeneralCalibration or None
+        The general model (None when no camera fits the paper constants with the assumed
+        focal length and pixel pitch; then ``paper_fit`` and ``general_fit`` are None too).
     paper : CalibrationResult
         The paper calibration (paper and refined estimates, :mod:`scheimpflug.calibration`).
     paper_fit, general_fit : SheetFit
@@ -891,6 +892,7 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
                            model: str = "auto", method: str = "best", detector: str = "cog",
                            focal_length_mm: float | None = None, pixel_pitch_um: float | None = None,
                            fit_k2: bool = False, fit_centre: bool = False, extra_points=None,
+                           alpha: float = 1e-3, min_rss_drop: float = 0.2,
                            progress: ProgressCallback | None = None,
                            tol: CalibrationTolerances = CalibrationTolerances()) -> SheetModelResult:
     """Calibrate a plate folder with the paper form and the general model; choose one.
@@ -914,6 +916,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
         Fit k2, refine the distortion centre (:func:`fit_sheet_models`).
     extra_points : (n, 4) float, optional
         Extra target points (u, v [px], s, h [mm]).
+    alpha, min_rss_drop : float
+        The selection test (:func:`select_model`).
     progress : ProgressCallback, optional
         ``progress(done, total)`` per frame.
     tol : CalibrationTolerances
@@ -927,7 +931,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     Raises
     ------
     CalibrationError
-        Unknown model, frames without ``stage_mm``, too few usable frames.
+        Unknown model, frames without ``stage_mm``, too few usable frames; with
+        ``model="general"``, intrinsics inconsistent with the calibration.
     """
     if model not in ("paper", "general", "auto"):
         raise CalibrationError(f"unknown calibration model {model!r} (paper, general, auto)")
@@ -945,9 +950,17 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
                                        rows=ff.rows, method=method, tol=tol,
                                        skipped=tuple(skipped))
     f, p, _ = _rig_optics(ff, focal_length_mm, pixel_pitch_um)
-    pfit, gfit, general, sel = fit_sheet_models(ms, paper, focal_length_mm=f, pixel_pitch_um=p,
-                                                fit_k2=fit_k2, fit_centre=fit_centre,
-                                                extra_points=extra_points)
+    try:
+        pfit, gfit, general, sel = fit_sheet_models(ms, paper, focal_length_mm=f, pixel_pitch_um=p,
+                                                    fit_k2=fit_k2, fit_centre=fit_centre,
+                                                    extra_points=extra_points, alpha=alpha,
+                                                    min_rss_drop=min_rss_drop)
+    except CalibrationError as exc:
+        if model == "general":
+            raise
+        sel = ModelSelection("paper", math.nan, 1.0, math.nan, math.nan, (0, 0), alpha, min_rss_drop,
+                             f"paper: the general model is unavailable ({exc})")
+        return SheetModelResult(paper.best, None, paper, None, None, sel, tuple(ms), tuple(skipped))
     choice = sel.chosen if model == "auto" else model
     chosen = general if choice == "general" else paper.best
     return SheetModelResult(chosen, general, paper, pfit, gfit, sel, tuple(ms), tuple(skipped))

@@ -10,7 +10,7 @@ Frames
     files; give ``adc_bits = 12`` so that saturation is found at 4095), read
     with OpenCV (``tifffile``, when installed, is tried for TIFFs OpenCV cannot
     decode).  Every frame must have the first frame's size and bit depth.  They
-    are copied losslessly to 16-bit (or 8-bit) PNG, in the order given.
+    are copied losslessly to 16-bit (or 8-bit) PNG, ordered by position.
 Positions
     a CSV with a header naming ``file`` and ``stage_mm`` (translation stage,
     calibration plates) or ``angle_deg`` (rotary stage); ``file`` is matched
@@ -267,6 +267,7 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         raise FrameError("no frames to import")
     if len({f.key for f in frames}) != 1:
         raise FrameError("frames mix stage positions and angles")
+    frames = sorted(frames, key=lambda f: f.value)        # stable: equal positions keep their order
     images = _load_all(frames)
     _check_rig(rig, images[0].shape)
     depth = 8 * images[0].itemsize

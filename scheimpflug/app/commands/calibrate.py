@@ -52,9 +52,10 @@ def _summary(res) -> str:
                      f"(σu {c.hinge_u_sigma_px:.3g})  F² = {c.F2_px_mm:.6g} ± {c.F2_sigma_px_mm:.3g} "
                      f"px·mm  d0 = {c.d0_mm:.3f} mm  C = {c.C_mm:.4f} ± {c.C_sigma_mm:.3g} mm")
     g = res.general
-    cam = g.camera
-    mark = "*" if res.chosen is g else " "
-    lines.append(f"{mark} general  k1 = {cam.k1:.5g}, principal point ({cam.principal_px[0]:.1f}, "
+    cam = g.camera if g is not None else None
+    mark = "*" if g is not None and res.chosen is g else " "
+    lines.append("  general  unavailable" if g is None else
+                 f"{mark} general  k1 = {cam.k1:.5g}, principal point ({cam.principal_px[0]:.1f}, "
                  f"{cam.principal_px[1]:.1f}) px, residual {g.residual_rms_px:.4f} px RMS, "
                  f"σ over the field {g.field_sigma_mm.get('stage_rms', float('nan')):.3g} mm (stage), "
                  f"{g.field_sigma_mm.get('height_rms', float('nan')):.3g} mm (height)")
@@ -86,7 +87,7 @@ def _result_dict(res) -> dict:
     d = res.chosen.to_json_dict()
     d["model"] = "general" if res.chosen is res.general else "paper"
     d["selection"] = res.selection.to_json_dict()
-    if d["model"] == "paper":
+    if d["model"] == "paper" and res.general is not None:
         d["general"] = res.general.to_json_dict()["general"]
     return d
 
