@@ -73,7 +73,7 @@ def _points(points, min_n: int, what: str) -> np.ndarray:
 class SphereFit:
     """Least-squares sphere with free radius.
 
-    Attributes
+    Parameters
     ----------
     centre_mm : (3,) float
         Centre [mm].

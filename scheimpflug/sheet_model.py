@@ -126,16 +126,43 @@ class SheetModel(Protocol):
     :class:`scheimpflug.calibration.Calibration` (the paper's form) and
     :class:`GeneralCalibration` both implement it; reconstruction, the axis
     locator and the acceptance test take either.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        A protocol is not instantiated; implementations have ``columns`` and ``rows`` [px].
     """
 
     columns: int
     rows: int
 
     def stage_from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
-        """Stage coordinate and height [mm] of pixels (u, v) [px]."""
+        """Stage coordinate and height of pixels.
+
+        Parameters
+        ----------
+        u, v : array_like float
+            Column and row [px].
+
+        Returns
+        -------
+        stage_mm, h_mm : ndarray float64
+            [mm].
+        """
 
     def pixel_from_stage(self, stage_mm, h_mm) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel (u, v) [px] of sheet points (stage coordinate, height) [mm]."""
+        """Pixel of sheet points.
+
+        Parameters
+        ----------
+        stage_mm, h_mm : array_like float
+            Stage coordinate and height [mm].
+
+        Returns
+        -------
+        u_px, v_px : ndarray float64
+            [px].
+        """
 
 
 # ---------------------------------------------------------------- the general model
@@ -152,7 +179,7 @@ def _sheet_from_normalized(g_inv: np.ndarray, x, y) -> tuple[np.ndarray, np.ndar
 class GeneralCalibration:
     """The general calibration: sheet homography, radial distortion and a tilted camera.
 
-    Attributes
+    Parameters
     ----------
     camera : TiltedCamera
         Intrinsics and distortion (:mod:`scheimpflug.tilted_camera`).
@@ -465,7 +492,7 @@ def _residuals(data: _Data, mapping: Callable, h_bottom: float) -> np.ndarray:
 class SheetFit:
     """One least-squares fit of a sheet model to the calibration data.
 
-    Attributes
+    Parameters
     ----------
     name : str
         "paper" or "general".
@@ -688,7 +715,7 @@ def _clean_edges(data: _Data, ms: Sequence[PlateMeasurement], n_sigma: float = 4
 class ModelSelection:
     """The nested-model F-test of ``--model auto`` (module docstring).
 
-    Attributes
+    Parameters
     ----------
     chosen : str
         "paper" or "general".
@@ -777,7 +804,7 @@ def select_model(paper: SheetFit, general: SheetFit, alpha: float = 1e-3,
 class SheetModelResult:
     """Both least-squares forms, the selection and the chosen model.
 
-    Attributes
+    Parameters
     ----------
     chosen : Calibration or GeneralCalibration
         The model the requested choice (paper, general, auto) gives.
@@ -866,7 +893,7 @@ def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: Calibratio
 
 
 def _rig_optics(ff: FrameFolder, focal_length_mm, pixel_pitch_um) -> tuple[float, float, bool]:
-    """f [mm] and p [µm]: the arguments, else the manifest's rig, else the paper's (assumed)."""
+    """F [mm] and p [µm]: the arguments, else the manifest's rig, else the paper's (assumed)."""
     rig = ff.rig or {}
     f = focal_length_mm or (rig.get("lens") or {}).get("focal_length_mm")
     p = pixel_pitch_um or (rig.get("sensor") or {}).get("pixel_pitch_um")
@@ -894,7 +921,7 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
                            fit_k2: bool = False, fit_centre: bool = False, extra_points=None,
                            alpha: float = 1e-3, min_rss_drop: float = 0.2,
                            progress: ProgressCallback | None = None,
-                           tol: CalibrationTolerances = CalibrationTolerances()) -> SheetModelResult:
+                           tol: CalibrationTolerances | None = None) -> SheetModelResult:
     """Calibrate a plate folder with the paper form and the general model; choose one.
 
     Parameters
@@ -920,8 +947,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
         The selection test (:func:`select_model`).
     progress : ProgressCallback, optional
         ``progress(done, total)`` per frame.
-    tol : CalibrationTolerances
-        Plate measurement thresholds.
+    tol : CalibrationTolerances, optional
+        Plate measurement thresholds (default :class:`CalibrationTolerances`).
 
     Returns
     -------
@@ -936,6 +963,7 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     """
     if model not in ("paper", "general", "auto"):
         raise CalibrationError(f"unknown calibration model {model!r} (paper, general, auto)")
+    tol = tol or CalibrationTolerances()
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:
         plate_height_mm = float(ff.scenario_params.get("plate_height_mm", 89.0))

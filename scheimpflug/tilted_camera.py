@@ -91,7 +91,7 @@ def _apply(m: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _undistort_ratio(rd2: np.ndarray, k1: float, k2: float, iterations: int = 12) -> np.ndarray:
-    """r / r_d solving r (1 + k1 r² + k2 r⁴) = r_d by Newton's method, vectorised."""
+    """R / r_d solving r (1 + k1 r² + k2 r⁴) = r_d by Newton's method, vectorised."""
     if k1 == 0.0 and k2 == 0.0:
         return np.ones_like(rd2)
     rd = np.sqrt(rd2)
@@ -108,7 +108,7 @@ def _undistort_ratio(rd2: np.ndarray, k1: float, k2: float, iterations: int = 12
 class TiltedCamera:
     """Intrinsics of OpenCV's tilted pinhole model with radial distortion (module docstring).
 
-    Attributes
+    Parameters
     ----------
     focal_px : float
         Principal distance over the pixel pitch, ``fx = fy`` [px].

@@ -73,7 +73,7 @@ __all__ = [
 class ArtefactPosition:
     """One artefact in one position, with the angles that scan it.
 
-    Attributes
+    Parameters
     ----------
     kind : str
         "sphere", "ball_bar" or "plane".
@@ -257,7 +257,8 @@ def _assembly(position: ArtefactPosition):
         part = part.transformed(_move(*position.part_from_own[:2, 3], 0.0))
     elif position.kind == "ball_bar":
         part = ball_bar(nom["diameter_mm"], nom["distance_mm"], stand_height_mm=0.0,
-                        post_diameter_mm=0.3 * nom["diameter_mm"], material=_MATERIAL).transformed(position.part_from_own)
+                        post_diameter_mm=0.3 * nom["diameter_mm"], material=_MATERIAL)
+        part = part.transformed(position.part_from_own)
     else:
         part = plate(width_mm=nom["length_mm"], height_mm=nom["height_mm"],
                      material=_MATERIAL).transformed(position.part_from_own)
@@ -317,7 +318,8 @@ def _segment(position: ArtefactPosition, xyz: np.ndarray):
         return out
     own = (xyz - position.part_from_own[:3, 3]) @ position.part_from_own[:3, :3]
     L, H = nom["length_mm"], nom["height_mm"]
-    keep = (np.abs(own[:, 0]) < 1.0) & (np.abs(own[:, 1]) < L / 2 - 2) & (own[:, 2] > 2) & (own[:, 2] < H - 2)
+    keep = ((np.abs(own[:, 0]) < 1.0) & (np.abs(own[:, 1]) < L / 2 - 2)
+            & (own[:, 2] > 2) & (own[:, 2] < H - 2))
     return xyz[keep]
 
 

@@ -29,7 +29,9 @@ DOCUMENTED_MODULES = [
     "scheimpflug.axis", "scheimpflug.reconstruct", "scheimpflug.scoring", "scheimpflug.fitting",
     "scheimpflug.budget", "scheimpflug.model.rig", "scheimpflug.model.hinge", "scheimpflug.model.camera",
     "scheimpflug.model.design", "scheimpflug.model.binning", "scheimpflug.io.frames", "scheimpflug.io.ply",
-    "scheimpflug.io.atomic", "sim.variant", "sim.scene", "sim.materials", "sim.lightsheet", "sim.render",
+    "scheimpflug.io.atomic", "scheimpflug.io.opencv", "scheimpflug.io.importer", "scheimpflug.sheet_model",
+    "scheimpflug.tilted_camera", "scheimpflug.acceptance", "sim.acceptance",
+    "sim.variant", "sim.scene", "sim.materials", "sim.lightsheet", "sim.render",
     "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every

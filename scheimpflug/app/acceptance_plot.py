@@ -48,9 +48,11 @@ def plot_acceptance(result: dict, path: str | Path) -> None:
     pos = result["positions"]
     fig, axes = plt.subplots(2, 3, figsize=(13, 8))
     _bars(axes[0, 0], pos["sphere"], "PF_mm", f"PF per sphere position (max {result['PF_mm'] * 1e3:.1f} µm)")
-    _bars(axes[0, 1], pos["sphere"], "PS_mm", f"PS per sphere position (max |PS| {abs(result['PS_mm']) * 1e3:.1f} µm)")
+    _bars(axes[0, 1], pos["sphere"], "PS_mm",
+          f"PS per sphere position (max |PS| {abs(result['PS_mm']) * 1e3:.1f} µm)")
     if pos["ball_bar"]:
-        _bars(axes[0, 2], pos["ball_bar"], "SD_mm", f"SD per ball-bar position (max |SD| {abs(result['SD_mm']) * 1e3:.1f} µm)")
+        _bars(axes[0, 2], pos["ball_bar"], "SD_mm",
+              f"SD per ball-bar position (max |SD| {abs(result['SD_mm']) * 1e3:.1f} µm)")
     if pos["plane"]:
         _bars(axes[1, 0], pos["plane"], "F_mm", f"F per plane position (max {result['F_mm'] * 1e3:.1f} µm)")
     pts = result.get("points", {})

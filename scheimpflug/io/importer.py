@@ -57,7 +57,7 @@ _NUMBER = r"[-+]?(?:\d+(?:[.p]\d*)?|[.p]\d+)(?:[eE][-+]?\d+)?"
 class ImportedFrame:
     """One source frame and its stage reading.
 
-    Attributes
+    Parameters
     ----------
     path : Path
         The source file.

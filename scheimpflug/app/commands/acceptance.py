@@ -46,7 +46,8 @@ def _table(r: dict) -> str:
              f"0.3 % exclusion {'applied' if r['exclude_fraction'] else 'not applied'})",
              f"  PF (probing error, form)     {um(r['PF_mm'])}   max over {len(n['sphere'])} sphere positions",
              f"  PS (probing error, size)     {um(r['PS_mm'])}   largest |PS|",
-             f"  SD (sphere-spacing error)    {um(r['SD_mm'])}   largest |SD| over {len(n['ball_bar'])} ball-bar positions",
+             f"  SD (sphere-spacing error)    {um(r['SD_mm'])}   largest |SD| over "
+             f"{len(n['ball_bar'])} ball-bar positions",
              f"  F  (flatness error)          {um(r['F_mm'])}   max over {len(n['plane'])} plane positions",
              f"  stripe extraction error on the sheet: range {um(r['extraction_range_mm'])}, "
              f"RMS {um(r['extraction_rms_mm'])}"]
@@ -54,7 +55,8 @@ def _table(r: dict) -> str:
         for row in n[kind]:
             key = {"sphere": "PF_mm", "ball_bar": "SD_mm", "plane": "F_mm"}[kind]
             extra = f"  PS {row['PS_mm'] * 1e3:+.1f} µm" if kind == "sphere" else ""
-            lines.append(f"    {row['name']:12s} {key[:-3]} {row[key] * 1e3:+8.1f} µm{extra}  ({row['n_frames']} frames)")
+            lines.append(f"    {row['name']:12s} {key[:-3]} {row[key] * 1e3:+8.1f} µm{extra}  "
+                         f"({row['n_frames']} frames)")
     return "\n".join(lines)
 
 

@@ -71,9 +71,9 @@ def _extract(folder, args):
 
 
 def _run(args) -> int:
-    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.errors import FrameError
     from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
