@@ -79,16 +79,19 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
 
     Parameters
     ----------
-    path : path-like
-        Destination ``.ply``.
+    path : str or os.PathLike
+        Destination ``.ply``; written to a temporary name, then renamed.
     cloud : PointCloud
-        Points [mm] with angle, row and intensity.
-    comment : str
-        Extra header comment (one line; e.g. the command that made it).
+        Points in the part frame [mm] with angle, row and intensity (stored
+        as float32 / int32).
+    comment : str, optional
+        Extra header comment (one line: whitespace runs are collapsed; e.g.
+        the command that made it).
 
     Returns
     -------
     Path
+        ``path``.
     """
     data = np.empty(len(cloud), dtype=_CLOUD_DTYPE)
     for k, name in enumerate("xyz"):
@@ -147,10 +150,24 @@ def _vertex_dtype(props: list, fmt: str, path: Path) -> np.dtype:
 def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     """Read a point cloud PLY (the vertex element; any faces after it are ignored).
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A PLY file (ascii or binary, either byte order) whose first element is
+        ``vertex`` with scalar properties x, y, z.
+
+    Returns
+    -------
+    PointCloud
+        Points (n, 3) float64 [mm] (part frame for the clouds this toolkit
+        writes); ``angle_deg`` and ``intensity`` NaN and ``row`` −1 where the
+        file lacks them.
+
     Raises
     ------
     MeshError
-        Missing, non-PLY, truncated or malformed file, or no x, y, z.
+        Missing, non-PLY, truncated or malformed file, list or unknown vertex
+        properties, or no x, y, z.
     """
     p = Path(path)
     if not p.is_file():
@@ -164,8 +181,10 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
         if not {"x", "y", "z"} <= set(dtype.names):
             raise MeshError(f"{str(p)!r}: PLY vertices lack x, y, z")
         data = _read_body(fh, fmt, dtype, n, p)
-    get = (lambda name, fill: data[name].astype(np.float64) if name in dtype.names
-           else np.full(n, fill, np.float64))
+
+    def get(name: str, fill: float) -> np.ndarray:
+        return data[name].astype(np.float64) if name in dtype.names else np.full(n, fill, np.float64)
+
     xyz = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
     return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
                       row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan))
@@ -196,14 +215,17 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
     Parameters
     ----------
-    path : path-like
+    path : str or os.PathLike
         PLY, STL, OBJ or any format trimesh reads.
 
     Returns
     -------
-    vertices : (nv, 3) float [mm]
-    faces : (m, 3) int
-    face_object_id : (m,) int or None
+    vertices : (nv, 3) ndarray float64
+        Vertex positions, in the file's frame and units [mm] (the part frame
+        for the twin's truth meshes).
+    faces : (m, 3) ndarray int64
+        Vertex indices of each triangle, in file order.
+    face_object_id : (m,) ndarray int64 or None
         PLY ``object_id`` face property; for a file with several objects
         (a trimesh Scene), the object's index + 1; else None.
 
