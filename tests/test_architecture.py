@@ -24,7 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
-#: Modules whose public API must carry numpydoc docstrings (the instrument core and the twin).
+#: Modules whose public API must carry numpydoc docstrings (the instrument core, the twin, the parts).
 DOCUMENTED_MODULES = [
     "scheimpflug.errors", "scheimpflug.callbacks", "scheimpflug.stripe", "scheimpflug.calibration",
     "scheimpflug.axis", "scheimpflug.reconstruct", "scheimpflug.scoring", "scheimpflug.fitting",
@@ -32,6 +32,8 @@ DOCUMENTED_MODULES = [
     "scheimpflug.model.design", "scheimpflug.model.binning", "scheimpflug.io.frames", "scheimpflug.io.ply",
     "scheimpflug.io.atomic", "sim.variant", "sim.scene", "sim.materials", "sim.lightsheet", "sim.render",
     "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
+    "scenes.part", "scenes.generators", "scenes.presets", "scenes.loading", "scenes.meshfile",
+    "scenes.scenefile", "scenes.section", "scenes.knurl", "scenes.revolve",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
 #: parameter is documented with a type and a description and no unknown one is, a function that
