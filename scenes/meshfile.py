@@ -43,8 +43,28 @@ def _check_file(path: Path) -> None:
         raise MeshError(f"{path}: file is empty")
 
 
+def _check_stl(path: Path) -> None:
+    """Refuse a file that is neither a binary STL (84 + 50·n bytes) nor an ASCII one ("solid").
+
+    trimesh returns an empty mesh for some garbage (depending on which text
+    decoders are installed); deciding here keeps the message the same everywhere.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(84)
+    n = int.from_bytes(head[80:84], "little") if len(head) == 84 else -1
+    if n >= 0 and size == 84 + 50 * n:
+        return
+    if head.lstrip().lower().startswith(b"solid"):
+        return
+    raise MeshError(f"{path}: cannot read as STL mesh (not a binary STL: {size} bytes for a header of "
+                    f"{max(n, 0)} triangles; not an ASCII STL: no 'solid' keyword)")
+
+
 def _read(path: Path) -> trimesh.Trimesh:
     kind = path.suffix.lower().lstrip(".")
+    if kind == "stl":
+        _check_stl(path)
     try:
         mesh = trimesh.load(path, file_type=kind, force="mesh", process=True)
     except Exception as exc:  # trimesh raises many kinds on corrupt input
