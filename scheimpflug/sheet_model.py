@@ -120,17 +120,18 @@ DEFAULT_PIXEL_PITCH_UM = 5.86
 _SHEET_SCALE_MM = 100.0   # sheet coordinates are scaled by this inside the fit (conditioning) [mm]
 
 
-class SheetModel(Protocol):
+# A Protocol is never instantiated: its (*args, **kwargs) constructor has nothing to document.
+class SheetModel(Protocol):  # numpydoc ignore=PR01
     """What the pipeline needs of a calibration: pixel ↔ (stage coordinate, height) on the sheet.
 
     :class:`scheimpflug.calibration.Calibration` (the paper's form) and
     :class:`GeneralCalibration` both implement it; reconstruction, the axis
     locator and the acceptance test take either.
 
-    Parameters
+    Attributes
     ----------
-    *args, **kwargs
-        A protocol is not instantiated; implementations have ``columns`` and ``rows`` [px].
+    columns, rows : int
+        Sensor size the calibration was made with [px] (0 = unknown).
     """
 
     columns: int
