@@ -132,6 +132,13 @@ def test_opencv_projectpoints_reproduces_the_pipeline(fits, name, tmp_path):
     assert np.abs(img.reshape(-1, 2) - uv).max() < 0.01
     a, b, c, dd = d["laser_plane"]
     assert np.abs(X @ [a, b, c] + dd).max() < 1e-6 and math.isclose(a * a + b * b + c * c, 1.0)
+    # a pixel's ray from cv2.undistortPoints meets the laser plane at the point the pipeline measures
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+    xy = cv2.undistortPoints(uv[:1000].reshape(-1, 1, 2), np.array(d["camera_matrix"]),
+                             np.array(d["dist_coeffs"]), R=None, P=None, criteria=crit).reshape(-1, 2)
+    ray = np.column_stack([xy, np.ones(len(xy))])
+    hit = ray * (-dd / (ray @ [a, b, c]))[:, None]
+    assert np.abs(hit - X[:1000]).max() < 1e-3
     for path in (tmp_path / "cv.json", tmp_path / "cv.yml"):
         if path.suffix == ".yml":
             write_opencv(path, model, 55.0, 4 * 5.86)
