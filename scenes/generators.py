@@ -28,6 +28,7 @@ __all__ = [
     "knurled_cylinder",
     "knurled_ring",
     "plate",
+    "plate_face_x_mm",
     "sphere",
     "tape_roll",
 ]
@@ -51,7 +52,7 @@ def _box_part(name, lo, hi, material, analytic) -> Part:
 
 
 def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float = 5.0, *,
-          material: str = "metal", name: str = "plate") -> Part:
+          flatness_um: float = 0.0, material: str = "metal", name: str = "plate") -> Part:
     """Calibration plate: x ∈ [0, t], y ∈ [−w/2, w/2], z ∈ [0, h] [mm].
 
     The measured face is the −x face at x = 0 (it faces the laser, which comes
@@ -65,6 +66,11 @@ def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float 
         Height h [mm].
     thickness_mm : float, default 5.0
         Thickness t along x [mm].
+    flatness_um : float, default 0.0
+        Peak-to-valley flatness F of the measured face [µm]: the face is the
+        paraboloid x = −F·(1 − ρ²/ρ_max²), ρ² = y² + (z − h/2)²,
+        ρ_max² = (w/2)² + (h/2)² — its corners at x = 0, its centre F nearer
+        the laser when F > 0 (:func:`plate_face_x_mm`); 0 = a flat face.
     material : str, default "metal"
         Material tag (:data:`scenes.part.MATERIALS`).
     name : str, default "plate"
@@ -74,19 +80,55 @@ def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float 
     -------
     Part
         The part in its own frame (standing on ``z = 0``), with its analytic
-        description (``kind`` "plate").
+        description (``kind`` "plate", ``flatness_um``).  A bowed face is
+        meshed with edges ≤ 4 mm (chord sagitta < 1e-4 of F).
 
     Raises
     ------
     MeshError
-        When a dimension is not a finite number > 0, or the material is unknown.
+        When a dimension is not a finite number > 0, the flatness is not
+        finite or not smaller than the thickness, or the material is unknown.
     """
     _positive(width_mm=width_mm, height_mm=height_mm, thickness_mm=thickness_mm)
+    if not (math.isfinite(flatness_um) and abs(flatness_um) * 1e-3 < thickness_mm):
+        raise MeshError(f"flatness_um = {flatness_um!r}: must be finite and smaller than the thickness")
     analytic = {"kind": "plate", "width_mm": float(width_mm), "height_mm": float(height_mm),
                 "thickness_mm": float(thickness_mm), "measured_face_x_mm": 0.0,
-                "measured_face_normal": [-1.0, 0.0, 0.0]}
-    return _box_part(name, [0.0, -width_mm / 2, 0.0], [thickness_mm, width_mm / 2, height_mm],
-                     material, analytic)
+                "measured_face_normal": [-1.0, 0.0, 0.0], "flatness_um": float(flatness_um)}
+    lo, hi = [0.0, -width_mm / 2, 0.0], [thickness_mm, width_mm / 2, height_mm]
+    if flatness_um == 0.0:
+        return _box_part(name, lo, hi, material, analytic)
+    v, f = trimesh.remesh.subdivide_to_size(box_mesh(lo, hi).vertices, box_mesh(lo, hi).faces,
+                                            max_edge=_PLATE_EDGE_MM, max_iter=12)
+    front = v[:, 0] == 0.0
+    v[front, 0] = plate_face_x_mm(v[front, 1], v[front, 2], width_mm, height_mm, flatness_um)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    return Part(name=name, mesh=mesh, material=material, analytic=dict(analytic, mesh_from_part=_eye()))
+
+
+_PLATE_EDGE_MM = 4.0  # longest edge of a bowed plate's mesh
+
+
+def plate_face_x_mm(y_mm, z_mm, width_mm: float, height_mm: float, flatness_um: float) -> np.ndarray:
+    """The measured face of a bowed plate, x as a function of (y, z).
+
+    Parameters
+    ----------
+    y_mm, z_mm : array_like
+        Points of the face, plate frame [mm].
+    width_mm, height_mm : float
+        Plate width and height [mm].
+    flatness_um : float
+        Peak-to-valley flatness F [µm] (:func:`plate`).
+
+    Returns
+    -------
+    ndarray
+        x = −F·(1 − ρ²/ρ_max²) [mm], ρ² = y² + (z − h/2)², ρ_max² = (w/2)² + (h/2)².
+    """
+    rho2 = np.asarray(y_mm, dtype=np.float64) ** 2 + (np.asarray(z_mm, dtype=np.float64) - height_mm / 2) ** 2
+    rho2_max = (width_mm / 2) ** 2 + (height_mm / 2) ** 2
+    return -1e-3 * flatness_um * (1.0 - rho2 / rho2_max)
 
 
 def blocker(thickness_mm: float = 2.0, width_mm: float = 60.0, height_mm: float = 80.0, *,

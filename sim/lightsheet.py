@@ -16,6 +16,22 @@ box of full width F with a Gaussian of standard deviation σ_e::
 σ_e = fan_edge / 2.563 so that ``fan_edge_deg`` is the 10 %–90 % width of the
 edge.  ∫ I dα = P exactly (energy conserving).
 
+*Fan profile* (``fan_edge_ratio`` R, a Powell lens's profile): the flat fan is
+multiplied by p(α) = (1 + (R − 1)·(2α/F)²)/norm, norm = 1 + (R − 1)·(1/3 + 4σ_e²/F²)
+(the mean of (2α/F)² over the soft-edged box), so that ∫ I dα = P still; R = 1
+is the flat fan.
+
+*Bow* ("smile", ``line_bow_mrad`` b): a fan ray at angle α leaves the sheet
+plane by the transverse angle β(α) = b·(2α/F)² (toward +n for b > 0), so the
+sheet is the cone-like surface o = r·β(α) (offset o along n at in-sheet
+distance r); on a screen ⊥ e_p at distance x the line bends by x·b between its
+centre and its ends (:func:`bow_angle_rad`, :func:`sheet_offset_mm`).
+
+*Pointing drift* (``pointing_jitter_urad`` σ): per frame the whole sheet turns
+about the laser origin by the rotation vector σ·(z₁·e_z + z₂·e_p) [µrad],
+z₁, z₂ standard normal draws of that frame (:func:`pointing_pose`,
+:func:`posed_sheet`).
+
 *Thickness.*  Across the sheet (along its normal n) the irradiance is Gaussian
 with 1/e² half-width
 
@@ -50,6 +66,7 @@ mixed as 1 + (C/√M)·(X − 1) (≥ 0 for C ≤ 1).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -62,12 +79,17 @@ from scheimpflug.model.rig import Rig
 __all__ = [
     "LightSheet",
     "beam_half_width_mm",
+    "bow_angle_rad",
     "conditional_angle",
     "fan_profile",
     "irradiance_w_mm2",
     "light_sheet",
+    "pointing_pose",
+    "posed_sheet",
+    "powell_factor",
     "radiant_intensity_w_per_rad",
     "sheet_coordinates",
+    "sheet_offset_mm",
     "speckle_grain_um",
     "speckle_pattern",
     "visible_fan_interval",
@@ -108,6 +130,10 @@ class LightSheet:
         σ_e of the soft fan edge [rad] (``fan_edge_deg`` / 2.563).
     speckle_contrast : float
         Speckle contrast C before pixel integration [-].
+    bow_rad : float, default 0.0
+        Bow b of the sheet at the fan edge [rad] (``line_bow_mrad``).
+    edge_ratio : float, default 1.0
+        Intensity at the fan edge over that at its centre, R [-] (``fan_edge_ratio``).
     """
 
     origin_mm: np.ndarray
@@ -122,6 +148,8 @@ class LightSheet:
     fan_full_rad: float
     edge_sigma_rad: float
     speckle_contrast: float
+    bow_rad: float = 0.0
+    edge_ratio: float = 1.0
 
 
 def light_sheet(rig: Rig) -> LightSheet:
@@ -154,7 +182,130 @@ def light_sheet(rig: Rig) -> LightSheet:
         waist_distance_mm=las.waist_distance_mm, divergence_rad=las.divergence_mrad * 1e-3,
         fan_full_rad=math.radians(las.fan_angle_deg),
         edge_sigma_rad=math.radians(las.fan_edge_deg) / EDGE_10_90,
-        speckle_contrast=las.speckle_contrast)
+        speckle_contrast=las.speckle_contrast, bow_rad=las.line_bow_mrad * 1e-3,
+        edge_ratio=las.fan_edge_ratio)
+
+
+def pointing_pose(rig: Rig, z_yaw: float, z_roll: float) -> np.ndarray | None:
+    """The rotation of one frame's sheet about the laser origin (pointing drift).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``laser.pointing_jitter_urad`` σ, the nominal sheet).
+    z_yaw, z_roll : float
+        Standard normal draws of the frame: about the vertical in-sheet axis
+        e_z and about the propagation direction e_p [-].
+
+    Returns
+    -------
+    (4, 4) float64 or None
+        rig_from_laser = T(O)·R(σ·(z_yaw·e_z + z_roll·e_p))·T(−O) [mm]; None
+        when σ = 0 (the nominal sheet).
+    """
+    sigma = rig.laser.pointing_jitter_urad * 1e-6
+    if sigma == 0.0:
+        return None
+    sh = light_sheet(rig)
+    w = sigma * (z_yaw * sh.up + z_roll * sh.prop_dir)
+    angle = float(np.linalg.norm(w))
+    rot = np.eye(4)
+    if angle > 0:
+        k = w / angle
+        kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        rot[:3, :3] = np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+    rot[:3, 3] = sh.origin_mm - rot[:3, :3] @ sh.origin_mm
+    return rot
+
+
+def posed_sheet(sheet: LightSheet, rig_from_laser) -> LightSheet:
+    """The sheet turned by one frame's pointing pose.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The nominal sheet (:func:`light_sheet`).
+    rig_from_laser : (4, 4) array_like or None
+        The frame's pose (:func:`pointing_pose`); None = the nominal sheet.
+
+    Returns
+    -------
+    LightSheet
+        Origin, propagation direction, normal and up moved by the pose.
+    """
+    if rig_from_laser is None:
+        return sheet
+    m = np.asarray(rig_from_laser, dtype=np.float64)
+    rot = m[:3, :3]
+    return dataclasses.replace(sheet, origin_mm=rot @ sheet.origin_mm + m[:3, 3],
+                               prop_dir=rot @ sheet.prop_dir, normal=rot @ sheet.normal,
+                               up=rot @ sheet.up)
+
+
+def bow_angle_rad(sheet: LightSheet, alpha_rad) -> np.ndarray:
+    """Transverse angle of the fan rays of a bowed sheet.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet (``bow_rad`` b, ``fan_full_rad`` F).
+    alpha_rad : float or array_like
+        Fan angle α [rad].
+
+    Returns
+    -------
+    ndarray
+        β(α) = b·(2α/F)² [rad], toward +n for b > 0.
+    """
+    a = np.asarray(alpha_rad, dtype=np.float64)
+    return sheet.bow_rad * (2.0 * a / sheet.fan_full_rad) ** 2
+
+
+def sheet_offset_mm(sheet: LightSheet, points_mm) -> np.ndarray:
+    """Signed distance of points from the (bowed) sheet's mid-surface, along its normal.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    points_mm : (..., 3) array_like
+        Points, rig frame [mm].
+
+    Returns
+    -------
+    (...) ndarray
+        o − r·β(α) [mm]: the offset o from the plane through the origin,
+        minus that of the bowed mid-surface at the point's (r, α); zero on it.
+    """
+    r, alpha, offset = sheet_coordinates(sheet, points_mm)
+    if sheet.bow_rad == 0.0:
+        return offset
+    return offset - r * bow_angle_rad(sheet, alpha)
+
+
+def powell_factor(sheet: LightSheet, alpha_rad) -> np.ndarray:
+    """Relative profile of a non-uniform (Powell-lens) fan, mean 1 over the fan.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet (``edge_ratio`` R, ``fan_full_rad`` F, ``edge_sigma_rad`` σ_e).
+    alpha_rad : float or array_like
+        Fan angle α [rad].
+
+    Returns
+    -------
+    ndarray
+        (1 + (R − 1)·(2α/F)²) / (1 + (R − 1)·(1/3 + 4σ_e²/F²)) [-]: the factor
+        on the flat fan that keeps ∫ I dα = P.
+    """
+    a = np.asarray(alpha_rad, dtype=np.float64)
+    k = sheet.edge_ratio - 1.0
+    if k == 0.0:
+        return np.ones_like(a)
+    F = sheet.fan_full_rad
+    norm = 1.0 + k * (1.0 / 3.0 + 4.0 * sheet.edge_sigma_rad**2 / F**2)
+    return (1.0 + k * (2.0 * a / F) ** 2) / norm
 
 
 def beam_half_width_mm(sheet: LightSheet, r_mm) -> np.ndarray:
@@ -222,9 +373,11 @@ def radiant_intensity_w_per_rad(sheet: LightSheet, alpha_rad) -> np.ndarray:
     Returns
     -------
     ndarray
-        I(α) = P·g(α)/F [W/rad], same shape as ``alpha_rad``; ∫ I dα = P.
+        I(α) = P·g(α)·p(α)/F [W/rad] (p the Powell factor, 1 for a flat fan),
+        same shape as ``alpha_rad``; ∫ I dα = P.
     """
-    return sheet.power_w * fan_profile(sheet, alpha_rad) / sheet.fan_full_rad
+    return sheet.power_w * fan_profile(sheet, alpha_rad) * powell_factor(sheet, alpha_rad) \
+        / sheet.fan_full_rad
 
 
 def sheet_coordinates(sheet: LightSheet, points_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -276,6 +429,7 @@ def irradiance_w_mm2(sheet: LightSheet, points_mm, normals=None) -> np.ndarray:
     closed form of the module docstring.  Small-angle model (θ, offsets ≪ 1).
     """
     r, alpha, o = sheet_coordinates(sheet, points_mm)
+    o = o - r * bow_angle_rad(sheet, alpha)        # offset from the (bowed) mid-surface
     s = 0.5 * beam_half_width_mm(sheet, r)
     e = radiant_intensity_w_per_rad(sheet, alpha) / r * np.exp(-0.5 * (o / s) ** 2) \
         / (math.sqrt(2 * math.pi) * s)

@@ -84,6 +84,7 @@ from scheimpflug.errors import RenderError
 from scheimpflug.model.camera import (
     SensorPose,
     chief_ray_from_pixel,
+    lens_state,
     sensor_point_from_pixel,
     sensor_pose,
     sheet_point_from_pixel,
@@ -237,6 +238,8 @@ class Renderer:
         self.sheet = light_sheet(rig)
         self.shape = (self.pose.rows, self.pose.columns)
         lens = rig.lens
+        state = lens_state(rig)
+        self.focal_length_mm, self.lens_centre_x_mm = state.focal_length_mm, state.centre_x_mm
         self.aperture_radius_mm = 0.5 * lens.focal_length_mm / lens.f_number
         self.aperture_area_mm2 = math.pi * self.aperture_radius_mm**2
         photon_j = PLANCK_J_S * LIGHT_SPEED_M_S / (rig.laser.wavelength_nm * 1e-9)
@@ -246,6 +249,7 @@ class Renderer:
         self._setup_laser()
         self._setup_ambient()
         self._frame = sim_scene.transforms_dr()  # (scene_from_rig, rig_from_scene) of the frame
+        self._laser_tf = None                    # this frame's sheet pose (pointing), opaque
 
     # ------------------------------------------------------------ setup
     def _setup_laser(self) -> None:
@@ -263,7 +267,8 @@ class Renderer:
         vv = step * np.arange(nr) + 0.5 * (step - 1)
         uv = np.stack(np.meshgrid(uu, vv), axis=-1).reshape(-1, 2)
         dirs = chief_ray_from_pixel(self.rig, uv, pose)
-        q = sensor_point_from_pixel(pose, uv)
+        q = sensor_point_from_pixel(pose, uv)        # relative to the lens centre:
+        q[:, 0] -= self.lens_centre_x_mm
         qn = np.linalg.norm(q, axis=1)
         cos_a, cos_q = np.abs(q[:, 0]) / qn, np.abs(q @ pose.normal) / qn
         g = pose.pitch_mm**2 * self.aperture_area_mm2 * cos_a * cos_q / qn**2  # [mm²·sr]
@@ -272,7 +277,7 @@ class Renderer:
         self._amb_e_per_radiance = g * 1e-6 * self.electrons_per_watt  # [e⁻ per W/(m²·sr)]
 
     # ------------------------------------------------------------ public
-    def render(self, rig_from_part, seed: int) -> np.ndarray:
+    def render(self, rig_from_part, seed: int, rig_from_laser=None) -> np.ndarray:
         """Expected photo-electrons per pixel of one frame (laser + ambient).
 
         Sets the scene's pose (:meth:`SimScene.set_pose`), then renders the
@@ -286,6 +291,9 @@ class Renderer:
         seed : int
             Frame seed (≥ 0), mixed with ``settings.seed``: same seeds, same
             image, bit for bit.
+        rig_from_laser : (4, 4) float, optional
+            This frame's pose of the laser sheet (pointing drift,
+            :func:`sim.lightsheet.pointing_pose`) [mm]; None = the nominal sheet.
 
         Returns
         -------
@@ -299,9 +307,8 @@ class Renderer:
         ValueError
             When ``rig_from_part`` has neither shape ``(4, 4)`` nor ``(n_parts, 4, 4)``.
         """
-        self.scene.set_pose(rig_from_part)
+        self._pose_frame(rig_from_part, rig_from_laser)
         key = self._key(seed)
-        self._frame = self.scene.transforms_dr()
         out = self._ambient_image(key)
         splats = self._laser_splats(key)
         if self._speckle_on():
@@ -311,7 +318,8 @@ class Renderer:
             self._splat_into(out, *splats)
         return out
 
-    def render_components(self, rig_from_part, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    def render_components(self, rig_from_part, seed: int,
+                          rig_from_laser=None) -> tuple[np.ndarray, np.ndarray]:
         """Expected electrons of one frame, laser and ambient light apart.
 
         Parameters
@@ -320,6 +328,8 @@ class Renderer:
             Pose of the parts in the rig frame [mm].
         seed : int
             Frame seed (≥ 0), as in :meth:`render`.
+        rig_from_laser : (4, 4) float, optional
+            This frame's pose of the laser sheet, as in :meth:`render` [mm].
 
         Returns
         -------
@@ -336,9 +346,8 @@ class Renderer:
         ValueError
             When ``rig_from_part`` has neither shape ``(4, 4)`` nor ``(n_parts, 4, 4)``.
         """
-        self.scene.set_pose(rig_from_part)
+        self._pose_frame(rig_from_part, rig_from_laser)
         key = self._key(seed)
-        self._frame = self.scene.transforms_dr()
         laser = self._accumulate(*self._laser_splats(key))
         if self._speckle_on():
             laser *= self._speckle(key).astype(np.float32)
@@ -415,6 +424,20 @@ class Renderer:
         return speckle_pattern(self.shape, self.sheet.speckle_contrast, self.speckle_grain_px(), key)
 
     # ------------------------------------------------------------ internals
+    def _pose_frame(self, rig_from_part, rig_from_laser) -> None:
+        """Pose the parts and the laser sheet for one frame (opaque transforms: no recompile)."""
+        self.scene.set_pose(rig_from_part)
+        self._frame = self.scene.transforms_dr()
+        self._laser_tf = None
+        if rig_from_laser is not None:
+            mi, dr = self._mi, self._dr
+            m = np.asarray(rig_from_laser, dtype=np.float64).astype(np.float32)
+            self._laser_tf = mi.Transform4f(dr.opaque(mi.Matrix4f(m)))
+
+    def _posed_ray(self, ray):
+        """A laser ray built on the nominal sheet, moved by this frame's sheet pose."""
+        return ray if self._laser_tf is None else self._laser_tf @ ray
+
     def _key(self, seed: int) -> int:
         if int(seed) < 0:
             raise RenderError(f"seed = {seed}: must be ≥ 0")
@@ -438,23 +461,31 @@ class Renderer:
         Returns (A_ap·cos θ_A/|P − A|² [-], pixel coordinates (u, v) [px], ok, A [mm]).
         """
         mi, dr, pose = self._mi, self._dr, self.pose
-        f, k1, k2 = self.rig.lens.focal_length_mm, self.rig.lens.k1, self.rig.lens.k2
+        f, k1, k2 = self.focal_length_mm, self.rig.lens.k1, self.rig.lens.k2
         disc = mi.warp.square_to_uniform_disk_concentric(u_ap) * self.aperture_radius_mm
-        a = mi.Point3f(0.0, disc.x, disc.y)
+        cx = self.lens_centre_x_mm
+        a = mi.Point3f(cx, disc.x, disc.y)
         v = p - a
         dist2 = dr.squared_norm(v)
         geo = self.aperture_area_mm2 * v.x * dr.rsqrt(dist2) / dist2
-        mag = -f / (p.x - f)
-        t2 = (p.y * p.y + p.z * p.z) / (p.x * p.x)
-        dist = 1.0 + k1 * t2 + k2 * t2 * t2
-        img = mi.Point3f(mag * p.x, mag * p.y * dist, mag * p.z * dist)
+        if cx == 0.0:
+            mag = -f / (p.x - f)
+            t2 = (p.y * p.y + p.z * p.z) / (p.x * p.x)
+            dist = 1.0 + k1 * t2 + k2 * t2 * t2
+            img = mi.Point3f(mag * p.x, mag * p.y * dist, mag * p.z * dist)
+        else:   # the real lens, focused (scheimpflug.model.camera.lens_state)
+            px = p.x - cx
+            mag = -f / (px - f)
+            t2 = (p.y * p.y + p.z * p.z) / (px * px)
+            dist = 1.0 + k1 * t2 + k2 * t2 * t2
+            img = mi.Point3f(mag * px + cx, mag * p.y * dist, mag * p.z * dist)
         o, n = mi.Point3f(*_floats(pose.origin_mm)), mi.Vector3f(*_floats(pose.normal))
         w = img - a
         lam = dr.dot(o - a, n) / dr.dot(w, n)
         rel = a + lam * w - o
         uv = mi.Point2f(dr.dot(rel, mi.Vector3f(*_floats(pose.u_dir))),
                         dr.dot(rel, mi.Vector3f(*_floats(pose.v_dir)))) / pose.pitch_mm
-        ok = active & (p.x > f * 1.0001) & (lam > 0) & (uv.x > -1.0) & (uv.x < pose.columns) \
+        ok = active & (p.x - cx > f * 1.0001) & (lam > 0) & (uv.x > -1.0) & (uv.x < pose.columns) \
             & (uv.y > -1.0) & (uv.y < pose.rows)
         return geo, dr.select(ok, uv, -10.0), ok, a
 
@@ -472,7 +503,9 @@ class Renderer:
         b = dr.arange(mi.Float, self.n_pilot)
         alpha = self._alpha(s, b * per_pilot + 0.5 * (per_pilot - 1))
         d = _sheet_dir(mi, dr, sh, alpha)
-        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(*_floats(sh.origin_mm)), d)
+        if sh.bow_rad != 0.0:
+            d = dr.normalize(d + _bow(sh, alpha) * mi.Vector3f(*_floats(sh.normal)))
+        ray = self._frame[0] @ self._posed_ray(mi.Ray3f(mi.Point3f(*_floats(sh.origin_mm)), d))
         si = self.scene.scene.ray_intersect(ray)
         r_ref = dr.select(si.is_valid(), si.t, sh.waist_distance_mm)
         dr.eval(r_ref)
@@ -504,7 +537,11 @@ class Renderer:
         a = theta * theta * dl / w2 * delta + 0.5 * theta * w0 * dr.rsqrt(w2) * _norm_ppf(dr, u[3])
         n = mi.Vector3f(*_floats(sh.normal))
         origin = mi.Point3f(*_floats(sh.origin_mm)) + (delta - a * r) * n
-        ray = mi.Ray3f(origin, dr.normalize(_sheet_dir(mi, dr, sh, alpha) + a * n))
+        if sh.bow_rad != 0.0:   # the bowed sheet: transverse angle β(α) from the origin
+            a_dir = a + _bow(sh, alpha)
+        else:
+            a_dir = a
+        ray = self._posed_ray(mi.Ray3f(origin, dr.normalize(_sheet_dir(mi, dr, sh, alpha) + a_dir * n)))
         lo, hi = self.fan_interval_rad
         flux = _fan_intensity(dr, sh, alpha) * ((hi - lo) / (4 * self.n_groups))
         return ray, flux, mi.Point2f(u[1], u[2])
@@ -534,7 +571,7 @@ class Renderer:
         import cv2
 
         s = dr.opaque(mi.UInt32, key) ^ 0x27D4EB2F
-        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(0.0, 0.0, 0.0), self._amb_dirs)
+        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(self.lens_centre_x_mm, 0.0, 0.0), self._amb_dirs)
         si = self.scene.scene.ray_intersect(ray)
         valid = si.is_valid()
         ctx = mi.BSDFContext(mi.TransportMode.Radiance)
@@ -604,6 +641,19 @@ def _fan_intensity(dr, sheet, alpha):
     half = 0.5 * sheet.fan_full_rad
     scale = sheet.power_w / sheet.fan_full_rad
     if sheet.edge_sigma_rad == 0.0:
-        return dr.select(dr.abs(alpha) <= half, scale, 0.0)
-    k = 1.0 / (math.sqrt(2.0) * sheet.edge_sigma_rad)
-    return scale * 0.5 * (dr.erf((alpha + half) * k) - dr.erf((alpha - half) * k))
+        out = dr.select(dr.abs(alpha) <= half, scale, 0.0)
+    else:
+        k = 1.0 / (math.sqrt(2.0) * sheet.edge_sigma_rad)
+        out = scale * 0.5 * (dr.erf((alpha + half) * k) - dr.erf((alpha - half) * k))
+    if sheet.edge_ratio == 1.0:
+        return out
+    c = sheet.edge_ratio - 1.0   # Powell profile (sim.lightsheet.powell_factor)
+    norm = 1.0 + c * (1.0 / 3.0 + 4.0 * sheet.edge_sigma_rad**2 / sheet.fan_full_rad**2)
+    x = alpha * (2.0 / sheet.fan_full_rad)
+    return out * ((1.0 + c * x * x) * (1.0 / norm))
+
+
+def _bow(sheet, alpha):
+    """β(α) = b·(2α/F)² [rad] (Dr.Jit version of sim.lightsheet.bow_angle_rad)."""
+    x = alpha * (2.0 / sheet.fan_full_rad)
+    return sheet.bow_rad * x * x

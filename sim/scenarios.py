@@ -24,6 +24,18 @@ and the frame's noise seed).  Three scenarios (INTERFACE.md):
 Frame seeds: frame i of a run with seed S uses ``frame_seed(S, i)``, a 32-bit
 integer from ``SeedSequence((S, i))``; the renderer and the sensor noise of that
 frame depend only on it (it is written to the manifest).
+
+Error models (``rig`` keys, each off by default; :func:`scheimpflug.model.rig.active_error_models`):
+the stage moves where its error model puts it (:func:`sim.stages.translation_state`,
+:func:`sim.stages.rotary_state`), the plate is made and mounted as the rig says
+(height error, flatness, tilt, yaw), the sheet points where this frame's pointing
+draw turns it (:func:`sim.lightsheet.pointing_pose`) and the exposure is this
+frame's (:func:`sim.sensor.exposure_scale`).  The random parts come from four
+standard normal draws per frame (:func:`frame_draws`: stage, pointing ×2,
+exposure; always all four, so switching one model on leaves the others' draws
+unchanged).  The frame's pose, sheet and exposure are what is rendered and what
+the truth is computed from; the manifest keeps the *commanded* ``stage_mm`` /
+``angle_deg`` and adds the realised values as the frame's ``actual`` entry.
 """
 
 from __future__ import annotations
@@ -34,10 +46,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scheimpflug.errors import ScheimpflugError
+from scheimpflug.model.camera import lens_state
 from scheimpflug.model.hinge import hinge_geometry
-from scheimpflug.model.rig import Rig
+from scheimpflug.model.rig import Rig, active_error_models
 
-from .stages import rig_from_plate, rig_from_stage, stage_from_part
+from .lightsheet import pointing_pose
+from .sensor import exposure_scale
+from .stages import (
+    rig_from_plate,
+    rig_from_stage,
+    rotary_state,
+    rotation_vector,
+    stage_from_part,
+    translation_state,
+)
 
 __all__ = [
     "SCENARIOS",
@@ -46,6 +68,7 @@ __all__ = [
     "blocker_scenario",
     "build_scenario",
     "calibration_scenario",
+    "frame_draws",
     "frame_seed",
     "load_assembly",
     "rotary_scenario",
@@ -80,6 +103,37 @@ def frame_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence((int(seed), int(index))).generate_state(1, np.uint32)[0])
 
 
+_STREAM_ERRORS = 0xE770  # the error models' stream of a frame
+
+
+def frame_draws(seed: int, index: int) -> np.ndarray:
+    """The standard normal draws of one frame's random error models.
+
+    Parameters
+    ----------
+    seed : int
+        Run seed (≥ 0).
+    index : int
+        Frame index (≥ 0).
+
+    Returns
+    -------
+    (4,) float64
+        z for the stage's random error (translation or rotary), the pointing
+        about e_z and about e_p, and the exposure, from
+        ``SeedSequence((seed, index, 0xE770))``.
+
+    Raises
+    ------
+    ValueError
+        When ``seed`` or ``index`` is negative.
+    """
+    if seed < 0 or index < 0:
+        raise ValueError(f"seed and frame index must be >= 0, got {seed}, {index}")
+    ss = np.random.SeedSequence((int(seed), int(index), _STREAM_ERRORS))
+    return np.random.Generator(np.random.PCG64(ss)).standard_normal(4)
+
+
 @dataclass(frozen=True, eq=False)
 class FrameSpec:
     """One frame to render.
@@ -99,6 +153,13 @@ class FrameSpec:
         Translation-stage coordinate s [mm] (calibration), else None.
     angle_deg : float or None, default None
         Rotary-stage angle θ [deg] (blocker, rotary), else None.
+    rig_from_laser : (4, 4) float or None, default None
+        This frame's pose of the laser sheet (pointing drift) [mm]; None = nominal.
+    exposure_factor : float, default 1.0
+        This frame's real exposure over the nominal one [-].
+    actual : dict or None, default None
+        JSON-ready realised values of the rig's error models in this frame
+        (the manifest's ``actual`` entry); None for an ideal rig.
     """
 
     index: int
@@ -107,6 +168,9 @@ class FrameSpec:
     seed: int
     stage_mm: float | None = None
     angle_deg: float | None = None
+    rig_from_laser: np.ndarray | None = None
+    exposure_factor: float = 1.0
+    actual: dict | None = None
 
     def stage_entry(self) -> dict:
         """The manifest's stage entry of this frame.
@@ -257,19 +321,53 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: floa
     _positive("plate_height_mm", plate_height_mm)
     if not math.isfinite(start_mm):
         raise ScheimpflugError(f"--start-mm = {start_mm!r}: must be a finite number")
-    assembly = load_assembly("plate", height_mm=plate_height_mm)
+    st = rig.stage
+    assembly = load_assembly("plate", height_mm=plate_height_mm + st.plate_height_error_mm,
+                             **({"flatness_um": st.plate_flatness_um} if st.plate_flatness_um else {}))
     ref_from_rig = np.linalg.inv(rig_from_stage(rig))
     frames = []
     for i in range(steps):
         s = start_mm + i * step_mm
-        pose = rig_from_plate(rig, s)
-        frames.append(FrameSpec(i, pose, ref_from_rig @ pose, frame_seed(seed, i), stage_mm=s))
+        frames.append(_plate_frame(rig, seed, i, s, ref_from_rig))
     params = {"steps": steps, "step_mm": step_mm, "start_mm": start_mm,
               "plate_height_mm": plate_height_mm, "part": "plate",
               "plate": assembly.parts[0].analytic}
     empty, warnings = _plate_view_warnings(rig, frames)
     return Scenario("calibration", params, assembly, tuple(frames), frames[0].ref_from_part,
                     truth_pixels_every, warnings, empty)
+
+
+def _plate_mount(rig: Rig) -> np.ndarray:
+    """The plate on the carriage: R_z(yaw)·R_n(tilt) about its face's bottom centre (4, 4)."""
+    st = rig.stage
+    return rotation_vector([0.0, 0.0, np.radians(st.plate_yaw_deg)]) \
+        @ rotation_vector([0.0, np.radians(st.plate_tilt_deg), 0.0])
+
+
+def _frame_errors(rig: Rig, seed: int, index: int) -> tuple:
+    """(z draws, rig_from_laser, exposure factor, actual dict or None) of one frame."""
+    z = frame_draws(seed, index)
+    laser = pointing_pose(rig, z[1], z[2])
+    factor = exposure_scale(rig, z[3])
+    if not active_error_models(rig):
+        return z, laser, factor, None
+    actual = {"exposure_factor": factor,
+              "pointing_urad": [rig.laser.pointing_jitter_urad * z[1],
+                                rig.laser.pointing_jitter_urad * z[2]],
+              "lens_centre_x_mm": lens_state(rig).centre_x_mm}
+    return z, laser, factor, actual
+
+
+def _plate_frame(rig: Rig, seed: int, i: int, s: float, ref_from_rig: np.ndarray) -> FrameSpec:
+    z, laser, factor, actual = _frame_errors(rig, seed, i)
+    if actual is None:
+        pose = rig_from_plate(rig, s)
+    else:
+        state = translation_state(rig, s, z[0])
+        pose = rig_from_plate(rig, s, state) @ _plate_mount(rig)
+        actual = dict(actual, stage=state.to_dict())
+    return FrameSpec(i, pose, ref_from_rig @ pose, frame_seed(seed, i), stage_mm=s,
+                     rig_from_laser=laser, exposure_factor=factor, actual=actual)
 
 
 def _plate_view_warnings(rig: Rig, frames) -> tuple[frozenset, tuple]:
@@ -290,9 +388,20 @@ def _plate_view_warnings(rig: Rig, frames) -> tuple[frozenset, tuple]:
 def _rotary_frames(rig: Rig, seed: int, angles) -> tuple:
     rig_from_st = rig_from_stage(rig)
     ref_from_part = stage_from_part(rig, 0.0)
-    return tuple(FrameSpec(i, rig_from_st @ stage_from_part(rig, a), ref_from_part,
-                           frame_seed(seed, i), angle_deg=float(a))
+    return tuple(_rotary_frame(rig, seed, i, float(a), rig_from_st, ref_from_part)
                  for i, a in enumerate(angles))
+
+
+def _rotary_frame(rig: Rig, seed: int, i: int, angle: float, rig_from_st, ref_from_part) -> FrameSpec:
+    z, laser, factor, actual = _frame_errors(rig, seed, i)
+    if actual is None:
+        pose = stage_from_part(rig, angle)
+    else:
+        state = rotary_state(rig, angle, z[0])
+        pose = stage_from_part(rig, angle, state)
+        actual = dict(actual, stage=state.to_dict())
+    return FrameSpec(i, rig_from_st @ pose, ref_from_part, frame_seed(seed, i), angle_deg=angle,
+                     rig_from_laser=laser, exposure_factor=factor, actual=actual)
 
 
 def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: float = 2.0,

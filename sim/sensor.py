@@ -5,9 +5,15 @@ number of photo-electrons collected during the exposure (laser + ambient,
 pixel area, exposure time, quantum efficiency already included).  This module
 turns it into the value a camera would deliver, in this order:
 
+0. exposure and photo response (error models, off by default): ``λ ← λ·j·g_i``
+   with j = 1 + (exposure_jitter_percent/100)·z the frame's exposure factor
+   (z a standard normal draw of the frame, :func:`exposure_scale`) and g_i the
+   pixel's gain, 1 + (prnu_percent/100)·N(0, 1), clipped at 0;
 1. shot noise: ``n_e ~ Poisson(λ)`` [e⁻];
-2. full-well saturation: ``n_e ← min(n_e, full_well_e)`` (charge that does not
-   fit in the pixel is lost);
+2. dark signal and full-well saturation: ``n_e ← min(n_e + o_i, full_well_e)``
+   (charge that does not fit in the pixel is lost), o_i the pixel's fixed
+   dark offset: dsnu_e·N(0, 1) plus ``hot_pixel_e`` on a random
+   ``hot_pixel_fraction`` of the pixels (0 when both are off);
 3. read noise: ``+ σ_read · N(0, 1)`` [e⁻] (Gaussian, added at read-out);
 4. conversion gain and black level: ``DN = dark_offset_dn + n_e / g``;
 5. ADC: round to the nearest integer and clip to ``[0, 2**adc_bits − 1]``.
@@ -27,6 +33,12 @@ Statistics (unsaturated, away from the clip):
 ``Var[DN] = (λ + σ_read²)/g² + 1/12`` (the last term is the rounding of a
 distribution wide compared to 1 DN).
 
+Fixed-pattern maps (g, o: :meth:`SensorModel.fixed_pattern`) belong to the
+sensor, not the frame: they are drawn once from ``sensor.pattern_seed``
+(``SeedSequence((pattern_seed, 0xF1ED, rows, columns))``: PRNU normals, DSNU
+normals, hot-pixel uniforms, always all three in this order, so switching one
+map on leaves the others unchanged) and are the same in every frame and run.
+
 Random numbers: a :class:`numpy.random.Generator` on PCG64 seeded by
 ``numpy.random.SeedSequence((seed, frame_index, 0x5E45))`` gives one 64-bit key
 per frame; every pixel then draws from its own counter-based SplitMix64
@@ -39,6 +51,7 @@ how many frames were rendered before and of the number of threads.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -51,6 +64,8 @@ __all__ = [
     "SensorModel",
     "apply_sensor",
     "conversion_gain_e_per_dn",
+    "exposure_scale",
+    "fixed_pattern_maps",
     "frame_rng",
     "full_scale_dn",
     "poisson_counts",
@@ -252,11 +267,17 @@ def _poisson_kernel(lam, key, inv_k, ptrs_lambda, out):  # pragma: no cover - co
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _sensor_kernel(lam, key, inv_k, ptrs_lambda, full_well, read_noise, inv_gain, offset,
-                   full_scale, out):  # pragma: no cover - compiled
-    """Shot noise, full well, read noise (inverse normal CDF), gain, offset and ADC, per pixel."""
+                   full_scale, out, dark):  # pragma: no cover - compiled
+    """Shot noise, dark offset, full well, read noise (inverse normal CDF), gain, offset and ADC.
+
+    ``dark`` is the per-pixel dark offset [e⁻], or an empty array for none.
+    """
+    has_dark = dark.shape[0] > 0
     for i in numba.prange(lam.shape[0]):
         state = _pixel_state(key, i)
         n, state = _poisson_one(np.float64(lam[i]), state, inv_k, ptrs_lambda)
+        if has_dark:
+            n = n + np.float64(dark[i])
         e = min(n, full_well)
         if read_noise > 0.0:
             state, u = _next_uniform(state)
@@ -354,12 +375,16 @@ def _dr_poisson(llvm, lam, rng):
     return k
 
 
-def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel) -> np.ndarray:
+def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel,
+               dark: np.ndarray | None = None) -> np.ndarray:
     import drjit as dr
 
     rng = _dr_streams(llvm, flat.size, key)
     lam = llvm.Float64(llvm.Float(flat))
-    e = dr.minimum(_dr_poisson(llvm, lam, rng), model.full_well_e)
+    n = _dr_poisson(llvm, lam, rng)
+    if dark is not None:
+        n = n + llvm.Float64(llvm.Float(dark))
+    e = dr.minimum(n, model.full_well_e)
     if model.read_noise_e > 0:
         z = llvm.Float64(dr.sqrt(2.0) * dr.erfinv(2.0 * rng.next_float32() - 1.0))
         e = e + model.read_noise_e * z
@@ -454,6 +479,80 @@ def conversion_gain_e_per_dn(sensor: Sensor) -> float:
     return sensor.full_well_e / (full_scale_dn(sensor) - sensor.dark_offset_dn)
 
 
+def _pattern_draws(shape: tuple[int, int], seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence((int(seed), 0xF1ED,
+                                                                      *map(int, shape)))))
+    return rng.standard_normal(shape), rng.standard_normal(shape), rng.random(shape)
+
+
+@functools.lru_cache(maxsize=4)
+def fixed_pattern_maps(shape: tuple[int, int], prnu_percent: float, dsnu_e: float,
+                       hot_pixel_fraction: float, hot_pixel_e: float,
+                       pattern_seed: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The fixed-pattern maps of one physical sensor (module docstring).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(rows, columns)`` [px].
+    prnu_percent : float
+        RMS of the pixel gain about 1 [%].
+    dsnu_e : float
+        RMS of the pixel dark offset [e⁻].
+    hot_pixel_fraction : float
+        Fraction of hot pixels [-].
+    hot_pixel_e : float
+        Extra dark signal of a hot pixel [e⁻].
+    pattern_seed : int
+        Seed of the maps (the sensor's identity) [-].
+
+    Returns
+    -------
+    gain : (rows, columns) float32 or None
+        1 + (prnu_percent/100)·N(0, 1), clipped at 0 [-]; None when PRNU is 0.
+    dark_e : (rows, columns) float32 or None
+        dsnu_e·N(0, 1) + hot_pixel_e on the pixels whose uniform draw is below
+        ``hot_pixel_fraction`` [e⁻]; None when both are off.
+
+    Notes
+    -----
+    The draws depend only on (pattern_seed, shape); a negative dark offset
+    lowers the pixel below the black level (DSNU is symmetric about 0).  The
+    maps are cached and read-only.
+    """
+    if prnu_percent <= 0 and not (dsnu_e > 0 or (hot_pixel_fraction > 0 and hot_pixel_e > 0)):
+        return None, None
+    z_gain, z_dark, u_hot = _pattern_draws(tuple(shape), int(pattern_seed))
+    gain = None
+    if prnu_percent > 0:
+        gain = np.maximum(1.0 + 0.01 * prnu_percent * z_gain, 0.0).astype(np.float32)
+        gain.flags.writeable = False
+    dark = None
+    if dsnu_e > 0 or (hot_pixel_fraction > 0 and hot_pixel_e > 0):
+        dark = (dsnu_e * z_dark + np.where(u_hot < hot_pixel_fraction, hot_pixel_e, 0.0)).astype(np.float32)
+        dark.flags.writeable = False
+    return gain, dark
+
+
+def exposure_scale(rig: Rig, z: float) -> float:
+    """The exposure factor of one frame (exposure jitter).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``sensor.exposure_jitter_percent``).
+    z : float
+        Standard normal draw of the frame [-].
+
+    Returns
+    -------
+    float
+        j = max(0, 1 + (exposure_jitter_percent/100)·z) [-]: the frame's real
+        exposure time over ``exposure_ms``; exactly 1 when the model is off.
+    """
+    return max(0.0, 1.0 + 0.01 * rig.sensor.exposure_jitter_percent * z)
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """Noise and ADC parameters of one sensor, taken from ``rig.sensor``.
@@ -472,6 +571,16 @@ class SensorModel:
         Conversion gain actually used (> 0) [e⁻/DN].
     adc_bits : int
         ADC depth [bit].
+    prnu_percent : float, default 0.0
+        RMS photo-response non-uniformity [%].
+    dsnu_e : float, default 0.0
+        RMS dark-signal non-uniformity [e⁻].
+    hot_pixel_fraction : float, default 0.0
+        Fraction of hot pixels [-].
+    hot_pixel_e : float, default 0.0
+        Extra dark signal of a hot pixel [e⁻].
+    pattern_seed : int, default 0
+        Seed of the fixed-pattern maps [-].
     """
 
     full_well_e: float
@@ -479,6 +588,11 @@ class SensorModel:
     dark_offset_dn: float
     gain_e_per_dn: float
     adc_bits: int
+    prnu_percent: float = 0.0
+    dsnu_e: float = 0.0
+    hot_pixel_fraction: float = 0.0
+    hot_pixel_e: float = 0.0
+    pattern_seed: int = 0
 
     @classmethod
     def from_rig(cls, rig: Rig) -> SensorModel:
@@ -497,7 +611,26 @@ class SensorModel:
         """
         s = rig.sensor
         return cls(s.full_well_e, s.read_noise_e, s.dark_offset_dn,
-                   conversion_gain_e_per_dn(s), s.adc_bits)
+                   conversion_gain_e_per_dn(s), s.adc_bits, s.prnu_percent, s.dsnu_e,
+                   s.hot_pixel_fraction, s.hot_pixel_e, s.pattern_seed)
+
+    def fixed_pattern(self, shape: tuple[int, int]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The sensor's fixed-pattern maps for frames of a shape.
+
+        Parameters
+        ----------
+        shape : tuple of int
+            ``(rows, columns)`` [px].
+
+        Returns
+        -------
+        gain : (rows, columns) float32 or None
+            Photo-response factor per pixel [-]; None when PRNU is off.
+        dark_e : (rows, columns) float32 or None
+            Dark offset per pixel [e⁻]; None when DSNU and hot pixels are off.
+        """
+        return fixed_pattern_maps(tuple(int(n) for n in shape), self.prnu_percent, self.dsnu_e, self.hot_pixel_fraction,
+                                  self.hot_pixel_e, self.pattern_seed)
 
     @property
     def full_scale_dn(self) -> int:
@@ -550,7 +683,7 @@ def _backend(backend: str | None):
 
 
 def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
-                 backend: str | None = None) -> np.ndarray:
+                 backend: str | None = None, exposure_factor: float = 1.0) -> np.ndarray:
     """Turn expected electrons (rows, columns) into a raw ADC frame, (rows, columns) uint16.
 
     Parameters
@@ -565,6 +698,8 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
     backend : {None, "drjit", "numba"}
         Dr.Jit's vectorised LLVM kernel (default when usable) or the numba
         kernel; both sample the same model exactly, with different streams.
+    exposure_factor : float, default 1.0
+        The frame's real exposure over the nominal one (:func:`exposure_scale`) [-].
 
     Returns
     -------
@@ -579,8 +714,9 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
 
     Notes
     -----
-    Shot noise (Poisson), full-well clip, Gaussian read noise, conversion gain
-    and black level, rounding and ADC clip, in that order (module docstring).
+    Exposure factor and PRNU, shot noise (Poisson), dark offset (DSNU, hot
+    pixels) and full-well clip, Gaussian read noise, conversion gain and black
+    level, rounding and ADC clip, in that order (module docstring).
     """
     lam = np.asarray(electrons)
     if lam.ndim != 2:
@@ -588,11 +724,17 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
     if not np.all(lam >= 0):  # also catches NaN
         raise ValueError("electrons must be finite and >= 0 (expected photo-electrons per pixel)")
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
+    gain, dark = model.fixed_pattern(lam.shape)
+    if gain is not None or exposure_factor != 1.0:
+        factor = np.float32(exposure_factor) if gain is None else gain.reshape(-1) * np.float32(exposure_factor)
+        flat = flat * factor
+    dark_flat = None if dark is None else dark.reshape(-1)
     llvm = _backend(backend)
     if llvm is not None:
-        return _dr_sensor(llvm, flat, _frame_key(rng), model).reshape(lam.shape)
+        return _dr_sensor(llvm, flat, _frame_key(rng), model, dark_flat).reshape(lam.shape)
     out = np.empty(flat.size, dtype=np.uint16)
     _sensor_kernel(flat, _frame_key(rng), _INV_K, _PTRS_LAMBDA, np.float64(model.full_well_e),
                    np.float64(model.read_noise_e), np.float64(1.0 / model.gain_e_per_dn),
-                   np.float64(model.dark_offset_dn), np.float64(model.full_scale_dn), out)
+                   np.float64(model.dark_offset_dn), np.float64(model.full_scale_dn), out,
+                   np.zeros(0, np.float32) if dark_flat is None else dark_flat)
     return out.reshape(lam.shape)

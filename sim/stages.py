@@ -34,14 +34,38 @@ With τ = 0 and e = 0 this is the ideal pose.  The *reference frame* of the
 truth (``truth/mesh.ply``, truth points) is the stage frame with the part at
 θ = 0: ``ref_from_part = stage_from_part(0)``.
 
+Rotary stage, error motions (:class:`RotaryState`; each off at 0): the table
+turns to θ_a = θ + A·sin θ + ε for a command θ (``rotary_eccentricity_deg`` A,
+an eccentric encoder or worm wheel, zero at home; ε ~ N(0, σ²) per move,
+``rotary_repeatability_deg`` σ); at θ_a its tilt error motion is a rotation by
+the vector W·(cos 2θ_a, sin 2θ_a, 0) (``wobble_urad`` W) about the table centre
+and its radial error motion the shift R·(cos 2θ_a, sin 2θ_a, 0)
+(``radial_error_um`` R), both twice per turn — the once-per-turn parts are a
+constant tilt and a centring error, which ``axis_tilt_deg`` and ``runout_um``
+already are.  With them
+``stage_from_part(θ) = T(r(θ_a)) · T(0, 0, z_t) · R(w(θ_a)) · R_tilt · R_z(θ_a) · T(e, 0, 0)``.
+The truth's reference frame stays the ideal stage at θ = 0.
+
 Translation stage: the plate's measured face at stage coordinate s lies at
 D = s − d0 from the object hinge:
 ``rig_from_plate(s) = [e_p, n, e_z | H + (s − d0)·e_p + calibration_table_z_mm·e_z]``.
+
+Translation stage, errors (:class:`TranslationState`; each off at 0).  For a
+command s the carriage goes to s_a = s·(1 + k·1e-6) + A·sin(2π s / lead) + ε
+(``translation_scale_ppm`` k, ``translation_periodic_um`` A, ε ~ N(0, σ²) per
+move, ``translation_repeatability_um`` σ); with x = s/L (L =
+``translation_travel_mm``) it is displaced by 4x(1 − x)·S_lat along the sheet
+normal and 4x(1 − x)·S_vert up (``straightness_*``), and turned by
+(2x − 1)·P about the sheet normal (pitch: the top toward +propagation) and
+(2x − 1)·Y about the vertical (yaw), about the carriage point under the
+plate's measured face (``pitch_urad``, ``yaw_urad``):
+``rig_from_plate(s) = [e_p, n, e_z | H + (s_a − d0)·e_p + z_c·e_z + lat·n + vert·e_z] · R_z(yaw) · R_n(pitch)``.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,15 +73,20 @@ from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
 __all__ = [
+    "RotaryState",
+    "TranslationState",
     "axis_distance_mm",
     "invert",
     "rig_from_plate",
     "rig_from_stage",
+    "rotary_state",
+    "rotation_vector",
     "rotation_z",
     "stage_from_part",
     "stage_from_plate",
     "transform_points",
     "translation",
+    "translation_state",
 ]
 
 
@@ -205,7 +234,89 @@ def rig_from_stage(rig: Rig) -> np.ndarray:
     return _sheet_frame(rig, g.object_hinge_mm + axis_distance_mm(rig) * g.propagation_dir)
 
 
-def stage_from_part(rig: Rig, angle_deg: float) -> np.ndarray:
+def rotation_vector(vector_rad) -> np.ndarray:
+    """Homogeneous rotation by a rotation vector (axis × angle).
+
+    Parameters
+    ----------
+    vector_rad : (3,) array_like
+        Rotation vector: unit axis times the angle [rad]; zero = identity.
+
+    Returns
+    -------
+    (4, 4) float64
+        The rotation (Rodrigues), about the origin.
+    """
+    v = np.asarray(vector_rad, dtype=np.float64)
+    angle = float(np.linalg.norm(v))
+    if angle == 0.0:
+        return np.eye(4)
+    return _rotation_axis_angle(v / angle, angle)
+
+
+@dataclass(frozen=True)
+class RotaryState:
+    """Where an erring rotary stage really is for one command (module docstring).
+
+    Parameters
+    ----------
+    command_deg : float
+        Commanded angle θ [deg].
+    angle_deg : float
+        Angle the table really turned to, θ_a [deg].
+    wobble_urad : (2,) tuple of float
+        Tilt error motion, the x and y components of the rotation vector in the
+        stage frame [µrad].
+    radial_um : (2,) tuple of float
+        Radial error motion, the table centre's shift along stage x and y [µm].
+    """
+
+    command_deg: float
+    angle_deg: float
+    wobble_urad: tuple = (0.0, 0.0)
+    radial_um: tuple = (0.0, 0.0)
+
+    def to_dict(self) -> dict:
+        """The realised values for the manifest.
+
+        Returns
+        -------
+        dict
+            ``angle_deg``, ``angle_error_deg``, ``wobble_urad`` [x, y],
+            ``radial_um`` [x, y].
+        """
+        return {"angle_deg": self.angle_deg, "angle_error_deg": self.angle_deg - self.command_deg,
+                "wobble_urad": list(self.wobble_urad), "radial_um": list(self.radial_um)}
+
+
+def rotary_state(rig: Rig, angle_deg: float, z: float = 0.0) -> RotaryState:
+    """The rotary stage's real angle and error motions for a commanded angle.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``rotary_eccentricity_deg``, ``rotary_repeatability_deg``,
+        ``wobble_urad``, ``radial_error_um``).
+    angle_deg : float
+        Commanded angle θ [deg].
+    z : float, default 0.0
+        Standard normal draw of this move's random angle error [-].
+
+    Returns
+    -------
+    RotaryState
+        θ_a = θ + A·sin θ + σ·z; wobble W·(cos 2θ_a, sin 2θ_a) [µrad] and radial
+        error motion R·(cos 2θ_a, sin 2θ_a) [µm] (module docstring).
+    """
+    st = rig.stage
+    actual = angle_deg + st.rotary_eccentricity_deg * math.sin(math.radians(angle_deg)) \
+        + st.rotary_repeatability_deg * z
+    c, s = math.cos(2 * math.radians(actual)), math.sin(2 * math.radians(actual))
+    return RotaryState(float(angle_deg), float(actual), (st.wobble_urad * c, st.wobble_urad * s),
+                       (st.radial_error_um * c, st.radial_error_um * s))
+
+
+def stage_from_part(rig: Rig, angle_deg: float, state: RotaryState | None = None) -> np.ndarray:
     """Pose of a part on the rotary stage, in the stage frame.
 
     Parameters
@@ -215,6 +326,9 @@ def stage_from_part(rig: Rig, angle_deg: float) -> np.ndarray:
         ``axis_tilt_azimuth_deg``, ``runout_um``).
     angle_deg : float
         Stage angle θ, counter-clockwise seen from above [deg].
+    state : RotaryState, optional
+        The erring stage's real angle and error motions for this command
+        (:func:`rotary_state`); None = the stage goes exactly to ``angle_deg``.
 
     Returns
     -------
@@ -223,18 +337,96 @@ def stage_from_part(rig: Rig, angle_deg: float) -> np.ndarray:
 
     Notes
     -----
-    ``T(0, 0, z_t) · R_tilt · R_z(θ) · T(runout/2, 0, 0)`` (module docstring),
-    R_tilt the rotation by τ that turns e_z onto the bearing axis; the ideal
-    stage (τ = 0, no runout) gives ``R_z(θ)·T(0, 0, rotary_table_z_mm)``.
+    ``T(r) · T(0, 0, z_t) · R(w) · R_tilt · R_z(θ_a) · T(runout/2, 0, 0)``
+    (module docstring), R_tilt the rotation by τ that turns e_z onto the
+    bearing axis; the ideal stage (τ = 0, no runout, no state) gives
+    ``R_z(θ)·T(0, 0, rotary_table_z_mm)``.
     """
     st = rig.stage
     tau, psi = math.radians(st.axis_tilt_deg), math.radians(st.axis_tilt_azimuth_deg)
     tilt = _rotation_axis_angle((-math.sin(psi), math.cos(psi), 0.0), tau)
     ecc = translation((0.5 * st.runout_um * 1e-3, 0.0, 0.0))
-    return translation((0.0, 0.0, st.rotary_table_z_mm)) @ tilt @ rotation_z(angle_deg) @ ecc
+    table = translation((0.0, 0.0, st.rotary_table_z_mm))
+    if state is None:
+        return table @ tilt @ rotation_z(angle_deg) @ ecc
+    wob = rotation_vector([1e-6 * state.wobble_urad[0], 1e-6 * state.wobble_urad[1], 0.0])
+    radial = translation([1e-3 * state.radial_um[0], 1e-3 * state.radial_um[1], 0.0])
+    return radial @ table @ wob @ tilt @ rotation_z(state.angle_deg) @ ecc
 
 
-def rig_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
+@dataclass(frozen=True)
+class TranslationState:
+    """Where an erring translation stage really puts its carriage for one command.
+
+    Parameters
+    ----------
+    command_mm : float
+        Commanded stage coordinate s [mm].
+    stage_mm : float
+        Coordinate the carriage really went to, s_a [mm].
+    lateral_um : float, default 0.0
+        Straightness deviation along the sheet normal [µm].
+    vertical_um : float, default 0.0
+        Straightness deviation up [µm].
+    pitch_urad : float, default 0.0
+        Pitch of the carriage (about the sheet normal) [µrad].
+    yaw_urad : float, default 0.0
+        Yaw of the carriage (about the vertical) [µrad].
+    """
+
+    command_mm: float
+    stage_mm: float
+    lateral_um: float = 0.0
+    vertical_um: float = 0.0
+    pitch_urad: float = 0.0
+    yaw_urad: float = 0.0
+
+    def to_dict(self) -> dict:
+        """The realised values for the manifest.
+
+        Returns
+        -------
+        dict
+            ``stage_mm`` (where the carriage went), ``position_error_um``,
+            ``lateral_um``, ``vertical_um``, ``pitch_urad``, ``yaw_urad``.
+        """
+        return {"stage_mm": self.stage_mm,
+                "position_error_um": 1e3 * (self.stage_mm - self.command_mm),
+                "lateral_um": self.lateral_um, "vertical_um": self.vertical_um,
+                "pitch_urad": self.pitch_urad, "yaw_urad": self.yaw_urad}
+
+
+def translation_state(rig: Rig, stage_mm: float, z: float = 0.0) -> TranslationState:
+    """The translation stage's real position and attitude for a commanded coordinate.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (the ``translation_*``, ``straightness_*``, ``pitch_urad``,
+        ``yaw_urad`` keys of ``rig.stage``).
+    stage_mm : float
+        Commanded stage coordinate s [mm].
+    z : float, default 0.0
+        Standard normal draw of this move's random positioning error [-].
+
+    Returns
+    -------
+    TranslationState
+        s_a = s·(1 + k·1e-6) + A·sin(2π s/lead) + σ·z; with x = s/L:
+        straightness 4x(1 − x)·S, pitch and yaw (2x − 1)·value (module docstring).
+    """
+    st = rig.stage
+    err_um = st.translation_scale_ppm * 1e-3 * stage_mm \
+        + st.translation_periodic_um * math.sin(2 * math.pi * stage_mm / st.translation_lead_mm) \
+        + st.translation_repeatability_um * z
+    x = stage_mm / st.translation_travel_mm
+    bow, ramp = 4.0 * x * (1.0 - x), 2.0 * x - 1.0
+    return TranslationState(float(stage_mm), float(stage_mm + 1e-3 * err_um),
+                            bow * st.straightness_lateral_um, bow * st.straightness_vertical_um,
+                            ramp * st.pitch_urad, ramp * st.yaw_urad)
+
+
+def rig_from_plate(rig: Rig, stage_mm: float, state: TranslationState | None = None) -> np.ndarray:
     """Pose of the calibration plate in the rig frame.
 
     Parameters
@@ -243,20 +435,31 @@ def rig_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
         The rig (hinge geometry, ``stage.d0_mm``, ``stage.calibration_table_z_mm``).
     stage_mm : float
         Translation-stage coordinate s of the plate's measured face [mm].
+    state : TranslationState, optional
+        The erring stage's real position and attitude for this command
+        (:func:`translation_state`); None = exactly at ``stage_mm``.
 
     Returns
     -------
     (4, 4) float64
         rig_from_plate: rotation columns [e_p, n, e_z], origin
-        H + (s − d0)·e_p + calibration_table_z_mm·e_z [mm].
+        H + (s − d0)·e_p + calibration_table_z_mm·e_z [mm]; with a state, the
+        carriage's displacement and R_z(yaw)·R_n(pitch) (module docstring).
     """
     g = hinge_geometry(rig)
-    D = stage_mm - rig.stage.d0_mm
-    return _sheet_frame(rig, g.object_hinge_mm + D * g.propagation_dir
-                        + rig.stage.calibration_table_z_mm * np.array([0.0, 0.0, 1.0]))
+    if state is None:
+        D = stage_mm - rig.stage.d0_mm
+        return _sheet_frame(rig, g.object_hinge_mm + D * g.propagation_dir
+                            + rig.stage.calibration_table_z_mm * np.array([0.0, 0.0, 1.0]))
+    D = state.stage_mm - rig.stage.d0_mm
+    origin = g.object_hinge_mm + D * g.propagation_dir + 1e-3 * state.lateral_um * g.sheet_normal \
+        + (rig.stage.calibration_table_z_mm + 1e-3 * state.vertical_um) * np.array([0.0, 0.0, 1.0])
+    turn = rotation_vector([0.0, 0.0, 1e-6 * state.yaw_urad]) \
+        @ rotation_vector([0.0, 1e-6 * state.pitch_urad, 0.0])
+    return _sheet_frame(rig, origin) @ turn
 
 
-def stage_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
+def stage_from_plate(rig: Rig, stage_mm: float, state: TranslationState | None = None) -> np.ndarray:
     """Pose of the calibration plate in the stage frame.
 
     Parameters
@@ -265,11 +468,13 @@ def stage_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
         The rig.
     stage_mm : float
         Translation-stage coordinate s of the plate's measured face [mm].
+    state : TranslationState, optional
+        The erring stage's real position and attitude (:func:`translation_state`).
 
     Returns
     -------
     (4, 4) float64
-        stage_from_plate: a pure translation (s − axis_mm, 0,
+        stage_from_plate: without a state a pure translation (s − axis_mm, 0,
         calibration_table_z_mm) [mm].
     """
-    return invert(rig_from_stage(rig)) @ rig_from_plate(rig, stage_mm)
+    return invert(rig_from_stage(rig)) @ rig_from_plate(rig, stage_mm, state)

@@ -48,16 +48,24 @@ in it; ``truth/mesh.ply`` is the plate at the first stage position).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Protocol
 
 import numba
 import numpy as np
 
-from scheimpflug.model.camera import chief_ray_from_pixel, project_points, sensor_pose
+from scheimpflug.model.camera import (
+    chief_ray_from_pixel,
+    lens_centre_mm,
+    lens_state,
+    project_points,
+    sensor_pose,
+)
 from scheimpflug.model.hinge import hinge_geometry
-from scheimpflug.model.rig import Rig
+from scheimpflug.model.rig import Rig, active_error_models
 
+from .lightsheet import light_sheet, posed_sheet, sheet_offset_mm
 from .stages import axis_distance_mm, invert, transform_points
 
 __all__ = [
@@ -73,6 +81,7 @@ __all__ = [
     "row_crossings",
     "sheet_section",
     "stripe_truth",
+    "surface_section",
 ]
 
 
@@ -168,10 +177,38 @@ def sheet_section(vertices_mm, faces, face_ids, plane_point_mm, plane_normal
     lower-indexed vertex, so neighbouring faces share bit-identical points.
     """
     v = np.asarray(vertices_mm, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
     n = np.asarray(plane_normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
     d = v @ n - np.asarray(plane_point_mm, dtype=np.float64) @ n
+    return surface_section(v, faces, face_ids, d)
+
+
+def surface_section(vertices_mm, faces, face_ids, signed_distance_mm) -> tuple[np.ndarray, np.ndarray]:
+    """Cut a triangle mesh by the zero set of a signed distance given at its vertices.
+
+    Parameters
+    ----------
+    vertices_mm : (n, 3) float
+        Mesh vertices, in any frame [mm].
+    faces : (m, 3) int
+        Vertex indices of the triangles.
+    face_ids : (m,) int
+        Object id per face.
+    signed_distance_mm : (n,) float
+        Signed distance of each vertex from the cutting surface [mm].
+
+    Returns
+    -------
+    segments : (k, 2, 3) float64
+        One segment per cut face, same frame as the vertices [mm]; crossings
+        are interpolated linearly along the edges (exact for a plane; for a
+        gently curved surface off by its curvature over one edge).
+    segment_ids : (k,) int
+        Object id of each segment's face.
+    """
+    v = np.asarray(vertices_mm, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    d = np.asarray(signed_distance_mm, dtype=np.float64)
     above_v = d >= 0
     cut = _cut_faces(above_v, f)
     fc = f[cut]
@@ -303,7 +340,11 @@ def _unobstructed(caster: RayCaster, origin, points, tol: TruthTolerances) -> np
     return hit_t >= dist - tol.visibility_mm
 
 
-def _in_fan(rig: Rig, points) -> np.ndarray:
+def _in_fan(rig: Rig, points, sheet=None) -> np.ndarray:
+    if sheet is not None:
+        rel = points - sheet.origin_mm
+        elevation = np.degrees(np.arctan2(rel @ sheet.up, rel @ sheet.prop_dir))
+        return np.abs(elevation) <= 0.5 * rig.laser.fan_angle_deg
     g = hinge_geometry(rig)
     rel = points - laser_origin_mm(rig)
     elevation = np.degrees(np.arctan2(rel[:, 2], rel @ g.propagation_dir))
@@ -348,7 +389,8 @@ class StripeTruth:
 
 
 def stripe_truth(rig: Rig, vertices_part_mm, faces, face_ids, rig_from_part, ref_from_part,
-                 caster: RayCaster, tol: TruthTolerances = TruthTolerances()) -> StripeTruth:
+                 caster: RayCaster, tol: TruthTolerances = TruthTolerances(),
+                 rig_from_laser=None) -> StripeTruth:
     """Exact stripe centre per row of one frame.
 
     The sheet's mid-plane cuts the mesh (in the part frame), the cut is
@@ -375,28 +417,51 @@ def stripe_truth(rig: Rig, vertices_part_mm, faces, face_ids, rig_from_part, ref
         First-hit queries in the rig frame for the scene posed by ``rig_from_part``.
     tol : TruthTolerances, optional
         Visibility and row-solve tolerances.
+    rig_from_laser : (4, 4) float, optional
+        This frame's pose of the laser sheet (pointing drift,
+        :func:`sim.lightsheet.pointing_pose`) [mm]; None = the nominal sheet.
 
     Returns
     -------
     StripeTruth
         Per-row stripe truth; points in the reference frame.
+
+    Notes
+    -----
+    The cut is the sheet actually rendered: turned by ``rig_from_laser`` and,
+    with ``laser.line_bow_mrad``, the bowed mid-surface o = r·β(α)
+    (:func:`sim.lightsheet.sheet_offset_mm`); the lens centre is the real
+    lens's (:func:`scheimpflug.model.camera.lens_centre_mm`).
     """
-    g = hinge_geometry(rig)
     part_from_rig = invert(rig_from_part)
-    # cut in the part frame (no mesh transform), then move the few segment points
-    plane_point = transform_points(part_from_rig, g.object_hinge_mm)
-    plane_normal = part_from_rig[:3, :3] @ g.sheet_normal
-    seg, seg_ids = sheet_section(vertices_part_mm, faces, face_ids, plane_point, plane_normal)
+    seg, seg_ids = _cut(rig, vertices_part_mm, faces, face_ids, part_from_rig, rig_from_laser)
     seg = transform_points(rig_from_part, seg)
-    seg = seg[(seg[:, :, 0] > rig.lens.focal_length_mm).all(axis=1)]  # images exist in front of F
+    seg = seg[(seg[:, :, 0] > lens_state(rig).focal_length_mm + lens_centre_mm(rig)[0]).all(axis=1)]
     rows, u, pts, idx = row_crossings(rig, seg, tol)
     ids = seg_ids[idx] if len(idx) else np.zeros(0, dtype=np.int64)
-    keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts)
+    sheet = None if rig_from_laser is None else posed_sheet(light_sheet(rig), rig_from_laser)
+    keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts, sheet)
     rows, u, pts, ids = rows[keep], u[keep], pts[keep], ids[keep]
-    keep = _unobstructed(caster, np.zeros(3), pts, tol)
-    keep[keep] = _unobstructed(caster, laser_origin_mm(rig), pts[keep], tol)
+    keep = _unobstructed(caster, lens_centre_mm(rig), pts, tol)
+    origin = laser_origin_mm(rig) if sheet is None else sheet.origin_mm
+    keep[keep] = _unobstructed(caster, origin, pts[keep], tol)
     return _primary_per_row(rig.sensor.rows, rows[keep], u[keep],
                             transform_points(ref_from_part @ part_from_rig, pts[keep]), ids[keep])
+
+
+def _cut(rig, vertices_part_mm, faces, face_ids, part_from_rig, rig_from_laser):
+    """The mesh cut by the frame's sheet, in the part frame (no mesh transform)."""
+    if rig_from_laser is None and rig.laser.line_bow_mrad == 0.0:
+        g = hinge_geometry(rig)
+        plane_point = transform_points(part_from_rig, g.object_hinge_mm)
+        plane_normal = part_from_rig[:3, :3] @ g.sheet_normal
+        return sheet_section(vertices_part_mm, faces, face_ids, plane_point, plane_normal)
+    sheet = posed_sheet(light_sheet(rig), rig_from_laser)
+    rot = part_from_rig[:3, :3]       # the sheet in the part frame
+    local = dataclasses.replace(sheet, origin_mm=transform_points(part_from_rig, sheet.origin_mm),
+                                prop_dir=rot @ sheet.prop_dir, normal=rot @ sheet.normal,
+                                up=rot @ sheet.up)
+    return surface_section(vertices_part_mm, faces, face_ids, sheet_offset_mm(local, vertices_part_mm))
 
 
 def _primary_per_row(n_rows, rows, u, pts_ref, ids) -> StripeTruth:
@@ -474,12 +539,14 @@ def pixel_truth(rig: Rig, caster: RayCaster, ref_from_rig, directions=None,
     point = np.empty((n_r, n_c, 3), dtype=np.float32)
     obj = np.empty((n_r, n_c), dtype=np.uint16)
     rot, shift = np.asarray(ref_from_rig)[:3, :3], np.asarray(ref_from_rig)[:3, 3]
+    c = lens_centre_mm(rig)
+    shift = shift + rot @ c
     for r0 in range(0, n_r, rows_per_batch):
         r1 = min(n_r, r0 + rows_per_batch)
         w = w_all[r0 * n_c:r1 * n_c]
-        t, ids = caster.first_hit(np.zeros_like(w), w)
+        t, ids = caster.first_hit(np.broadcast_to(c, w.shape).copy(), w)
         hit = np.isfinite(t)
-        # p_ref = R·(t·w) + T = t·(R·w) + T; misses → NaN
+        # p_ref = R·(c + t·w) + T = t·(R·w) + (R·c + T); misses → NaN
         p = np.where(hit, t, np.nan)[:, None] * (w @ rot.T) + shift
         point[r0:r1] = p.reshape(r1 - r0, n_c, 3)
         obj[r0:r1] = np.where(hit, ids, 0).reshape(r1 - r0, n_c)
@@ -504,8 +571,9 @@ def rig_truth(rig: Rig) -> dict:
         ``F2_px_mm`` [px·mm], ``C_mm`` [mm], ``d0_mm`` [mm],
         ``axis_mm`` [mm] and ``D_axis_mm`` = axis_mm − d0_mm [mm], ``tilt_deg`` [deg],
         ``tan_beta`` [-], and ``ideal`` (bool): True when the rig has no sensor
-        misalignment (roll, tilt error, offsets), no lens distortion (k1, k2)
-        and no stage axis tilt or runout.
+        misalignment (roll, tilt error, offsets), no lens distortion (k1, k2),
+        no stage axis tilt or runout and no error model on
+        (:func:`scheimpflug.model.rig.active_error_models`).
 
     Notes
     -----
@@ -520,7 +588,8 @@ def rig_truth(rig: Rig) -> dict:
             "ideal": all(getattr(rig.sensor, k) == 0 for k in
                          ("roll_deg", "tilt_error_deg", "offset_u_px", "offset_v_px",
                           "offset_normal_um")) and rig.lens.k1 == 0 and rig.lens.k2 == 0
-            and rig.stage.axis_tilt_deg == 0 and rig.stage.runout_um == 0}
+            and rig.stage.axis_tilt_deg == 0 and rig.stage.runout_um == 0
+            and not active_error_models(rig)}
 
 
 # ------------------------------------------------------------------ casters

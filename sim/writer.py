@@ -8,6 +8,7 @@ Layout::
     DIR/truth/mesh.ply       the scene in the truth reference frame (object_id per face)
     DIR/truth/mesh_NNNNN.ply calibration only: the plate at frame NNNNN's stage position
     DIR/truth/rig_truth.json closed-form u_h, v_h, F², C, d0, axis of the rig (sim.truth.rig_truth)
+    DIR/truth/sensor_maps.npz the sensor's fixed-pattern maps when on: prnu_gain [-], dark_e [e⁻]
 
 ``manifest.json`` keys: ``format``, ``complete`` (false while rendering),
 ``rig`` (rig_to_dict), ``scenario``, ``scenario_params``, ``seed``, ``render``
@@ -15,7 +16,15 @@ Layout::
 ``truth`` (format description, reference frame, which frames have per-pixel
 maps), ``generator`` (program and library versions) and ``frames``:
 ``[{"file": "frames/00000.png", "truth": "truth/00000.npz", "stage_mm": s |
-"angle_deg": θ, "exposure_ms": ..., "seed": ..., "pixel_truth": bool}, ...]``.
+"angle_deg": θ, "exposure_ms": ..., "seed": ..., "pixel_truth": bool}, ...]``;
+``stage_mm`` / ``angle_deg`` and ``exposure_ms`` are the commanded values.  When
+the rig has error models on (:func:`scheimpflug.model.rig.active_error_models`),
+each frame also has ``actual``: what the erring instrument really did
+(``stage`` — for the translation stage ``stage_mm``, ``position_error_um``,
+``lateral_um``, ``vertical_um``, ``pitch_urad``, ``yaw_urad``; for the rotary
+stage ``angle_deg``, ``angle_error_deg``, ``wobble_urad``, ``radial_um`` —,
+``exposure_factor``, ``pointing_urad`` [about e_z, about e_p],
+``lens_centre_x_mm``).
 When finished it also lists ``frames_without_stripe``.
 
 Restart: the manifest is written first (``"complete": false``) listing every
@@ -215,7 +224,10 @@ class MitsubaTwin:
         (rows, columns) float32
             Expected electrons per pixel [e⁻] (:meth:`Renderer.render`).
         """
-        image = self.renderer.render(frame.rig_from_part, frame.seed)
+        if frame.rig_from_laser is None:
+            image = self.renderer.render(frame.rig_from_part, frame.seed)
+        else:
+            image = self.renderer.render(frame.rig_from_part, frame.seed, frame.rig_from_laser)
         self._posed = frame.index
         return image
 
@@ -478,7 +490,8 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
     """
     frames = [{"file": f"frames/{f.index:05d}.png", "truth": f"truth/{f.index:05d}.npz",
                **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms, "seed": f.seed,
-               "pixel_truth": scenario.wants_pixel_truth(f.index)}
+               "pixel_truth": scenario.wants_pixel_truth(f.index),
+               **({"actual": f.actual} if getattr(f, "actual", None) else {})}
               for f in scenario.frames]
     return {
         "format": FORMAT,
@@ -627,6 +640,10 @@ class RenderStats:
 
 def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
     write_json_atomic(out / "truth" / "rig_truth.json", rig_truth(rig))
+    gain, dark = SensorModel.from_rig(rig).fixed_pattern((rig.sensor.rows, rig.sensor.columns))
+    if (gain is not None or dark is not None) and not (out / "truth" / "sensor_maps.npz").exists():
+        _write_npz(out / "truth" / "sensor_maps.npz",
+                   {k: v for k, v in (("prnu_gain", gain), ("dark_e", dark)) if v is not None})
     if not (out / "truth" / "mesh.ply").exists():
         scenario.assembly.transformed(scenario.mesh_ref_from_part).to_ply(out / "truth" / "mesh.ply")
     if scenario.name == "calibration":
@@ -639,7 +656,8 @@ def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
 def _frame_truth(rig, scenario, frame, caster, stats, mesh) -> dict:
     t0 = time.perf_counter()
     arrays = stripe_truth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"],
-                          frame.rig_from_part, frame.ref_from_part, caster).arrays()
+                          frame.rig_from_part, frame.ref_from_part, caster,
+                          rig_from_laser=frame.rig_from_laser).arrays()
     t1 = time.perf_counter()
     stats.seconds["truth"] += t1 - t0
     if scenario.wants_pixel_truth(frame.index):
@@ -791,7 +809,8 @@ def _timed(stats: RenderStats, key: str, fn, *args):
 
 def _noise(electrons, model, frame, stats) -> np.ndarray:
     """The frame's raw ADC image: sensor noise seeded by the frame seed."""
-    return _timed(stats, "noise", apply_sensor, electrons, model, frame_rng(frame.seed, 0))
+    return _timed(stats, "noise", apply_sensor, electrons, model, frame_rng(frame.seed, 0), None,
+                  getattr(frame, "exposure_factor", 1.0))
 
 
 def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:

@@ -16,6 +16,12 @@ Model
 * The sensor is a plane (:class:`SensorPose`); the *image* of P on it is where
   the (distorted) chief ray through the lens centre meets the sensor.  The blur
   is the section of the cone from the aperture to P' by the sensor.
+* A real lens (:func:`lens_state`): focal length f + Δf
+  (``lens.focal_length_error_mm``), focused like a user focuses it — moved
+  along its axis to c = (δ, 0, 0) until the sheet point imaged at the sensor
+  centre is sharp — then left off by ``lens.focus_error_um``.  The sensor stays
+  at its design pose.  Every formula above then holds relative to c (P − c,
+  conjugate c + m·(P − c), chief rays from c).  The ideal lens has c = 0.
 
 Sensor frame: pixel (u, v) sits at ``origin + u·p·e_u + v·p·e_v``; columns u
 run along the tilt (toward the image hinge), rows v increase downward in the
@@ -24,6 +30,7 @@ upright image (+z' on the sensor, the image being inverted).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -34,11 +41,14 @@ from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
 __all__ = [
+    "LensState",
     "Projection",
     "SensorPose",
     "blur_footprint_px",
     "chief_ray_from_pixel",
     "conjugate_point",
+    "lens_centre_mm",
+    "lens_state",
     "pixel_from_sensor_point",
     "project_points",
     "sensor_point_from_pixel",
@@ -140,6 +150,99 @@ def sensor_pose(rig: Rig) -> SensorPose:
 # ------------------------------------------------------------------ lens model
 
 
+@dataclass(frozen=True)
+class LensState:
+    """The real lens of a rig: its focal length and where focusing put it.
+
+    Build it with :func:`lens_state`.
+
+    Parameters
+    ----------
+    focal_length_mm : float
+        Real focal length f + Δf [mm].
+    centre_x_mm : float
+        Axial position δ of the lens centre in the rig frame [mm] (0 for the
+        ideal lens; the rig frame stays the design's).
+    focus_shift_mm : float
+        The part of δ that focusing the real lens took [mm]
+        (``centre_x_mm`` minus the focus error).
+    """
+
+    focal_length_mm: float
+    centre_x_mm: float
+    focus_shift_mm: float
+
+
+def _conjugate(p: np.ndarray, f: float, cx: float, k1: float, k2: float) -> np.ndarray:
+    """c + m·(P − c), lateral part distorted; c = (cx, 0, 0)."""
+    x = p[..., 0] - cx
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m = np.where(x != f, -f / (x - f), np.nan)
+        t2 = (p[..., 1] ** 2 + p[..., 2] ** 2) / (x * x)
+    img = m[..., None] * np.stack([x, p[..., 1], p[..., 2]], axis=-1)
+    s = _distortion_scale(t2, k1, k2)
+    img[..., 1] *= s
+    img[..., 2] *= s
+    img[..., 0] += cx
+    return img
+
+
+@functools.lru_cache(maxsize=64)
+def lens_state(rig: Rig) -> LensState:
+    """Focal length and position of a rig's real lens (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (``lens.focal_length_error_mm``, ``lens.focus_error_um``).
+
+    Returns
+    -------
+    LensState
+        f' = f + Δf; δ solves (c + m·(P_c − c) − O)·n = 0 for the design's sheet
+        point P_c of the sensor centre (secant method to 1e-12 mm), plus the
+        focus error; δ = 0 and f' = f exactly for an ideal lens.
+    """
+    lens = rig.lens
+    f = lens.focal_length_mm + lens.focal_length_error_mm
+    err = lens.focus_error_um * 1e-3
+    if lens.focal_length_error_mm == 0.0:
+        return LensState(f, err, 0.0)
+    pose = sensor_pose(rig)
+    centre = np.array([0.5 * (pose.columns - 1), 0.5 * (pose.rows - 1)])
+    w = _chief_dir_from_sensor(rig, sensor_point_from_pixel(pose, centre), 0.0)
+    d, t = rig.laser.scheimpflug_distance_mm, rig.laser.tan_phi
+    pc = d / (w[1] + w[0] * t) * w
+
+    def g(cx: float) -> float:
+        return float((_conjugate(pc, f, cx, lens.k1, lens.k2) - pose.origin_mm) @ pose.normal)
+
+    a, b = 0.0, lens.focal_length_error_mm
+    ga, gb = g(a), g(b)
+    for _ in range(60):
+        if gb == ga or abs(b - a) < 1e-12:
+            break
+        a, b, ga = b, b - gb * (b - a) / (gb - ga), gb
+        gb = g(b)
+    return LensState(f, b + err, b)
+
+
+def lens_centre_mm(rig: Rig) -> np.ndarray:
+    """Where the real lens's centre is, in the rig frame.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    (3,) float64
+        c = (δ, 0, 0) [mm] (:func:`lens_state`); the origin for an ideal lens.
+    """
+    return np.array([lens_state(rig).centre_x_mm, 0.0, 0.0])
+
+
 def _distortion_scale(t2, k1: float, k2: float):
     return 1.0 + k1 * t2 + k2 * t2 * t2
 
@@ -174,6 +277,8 @@ def conjugate_point(rig: Rig, points_mm) -> np.ndarray:
         P' = −f/(x − f)·P in the rig frame [mm], its lateral part (y, z)
         scaled by the distortion factor 1 + k1·t² + k2·t⁴ (t = tan θ).
         Points at x = f (the front focal plane) have no finite image: NaN.
+        For a real lens (:func:`lens_state`) f is f + Δf and x, P are taken
+        relative to its centre c.
 
     Raises
     ------
@@ -186,6 +291,9 @@ def conjugate_point(rig: Rig, points_mm) -> np.ndarray:
     the focal planes (paper Eq. 1).
     """
     p = check_last_dim("points_mm", points_mm, 3)
+    ls = lens_state(rig)
+    if ls.centre_x_mm != 0.0 or ls.focal_length_mm != rig.lens.focal_length_mm:
+        return _conjugate(p, ls.focal_length_mm, ls.centre_x_mm, rig.lens.k1, rig.lens.k2)
     f = rig.lens.focal_length_mm
     x = p[..., 0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -201,7 +309,7 @@ def conjugate_point(rig: Rig, points_mm) -> np.ndarray:
 def _chief_dir_image(rig: Rig, points_mm: np.ndarray) -> np.ndarray:
     """Direction of the (distorted) chief ray behind the lens for object points, (…, 3)."""
     p = np.asarray(points_mm, dtype=np.float64)
-    x = p[..., 0]
+    x = p[..., 0] - lens_state(rig).centre_x_mm
     with np.errstate(divide="ignore", invalid="ignore"):
         t2 = (p[..., 1] ** 2 + p[..., 2] ** 2) / (x * x)
     s = _distortion_scale(t2, rig.lens.k1, rig.lens.k2)
@@ -319,10 +427,11 @@ def project_points(rig: Rig, points_mm, pose: SensorPose | None = None) -> Proje
     pose = sensor_pose(rig) if pose is None else pose
     p = check_last_dim("points_mm", points_mm, 3)
     img = conjugate_point(rig, p)
-    hit = _hit_plane(pose, np.zeros(3), _chief_dir_image(rig, p))
+    c = lens_centre_mm(rig)
+    hit = _hit_plane(pose, c, _chief_dir_image(rig, p))
     aperture = rig.lens.focal_length_mm / rig.lens.f_number
     with np.errstate(divide="ignore", invalid="ignore"):
-        blur = aperture * np.abs(hit[..., 0] - img[..., 0]) / np.abs(img[..., 0])
+        blur = aperture * np.abs(hit[..., 0] - img[..., 0]) / np.abs(img[..., 0] - c[0])
     defocus = (img - pose.origin_mm) @ pose.normal
     return Projection(pixel_from_sensor_point(pose, hit), img, defocus, blur)
 
@@ -360,7 +469,8 @@ def blur_footprint_px(rig: Rig, points_mm, pose: SensorPose | None = None,
     img = conjugate_point(rig, points_mm)[..., None, :]
     a = 0.5 * rig.lens.focal_length_mm / rig.lens.f_number
     psi = np.linspace(0.0, 2 * np.pi, n_angles, endpoint=False)
-    rim = np.stack([np.zeros_like(psi), a * np.cos(psi), a * np.sin(psi)], axis=-1)
+    rim = np.stack([np.full_like(psi, lens_state(rig).centre_x_mm), a * np.cos(psi), a * np.sin(psi)],
+                   axis=-1)
     uv = pixel_from_sensor_point(pose, _hit_plane(pose, rim, img - rim))
     return np.ptp(uv[..., 0], axis=-1), np.ptp(uv[..., 1], axis=-1)
 
@@ -381,7 +491,7 @@ def chief_ray_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.
     -------
     (..., 3) ndarray float64
         Unit direction in the rig frame [-]; the ray starts at the lens centre
-        (the rig origin).
+        (the rig origin; :func:`lens_centre_mm` for a real lens).
 
     Raises
     ------
@@ -390,9 +500,15 @@ def chief_ray_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.
     """
     pose = sensor_pose(rig) if pose is None else pose
     q = sensor_point_from_pixel(pose, uv_px)
-    lat2 = (q[..., 1] ** 2 + q[..., 2] ** 2) / (q[..., 0] ** 2)  # distorted tan² of the field angle
+    return _chief_dir_from_sensor(rig, q, lens_state(rig).centre_x_mm)
+
+
+def _chief_dir_from_sensor(rig: Rig, q: np.ndarray, cx: float) -> np.ndarray:
+    """Unit object-side chief-ray directions of sensor points q, lens centre at (cx, 0, 0)."""
+    qx = q[..., 0] - cx
+    lat2 = (q[..., 1] ** 2 + q[..., 2] ** 2) / (qx ** 2)  # distorted tan² of the field angle
     ratio = _undistort_tan(lat2, rig.lens.k1, rig.lens.k2)
-    w = np.stack([-q[..., 0], -q[..., 1] * ratio, -q[..., 2] * ratio], axis=-1)
+    w = np.stack([-qx, -q[..., 1] * ratio, -q[..., 2] * ratio], axis=-1)
     return w / np.linalg.norm(w, axis=-1, keepdims=True)
 
 
@@ -420,8 +536,9 @@ def sheet_point_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> n
         If ``uv_px`` is not of shape ``(..., 2)``.
     """
     w = chief_ray_from_pixel(rig, uv_px, pose)
-    d, t = rig.laser.scheimpflug_distance_mm, rig.laser.tan_phi
+    c = lens_centre_mm(rig)
+    d, t = rig.laser.scheimpflug_distance_mm - c[0] * rig.laser.tan_phi, rig.laser.tan_phi
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = d / (w[..., 1] + w[..., 0] * t)
     lam = np.where(lam > 0, lam, np.nan)
-    return lam[..., None] * w
+    return c + lam[..., None] * w

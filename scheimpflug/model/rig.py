@@ -26,6 +26,8 @@ from typing import Any
 from scheimpflug.errors import RigError
 
 __all__ = [
+    "ERROR_MODELS",
+    "ERROR_MODEL_RANGES",
     "Environment",
     "Laser",
     "Lens",
@@ -33,6 +35,7 @@ __all__ = [
     "Rig",
     "Sensor",
     "Stage",
+    "active_error_models",
     "load_preset",
     "load_rig",
     "rig_from_dict",
@@ -55,12 +58,30 @@ class Lens:
     k1, k2 : float, default 0.0
         Radial distortion of the chief-ray angle,
         tan θ_d = tan θ (1 + k1 t² + k2 t⁴) with t = tan θ [-]; 0 for an ideal lens.
+    focal_length_error_mm : float, default 0.0
+        The lens's real focal length minus ``focal_length_mm`` [mm], in
+        [-0.2·f, 0.2·f].  The twin focuses such a lens as a user would: it moves
+        the lens along its axis until the sheet point imaged at the sensor
+        centre is sharp (:func:`scheimpflug.model.camera.lens_state`); the
+        sensor stays where the nominal design puts it.  Error model, 0 = off.
+    focus_error_um : float, default 0.0
+        Axial lens position left wrong after focusing, + toward the object
+        [µm], in [-5000, 5000].  Error model, 0 = off.
+
+    Notes
+    -----
+    There is no key for a thick lens's principal-plane separation: a thick
+    lens focused on the sheet maps the sheet onto the sensor exactly as the
+    thin lens does (its image space is only shifted by the separation, which
+    focusing absorbs); README "Error models" shows it and what it does change.
     """
 
     focal_length_mm: float = 55.0
     f_number: float = 5.6
     k1: float = 0.0
     k2: float = 0.0
+    focal_length_error_mm: float = 0.0
+    focus_error_um: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -93,6 +114,21 @@ class Laser:
         Width of the soft fan edge (Gaussian roll-off) [deg].
     speckle_contrast : float, default 0.0
         Multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
+    line_bow_mrad : float, default 0.0
+        Bow ("smile") of the sheet: a fan ray at fan angle α leaves the sheet
+        plane by the transverse angle b·(2α/F)², b this value, toward the
+        camera side (+n) when > 0 [mrad], in [-50, 50].  On a screen at
+        distance r the line bends by the sagitta r·b between its centre and
+        its ends (:func:`sim.lightsheet.bow_angle_rad`).  Error model, 0 = off.
+    fan_edge_ratio : float, default 1.0
+        Non-uniform fan (Powell-lens profile): radiant intensity at the fan
+        edge over that at its centre, the profile 1 + (R − 1)·(2α/F)²,
+        total power kept [-], in [0.05, 20].  1 = flat fan (off).
+    pointing_jitter_urad : float, default 0.0
+        Pointing drift between frames: RMS of a random rotation of the sheet
+        about the laser origin, drawn per frame and per axis (about the
+        vertical in-sheet axis and about the propagation direction) [µrad],
+        in [0, 1e5].  Error model, 0 = off.
     """
 
     scheimpflug_distance_mm: float = 150.0
@@ -106,6 +142,9 @@ class Laser:
     fan_angle_deg: float = 40.0
     fan_edge_deg: float = 1.0
     speckle_contrast: float = 0.0
+    line_bow_mrad: float = 0.0
+    fan_edge_ratio: float = 1.0
+    pointing_jitter_urad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -142,6 +181,22 @@ class Sensor:
         Conversion gain; 0 = full well maps to full scale [e⁻/DN].
     exposure_ms : float, default 0.5
         Exposure time [ms].
+    prnu_percent : float, default 0.0
+        Photo-response non-uniformity: RMS of the pixels' gain about its mean,
+        in % of the mean [%], in [0, 50].  A fixed map per sensor.  Error model, 0 = off.
+    dsnu_e : float, default 0.0
+        Dark-signal non-uniformity: RMS of the pixels' dark offset [e⁻], in
+        [0, 1e4].  A fixed map per sensor.  Error model, 0 = off.
+    hot_pixel_fraction : float, default 0.0
+        Fraction of pixels that are hot [-], in [0, 0.1].  Error model, 0 = off.
+    hot_pixel_e : float, default 0.0
+        Extra dark signal of a hot pixel during the exposure [e⁻], in [0, 1e6].
+    exposure_jitter_percent : float, default 0.0
+        RMS of the frame-to-frame error of the exposure time, in % of
+        ``exposure_ms`` [%], in [0, 30].  Drawn per frame.  Error model, 0 = off.
+    pattern_seed : int, default 0
+        Seed of the fixed-pattern maps (PRNU, DSNU, hot pixels): one physical
+        sensor, the same maps in every frame and run [-], in [0, 2**32).
     """
 
     pixel_pitch_um: float = 5.86
@@ -161,6 +216,12 @@ class Sensor:
     adc_bits: int = 12
     gain_e_per_dn: float = 0.0
     exposure_ms: float = 0.5
+    prnu_percent: float = 0.0
+    dsnu_e: float = 0.0
+    hot_pixel_fraction: float = 0.0
+    hot_pixel_e: float = 0.0
+    exposure_jitter_percent: float = 0.0
+    pattern_seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -182,6 +243,65 @@ class Stage:
         leans to (0 = toward +propagation) [deg].
     runout_um : float, default 0.0
         Radial runout of the rotary axis (once per turn) [µm].
+    translation_scale_ppm : float, default 0.0
+        Systematic scale error: the carriage moves s·(1 + k·1e-6) for a command
+        s [ppm], in [-1e4, 1e4].
+    translation_periodic_um : float, default 0.0
+        Amplitude of the lead screw's periodic error, once per screw turn,
+        A·sin(2π s / lead) [µm], in [0, 1000].
+    translation_lead_mm : float, default 1.0
+        Lead of the screw: travel per turn, the period of that error [mm], in (0, 100].
+    translation_repeatability_um : float, default 0.0
+        RMS (1σ) of the random positioning error, drawn per frame [µm], in [0, 1000].
+    translation_travel_mm : float, default 300.0
+        Travel over which straightness, pitch and yaw are specified [mm], in (0, 1e4].
+    straightness_lateral_um, straightness_vertical_um : float, default 0.0
+        Straightness of travel: the carriage's deviation along the sheet normal
+        (+n, camera side) and up (+z), a parabolic bow peaking at mid travel,
+        zero at its ends [µm], each in [-1000, 1000].
+    pitch_urad, yaw_urad : float, default 0.0
+        Angular deviation of the carriage about the horizontal axis ⊥ travel
+        (pitch: + tips the plate's top toward +propagation) and about the
+        vertical (yaw: + turns counter-clockwise seen from above), linear over
+        the travel from −value to +value, zero at mid travel; about the
+        carriage point under the plate's measured face [µrad], each in
+        [-1e5, 1e5].
+    rotary_eccentricity_deg : float, default 0.0
+        Angle error of an eccentric encoder (or worm gear), once per turn:
+        the table turns θ + A·sin θ for a command θ [deg], in [-1, 1].
+    rotary_repeatability_deg : float, default 0.0
+        RMS (1σ) of the random angle error, drawn per frame [deg], in [0, 1].
+    wobble_urad : float, default 0.0
+        Amplitude of the table's tilt error motion, twice per turn [µrad],
+        in [0, 1e5] (the once-per-turn part is a constant tilt: ``axis_tilt_deg``).
+    radial_error_um : float, default 0.0
+        Amplitude of the table's radial error motion, twice per turn [µm], in
+        [0, 1000] (the once-per-turn part is a centring error: ``runout_um``).
+    plate_height_error_mm : float, default 0.0
+        The plate's real height minus the nominal one the calibration is told
+        [mm], in [-10, 10].
+    plate_flatness_um : float, default 0.0
+        Flatness of the measured face, peak to valley: a paraboloid bow, its
+        centre nearer the laser than its corners when > 0 [µm], in [-5000, 5000].
+    plate_tilt_deg : float, default 0.0
+        Tilt of the measured face about its horizontal axis (the plate leans,
+        its top toward +propagation when > 0) [deg], in [-10, 10].
+    plate_yaw_deg : float, default 0.0
+        Rotation of the plate about the vertical, counter-clockwise seen from
+        above [deg], in [-10, 10].
+
+    Notes
+    -----
+    The ``translation_*``, ``straightness_*``, ``pitch_urad`` and ``yaw_urad``
+    keys are the translation stage's error models, the ``rotary_*``,
+    ``wobble_urad`` and ``radial_error_um`` keys the rotary stage's (both
+    simulated in :mod:`sim.stages`), the ``plate_*`` keys the calibration
+    plate's (:func:`scenes.generators.plate`, :mod:`sim.scenarios`); each is
+    off at its default.  Straightness, pitch and yaw are defined over the
+    stage coordinate s ∈ [0, translation_travel_mm] and continue the same
+    polynomial outside it.  The frame folder's manifest keeps the commanded
+    ``stage_mm`` / ``angle_deg``; what the stage really did is in each
+    frame's ``actual`` entry.
     """
 
     d0_mm: float = -466.0
@@ -191,6 +311,23 @@ class Stage:
     axis_tilt_deg: float = 0.0
     axis_tilt_azimuth_deg: float = 0.0
     runout_um: float = 0.0
+    translation_scale_ppm: float = 0.0
+    translation_periodic_um: float = 0.0
+    translation_lead_mm: float = 1.0
+    translation_repeatability_um: float = 0.0
+    translation_travel_mm: float = 300.0
+    straightness_lateral_um: float = 0.0
+    straightness_vertical_um: float = 0.0
+    pitch_urad: float = 0.0
+    yaw_urad: float = 0.0
+    rotary_eccentricity_deg: float = 0.0
+    rotary_repeatability_deg: float = 0.0
+    wobble_urad: float = 0.0
+    radial_error_um: float = 0.0
+    plate_height_error_mm: float = 0.0
+    plate_flatness_um: float = 0.0
+    plate_tilt_deg: float = 0.0
+    plate_yaw_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -332,6 +469,7 @@ def validate_rig(rig: Rig) -> None:
     _validate_laser(rig.laser, rig.lens)
     _validate_sensor(rig.sensor)
     _validate_stage(rig.stage)
+    _validate_error_models(rig)
     _require(rig.environment.ambient_irradiance_w_m2 >= 0, "environment",
              "ambient_irradiance_w_m2", rig.environment.ambient_irradiance_w_m2,
              "must be >= 0")
@@ -395,6 +533,90 @@ def _validate_stage(st: Stage) -> None:
     _require(0 <= st.axis_tilt_deg < 10, "stage", "axis_tilt_deg", st.axis_tilt_deg,
              "must be in [0, 10)")
     _require(st.runout_um >= 0, "stage", "runout_um", st.runout_um, "must be >= 0")
+
+
+#: Ranges of the error-model keys, ``{table: {key: "[lo, hi]"}}`` (``(`` / ``)`` = open
+#: end), documented beside each key.  Wide enough for any real part, narrow enough that
+#: the models stay small-angle and physical.
+ERROR_MODEL_RANGES: dict[str, dict[str, str]] = {
+    "lens": {"focus_error_um": "[-5000, 5000]"},
+    "laser": {"line_bow_mrad": "[-50, 50]", "fan_edge_ratio": "[0.05, 20]",
+              "pointing_jitter_urad": "[0, 1e5]"},
+    "sensor": {"prnu_percent": "[0, 50]", "dsnu_e": "[0, 1e4]", "hot_pixel_fraction": "[0, 0.1]",
+               "hot_pixel_e": "[0, 1e6]", "exposure_jitter_percent": "[0, 30]",
+               "pattern_seed": "[0, 4294967295]"},
+    "stage": {"translation_scale_ppm": "[-1e4, 1e4]", "translation_periodic_um": "[0, 1000]",
+              "translation_lead_mm": "(0, 100]", "translation_repeatability_um": "[0, 1000]",
+              "translation_travel_mm": "(0, 1e4]", "straightness_lateral_um": "[-1000, 1000]",
+              "straightness_vertical_um": "[-1000, 1000]", "pitch_urad": "[-1e5, 1e5]",
+              "yaw_urad": "[-1e5, 1e5]", "rotary_eccentricity_deg": "[-1, 1]",
+              "rotary_repeatability_deg": "[0, 1]", "wobble_urad": "[0, 1e5]",
+              "radial_error_um": "[0, 1000]", "plate_height_error_mm": "[-10, 10]",
+              "plate_flatness_um": "[-5000, 5000]", "plate_tilt_deg": "[-10, 10]",
+              "plate_yaw_deg": "[-10, 10]"},
+}
+
+
+#: The error models' switches, by source: each model is off when all its keys hold
+#: their defaults (``fan_edge_ratio`` 1, every other 0).  Keys that only shape a model
+#: (``translation_lead_mm``, ``translation_travel_mm``, ``hot_pixel_e``,
+#: ``pattern_seed``) are not switches.
+ERROR_MODELS: dict[str, tuple[str, ...]] = {
+    "translation stage": ("stage.translation_scale_ppm", "stage.translation_periodic_um",
+                          "stage.translation_repeatability_um", "stage.straightness_lateral_um",
+                          "stage.straightness_vertical_um", "stage.pitch_urad", "stage.yaw_urad"),
+    "rotary stage": ("stage.rotary_eccentricity_deg", "stage.rotary_repeatability_deg",
+                     "stage.wobble_urad", "stage.radial_error_um"),
+    "calibration plate": ("stage.plate_height_error_mm", "stage.plate_flatness_um",
+                          "stage.plate_tilt_deg", "stage.plate_yaw_deg"),
+    "laser": ("laser.line_bow_mrad", "laser.fan_edge_ratio", "laser.pointing_jitter_urad"),
+    "lens": ("lens.focal_length_error_mm", "lens.focus_error_um"),
+    "sensor": ("sensor.prnu_percent", "sensor.dsnu_e", "sensor.hot_pixel_fraction",
+               "sensor.exposure_jitter_percent"),
+}
+
+
+def active_error_models(rig: Rig) -> tuple[str, ...]:
+    """The error-model keys of a rig that are on.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    tuple of str
+        ``"table.key"`` of every key of :data:`ERROR_MODELS` whose value
+        differs from its default, in the order of :data:`ERROR_MODELS`; empty
+        for an ideal rig.
+    """
+    on = []
+    for keys in ERROR_MODELS.values():
+        for key in keys:
+            table, name = key.split(".")
+            obj = getattr(rig, table)
+            default = next(f.default for f in dataclasses.fields(obj) if f.name == name)
+            if getattr(obj, name) != default:
+                on.append(key)
+    return tuple(on)
+
+
+def _within(value: float, text: str) -> bool:
+    lo, hi = (float(x) for x in text[1:-1].split(","))
+    return (lo < value if text[0] == "(" else lo <= value) and \
+        (value < hi if text[-1] == ")" else value <= hi)
+
+
+def _validate_error_models(rig: Rig) -> None:
+    for table, ranges in ERROR_MODEL_RANGES.items():
+        obj = getattr(rig, table)
+        for key, text in ranges.items():
+            value = getattr(obj, key)
+            _require(_within(value, text), table, key, value, f"out of range: must be in {text}")
+    f, df = rig.lens.focal_length_mm, rig.lens.focal_length_error_mm
+    _require(abs(df) <= 0.2 * f, "lens", "focal_length_error_mm", df,
+             f"must be within ±20 % of focal_length_mm (±{0.2 * f:.4g} mm)")
 
 
 # ---------------------------------------------------------------- (de)serialisation
