@@ -183,7 +183,8 @@ def sheet_section(vertices_mm, faces, face_ids, plane_point_mm, plane_normal
     return surface_section(v, faces, face_ids, d)
 
 
-def surface_section(vertices_mm, faces, face_ids, signed_distance_mm) -> tuple[np.ndarray, np.ndarray]:
+def surface_section(vertices_mm, faces, face_ids, signed_distance_mm, return_faces: bool = False
+                    ) -> tuple[np.ndarray, ...]:
     """Cut a triangle mesh by the zero set of a signed distance given at its vertices.
 
     Parameters
@@ -196,15 +197,19 @@ def surface_section(vertices_mm, faces, face_ids, signed_distance_mm) -> tuple[n
         Object id per face.
     signed_distance_mm : (n,) float
         Signed distance of each vertex from the cutting surface [mm].
+    return_faces : bool, default False
+        Also return the index of each segment's face.
 
     Returns
     -------
     segments : (k, 2, 3) float64
         One segment per cut face, same frame as the vertices [mm]; crossings
-        are interpolated linearly along the edges (exact for a plane; for a
-        gently curved surface off by its curvature over one edge).
+        are interpolated linearly along the edges (exact for a plane; a
+        chord of the true section for a curved surface).
     segment_ids : (k,) int
         Object id of each segment's face.
+    face_index : (k,) int
+        Index of each segment's face in ``faces`` (only with ``return_faces``).
     """
     v = np.asarray(vertices_mm, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -224,6 +229,8 @@ def surface_section(vertices_mm, faces, face_ids, signed_distance_mm) -> tuple[n
     m_all = np.stack([m for _, m in pts], axis=1)          # (k, 3) exactly two True
     order = np.argsort(~m_all, axis=1, kind="stable")[:, :2]
     segments = np.take_along_axis(p_all, order[:, :, None], axis=1)
+    if return_faces:
+        return segments, np.asarray(face_ids)[cut], np.flatnonzero(cut)
     return segments, np.asarray(face_ids)[cut]
 
 
@@ -434,11 +441,17 @@ def stripe_truth(rig: Rig, vertices_part_mm, faces, face_ids, rig_from_part, ref
     lens's (:func:`scheimpflug.model.camera.lens_centre_mm`).
     """
     part_from_rig = invert(rig_from_part)
-    seg, seg_ids = _cut(rig, vertices_part_mm, faces, face_ids, part_from_rig, rig_from_laser)
+    seg, seg_ids, tri_n = _cut(rig, vertices_part_mm, faces, face_ids, part_from_rig, rig_from_laser)
     seg = transform_points(rig_from_part, seg)
-    seg = seg[(seg[:, :, 0] > lens_state(rig).focal_length_mm + lens_centre_mm(rig)[0]).all(axis=1)]
+    front = (seg[:, :, 0] > lens_state(rig).focal_length_mm + lens_centre_mm(rig)[0]).all(axis=1)
+    seg = seg[front]
     rows, u, pts, idx = row_crossings(rig, seg, tol)
     ids = seg_ids[idx] if len(idx) else np.zeros(0, dtype=np.int64)
+    if tri_n is not None and len(idx):      # a bowed sheet: onto the curved section, exactly
+        normals = tri_n[front][idx] @ rig_from_part[:3, :3].T
+        pts = _onto_bowed_section(rig, posed_sheet(light_sheet(rig), rig_from_laser), pts,
+                                  rows.astype(np.float64), normals, tol)
+        u = project_points(rig, pts).uv_px[:, 0]
     sheet = None if rig_from_laser is None else posed_sheet(light_sheet(rig), rig_from_laser)
     keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts, sheet)
     rows, u, pts, ids = rows[keep], u[keep], pts[keep], ids[keep]
@@ -455,13 +468,49 @@ def _cut(rig, vertices_part_mm, faces, face_ids, part_from_rig, rig_from_laser):
         g = hinge_geometry(rig)
         plane_point = transform_points(part_from_rig, g.object_hinge_mm)
         plane_normal = part_from_rig[:3, :3] @ g.sheet_normal
-        return sheet_section(vertices_part_mm, faces, face_ids, plane_point, plane_normal)
+        return (*sheet_section(vertices_part_mm, faces, face_ids, plane_point, plane_normal), None)
     sheet = posed_sheet(light_sheet(rig), rig_from_laser)
     rot = part_from_rig[:3, :3]       # the sheet in the part frame
     local = dataclasses.replace(sheet, origin_mm=transform_points(part_from_rig, sheet.origin_mm),
                                 prop_dir=rot @ sheet.prop_dir, normal=rot @ sheet.normal,
                                 up=rot @ sheet.up)
-    return surface_section(vertices_part_mm, faces, face_ids, sheet_offset_mm(local, vertices_part_mm))
+    v = np.asarray(vertices_part_mm, dtype=np.float64)
+    seg, ids, face = surface_section(v, faces, face_ids, sheet_offset_mm(local, v), return_faces=True)
+    if sheet.bow_rad == 0.0:
+        return seg, ids, None
+    tri = v[np.asarray(faces, dtype=np.int64)[face]]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return seg, ids, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _onto_bowed_section(rig, sheet, pts, rows, normals, tol, iterations: int = 8):
+    """Move row crossings found on chords onto the bowed sheet, within their triangle's plane.
+
+    Two conditions, two unknowns per point (a displacement a·e1 + c·e2 in the plane):
+    zero offset from the bowed mid-surface and the projection on the row centre; Newton
+    with a finite-difference Jacobian (step 1e-4 mm).
+    """
+    e1 = np.cross(normals, sheet.normal)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(normals, e1)
+
+    def residual(p):
+        return np.stack([sheet_offset_mm(sheet, p), project_points(rig, p).uv_px[:, 1] - rows], axis=1)
+
+    p = pts.copy()
+    h = 1e-4
+    for _ in range(iterations):
+        f0 = residual(p)
+        if np.all(np.abs(f0[:, 0]) < 1e-9) and np.all(np.abs(f0[:, 1]) < tol.row_residual_px):
+            break
+        j = np.stack([(residual(p + h * e) - f0) / h for e in (e1, e2)], axis=2)   # (n, 2, 2)
+        det = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
+        ok = np.abs(det) > 1e-300
+        det = np.where(ok, det, 1.0)
+        da = np.where(ok, -(j[:, 1, 1] * f0[:, 0] - j[:, 0, 1] * f0[:, 1]) / det, 0.0)
+        dc = np.where(ok, -(-j[:, 1, 0] * f0[:, 0] + j[:, 0, 0] * f0[:, 1]) / det, 0.0)
+        p = p + da[:, None] * e1 + dc[:, None] * e2
+    return p
 
 
 def _primary_per_row(n_rows, rows, u, pts_ref, ids) -> StripeTruth:

@@ -174,7 +174,7 @@ class LensState:
 
 
 def _conjugate(p: np.ndarray, f: float, cx: float, k1: float, k2: float) -> np.ndarray:
-    """c + m·(P − c), lateral part distorted; c = (cx, 0, 0)."""
+    """Conjugate c + m·(P − c) about the lens centre c = (cx, 0, 0), lateral part distorted."""
     x = p[..., 0] - cx
     with np.errstate(divide="ignore", invalid="ignore"):
         m = np.where(x != f, -f / (x - f), np.nan)
