@@ -65,3 +65,26 @@ def test_report_and_files(quick_demo):
     for name in ("calibration.json", "cylinder.ply", "pile.ply", "summary.json"):
         assert (out / name).stat().st_size > 0
     assert "| F² [px·mm] |" in report
+    assert "| quantity | paper | twin, as built | twin, ideal | truth |" in report
+    assert "## Error budget by source" in report
+    assert (out / "rig-as-built.toml").read_text().count("line_bow_mrad = 0.5") == 1
+
+
+def test_as_built_column_and_budget_by_source(quick_demo):
+    """The as-built column is the erring twin; the budget has a run per source and names the dominant ones."""
+    _, s = quick_demo
+    ab, ideal = s["as_built"], s
+    # the real lens (f + 0.33 mm, refocused) is not the design: the design's d0 no longer fits it,
+    # while the ideal twin recovers its own design
+    t = ideal["calibration"]["truth"]
+    assert abs(ab["calibration"]["best"]["d0_mm"] - t["d0_mm"]) > 10 * abs(
+        ideal["calibration"]["best"]["d0_mm"] - t["d0_mm"])
+    assert ab["calibration"]["truth"]["ideal"] is False and t["ideal"] is True
+    assert ab["cylinder"] is None and ab["pile"]["box_plane"] is not None
+    b = s["source_budget"]
+    assert set(b["rows"]) == {"none (ideal)", "all (as built)", *b["sources"]}
+    assert {"translation stage", "rotary stage", "calibration plate", "laser", "lens",
+            "sensor"} <= set(b["sources"])
+    assert all(d in b["sources"] or d is None for d in b["dominant"].values())
+    # the budget's ideal run is the ideal rig: no stage error, so its axis is found to < 0.05 mm
+    assert abs(b["rows"]["none (ideal)"]["axis_error_mm"]) < 0.05

@@ -223,3 +223,20 @@ def test_rotary_errors_truth_stays_on_the_mesh(variant, tmp_path):
             pts = z["stripe_point_mm"][np.isfinite(z["stripe_u"])]
         assert len(pts) > 50
         assert np.abs(p2m.query(pts).distance_mm).max() < 1e-3
+
+
+@pytest.mark.parametrize("scenario, options", [
+    ("calibration", ["--steps", "2", "--step-mm", "120"]),
+    ("blocker", []),
+    ("rotary", ["--part", "pile", "--step-deg", "120", "--frames", "2"]),
+])
+def test_render_cli_with_the_as_built_preset(variant, tmp_path, scenario, options):
+    """`scheimpflug render SCENARIO --preset paper-as-built` works for every scenario."""
+    from scheimpflug.app.cli import main
+
+    assert main(["render", scenario, "--preset", "paper-as-built", "--binning", "8", "--spp", "8",
+                 "--quiet", "--out", str(tmp_path), *options]) == 0
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["rig"]["laser"]["line_bow_mrad"] == 0.5 and man["complete"]
+    assert all("actual" in e for e in man["frames"])
+    assert (tmp_path / "truth" / "sensor_maps.npz").exists()

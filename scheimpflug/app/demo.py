@@ -7,6 +7,15 @@ were rendered; and writes ``report.md`` with its figures, the clouds and the
 calibration JSON.  ``quick=True`` runs the same pipeline on a 4 × 4 binned
 sensor with fewer frames (about a minute).
 
+Beside the ideal twin (the ``paper`` preset) the demo runs the same
+experiments with the twin *as built* (``paper-as-built``: every modelled error
+source on, at the values of the kind of parts the paper used) on a reduced plan
+(:func:`as_built_plan_for`), and an *error budget by source*: the calibration,
+blocker and pile rendered once with no error, once with each source alone and
+once with all of them, on a binned plan with few frames
+(:func:`budget_plan_for`), so the report can say which source dominates each of
+the paper's figures.
+
 Everything the report says is measured in this run; the paper's numbers come
 from the seed paper (DESIGN.md §3–4) and are labelled as such.
 """
@@ -26,9 +35,9 @@ import numpy as np
 from scheimpflug.errors import ScheimpflugError
 from scheimpflug.io.atomic import write_json_atomic, write_text_atomic
 from scheimpflug.model.binning import binned_rig
-from scheimpflug.model.rig import Rig, rig_to_toml
+from scheimpflug.model.rig import ERROR_MODELS, Rig, rig_to_toml, with_error_models
 
-__all__ = ["DemoPlan", "PAPER", "plan_for", "run_demo"]
+__all__ = ["DemoPlan", "PAPER", "as_built_plan_for", "budget_plan_for", "plan_for", "run_demo"]
 
 # The seed paper's numbers (Sections 3–4, DESIGN.md §3–4).
 PAPER = {
@@ -44,7 +53,10 @@ PAPER = {
 
 @dataclass(frozen=True)
 class DemoPlan:
-    """What the demo renders: sensor binning and the frames of each experiment."""
+    """What the demo renders: sensor binning and the frames of each experiment.
+
+    ``cylinder_step_deg`` 0 leaves the cylinder scan out.
+    """
 
     binning: int
     calibration_steps: int
@@ -61,6 +73,30 @@ def plan_for(quick: bool) -> DemoPlan:
                         cylinder_step_deg=10.0, pile_step_deg=10.0)
     return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=-10.0,
                     cylinder_step_deg=0.5, pile_step_deg=1.0)
+
+
+def as_built_plan_for(quick: bool) -> DemoPlan:
+    """The as-built column's plan: the paper's resolution and calibration, coarser rotary steps.
+
+    Full: 27 calibration frames at full resolution (σ(F²), σ(C) are per-frame
+    scatters, so the frames are the paper's), the cylinder at 4° and the pile at
+    2° steps (plane RMSE and circle error are per-point statistics; fewer
+    frames, the same statistic).  Quick: the quick plan without the cylinder.
+    """
+    if quick:
+        return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=28.0, calibration_start_mm=15.0,
+                        cylinder_step_deg=0.0, pile_step_deg=10.0)
+    return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=-10.0,
+                    cylinder_step_deg=4.0, pile_step_deg=2.0)
+
+
+def budget_plan_for(quick: bool) -> DemoPlan:
+    """The error budget's plan: binned, few frames, no cylinder (calibration, blocker, pile only)."""
+    if quick:
+        return DemoPlan(binning=4, calibration_steps=7, calibration_step_mm=36.0, calibration_start_mm=15.0,
+                        cylinder_step_deg=0.0, pile_step_deg=30.0)
+    return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=28.0, calibration_start_mm=15.0,
+                    cylinder_step_deg=0.0, pile_step_deg=15.0)
 
 
 def _log(msg: str) -> None:
@@ -97,7 +133,7 @@ def _render(scenario: str, out: Path, rig: Rig, plan: DemoPlan, seed: int, quiet
 # ------------------------------------------------------------------ experiments
 
 
-def _calibrate(folder: Path, out: Path, report: Path) -> dict:
+def _calibrate(folder: Path, out: Path, report: Path | None) -> dict:
     from scheimpflug.app.calibration_plot import plot_calibration
     from scheimpflug.app.report_plots import plot_superimposed_frames
     from scheimpflug.calibration import calibrate_folder
@@ -105,12 +141,14 @@ def _calibrate(folder: Path, out: Path, report: Path) -> dict:
 
     result = calibrate_folder(folder)
     result.best.save(out / "calibration.json")
+    truth = json.loads((folder / "truth" / "rig_truth.json").read_text())
+    if report is None:
+        return {"result": result, "truth": truth}
     plot_calibration(result, report / "calibration_fits.png")
     ff = open_frame_folder(folder)
     pick = range(0, len(ff), max(1, len(ff) // 9))
     plot_superimposed_frames([ff.read(i) for i in pick], report / "calibration_frames.png",
                              "superimposed calibration frames\n(the plate at several stage positions, paper Fig. 3a)")
-    truth = json.loads((folder / "truth" / "rig_truth.json").read_text())
     return {"result": result, "truth": truth}
 
 
@@ -247,48 +285,125 @@ def _budget(axis_mm: float, scan: dict, rig_truth: dict, calibration, cyl_m: dic
 
 
 def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, seed: int = 0,
-             quiet: bool = False) -> dict:
-    """Run the whole demo into ``out``; return the summary dict (also written as summary.json)."""
+             quiet: bool = False, as_built: Rig | None | bool = None) -> dict:
+    """Run the whole demo into ``out``; return the summary dict (also written as summary.json).
+
+    ``as_built``: the rig of the "twin, as built" column and of the error budget by
+    source; None = the ``paper-as-built`` preset when ``rig`` is the paper preset (or
+    not given), else none; False = none (the ideal twin alone, as before issue 11).
+    """
     from scheimpflug.model.rig import load_preset
 
-    rig = rig or load_preset("paper")
+    paper = load_preset("paper")
+    rig = rig or paper
+    if as_built is None:
+        as_built = load_preset("paper-as-built") if rig == paper else False
     plan = plan_for(quick)
     out = Path(out)
     report = out / "report"
-    rig_file = out / "rig.toml"
     try:
         report.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(rig_file, rig_to_toml(rig))
+        write_text_atomic(out / "rig.toml", rig_to_toml(rig))
+        if as_built:
+            write_text_atomic(out / "rig-as-built.toml", rig_to_toml(as_built))
     except OSError as exc:
         raise ScheimpflugError(f"cannot write the demo into {str(out)!r}: {exc.strerror or exc}") from None
     timer = _Timer()
     t_start = time.perf_counter()
-
-    cal_dir = timer.run("render calibration", _render, "calibration", out / "calibration", rig, plan,
-                        seed, quiet, steps=plan.calibration_steps, step_mm=plan.calibration_step_mm,
-                        start_mm=plan.calibration_start_mm)
-    cal = timer.run("calibrate", _calibrate, cal_dir, out, report)
-    calibration = cal["result"].best
-    blk_dir = timer.run("render blocker", _render, "blocker", out / "blocker", rig, plan, seed, quiet)
-    axis = timer.run("locate axis", _axis, blk_dir, calibration)
-    cyl_dir = timer.run("render cylinder scan", _render, "rotary", out / "cylinder", rig, plan, seed,
-                        quiet, part="cylinder", step_deg=plan.cylinder_step_deg)
-    cyl = timer.run("reconstruct + score cylinder", _scan, cyl_dir, calibration, axis["axis_mm"],
-                    out / "cylinder.ply", quiet)
-    pile_dir = timer.run("render pile scan", _render, "rotary", out / "pile", rig, plan, seed, quiet,
-                         part="pile", step_deg=plan.pile_step_deg)
-    pile = timer.run("reconstruct + score pile", _scan, pile_dir, calibration, axis["axis_mm"],
-                     out / "pile.ply", quiet)
-    cyl_m = _cylinder_metrics(cyl, rig)
-    pile_m = _pile_metrics(pile, rig)
-    budget = _budget(axis["axis_mm"], cyl, cal["truth"], calibration, cyl_m)
-    summary = _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, timer, t_start)
-    timer.run("figures + report", _write_report, out, report, summary, cyl, cyl_m, pile, pile_m)
+    ideal = _experiments(rig, plan, out, seed, quiet, timer, report=report)
+    summary = _summary(rig, plan, quick, ideal, timer, t_start)
+    if as_built:
+        ab_plan = as_built_plan_for(quick)
+        ab = _experiments(as_built, ab_plan, out / "as-built", seed, quiet, timer, label="as built: ")
+        summary["as_built"] = _summary(as_built, ab_plan, quick, ab, timer, t_start)
+        summary["source_budget"] = _source_budget(rig, as_built, budget_plan_for(quick), out / "budget",
+                                                  seed, quiet, timer)
+    summary["seconds"] = dict(timer.seconds)
+    timer.run("figures + report", _write_report, out, report, summary, ideal)
     summary["seconds"]["total"] = time.perf_counter() - t_start
     summary["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     write_json_atomic(out / "summary.json", _jsonable(summary))
     _print_summary(summary, out)
     return summary
+
+
+def _experiments(rig: Rig, plan: DemoPlan, out: Path, seed: int, quiet: bool, timer: _Timer,
+                 report: Path | None = None, label: str = "") -> dict:
+    """Calibration, axis, cylinder (if planned) and pile of one rig into ``out``; figures only with ``report``."""
+    out.mkdir(parents=True, exist_ok=True)
+    cal_dir = timer.run(f"{label}render calibration", _render, "calibration", out / "calibration", rig,
+                        plan, seed, quiet, steps=plan.calibration_steps, step_mm=plan.calibration_step_mm,
+                        start_mm=plan.calibration_start_mm)
+    cal = timer.run(f"{label}calibrate", _calibrate, cal_dir, out, report)
+    calibration = cal["result"].best
+    blk_dir = timer.run(f"{label}render blocker", _render, "blocker", out / "blocker", rig, plan, seed, quiet)
+    axis = timer.run(f"{label}locate axis", _axis, blk_dir, calibration)
+    res = {"cal": cal, "axis": axis, "cyl": None, "cyl_m": None, "budget": None}
+    if plan.cylinder_step_deg > 0:
+        cyl_dir = timer.run(f"{label}render cylinder scan", _render, "rotary", out / "cylinder", rig, plan,
+                            seed, quiet, part="cylinder", step_deg=plan.cylinder_step_deg)
+        res["cyl"] = timer.run(f"{label}reconstruct + score cylinder", _scan, cyl_dir, calibration,
+                               axis["axis_mm"], out / "cylinder.ply", quiet)
+        res["cyl_m"] = _cylinder_metrics(res["cyl"], rig)
+    pile_dir = timer.run(f"{label}render pile scan", _render, "rotary", out / "pile", rig, plan, seed, quiet,
+                         part="pile", step_deg=plan.pile_step_deg)
+    res["pile"] = timer.run(f"{label}reconstruct + score pile", _scan, pile_dir, calibration,
+                            axis["axis_mm"], out / "pile.ply", quiet)
+    res["pile_m"] = _pile_metrics(res["pile"], rig)
+    if res["cyl"] is not None:
+        res["budget"] = _budget(axis["axis_mm"], res["cyl"], cal["truth"], calibration, res["cyl_m"])
+    return res
+
+
+# ------------------------------------------------------------------ error budget by source
+
+
+def _budget_figures(res: dict, binning: int) -> dict:
+    """The paper's scatter figures of one budget run; σ(F²) in full-resolution px·mm (× binning)."""
+    best = res["cal"]["result"].best.to_json_dict()
+    ring, box = res["pile_m"]["ring"], res["pile_m"]["box_plane"]
+    return {"F2_sigma_px_mm": _times(best.get("F2_sigma_px_mm"), binning),
+            "C_sigma_mm": best.get("C_sigma_mm"),
+            "box_plane_rmse_mm": box["rmse_mm"] if box else None,
+            "ring_mean_error_mm": ring["mean_abs_error_mm"] if ring else None,
+            "axis_error_mm": res["axis"]["axis_mm"] - res["cal"]["truth"].get("axis_mm", float("nan"))}
+
+
+def _times(x, k: int):
+    return None if x is None else float(x) * k
+
+
+#: The figures of the budget by source, the key of each in the summary and its label.
+BUDGET_FIGURES = (("F2_sigma_px_mm", "σ(F²) [px·mm]"), ("C_sigma_mm", "σ(C) [mm]"),
+                  ("box_plane_rmse_mm", "box side plane RMSE [mm]"),
+                  ("ring_mean_error_mm", "ring mean |error| [mm]"),
+                  ("axis_error_mm", "axis error [mm]"))
+
+
+def _source_budget(ideal: Rig, as_built: Rig, plan: DemoPlan, out: Path, seed: int, quiet: bool,
+                   timer: _Timer) -> dict:
+    """The budget plan with no error, each error source alone, and all of them (the as-built rig)."""
+    sources = [g for g in ERROR_MODELS if with_error_models(ideal, as_built, [g]) != ideal]
+    runs = [("none (ideal)", ideal)] + [(g, with_error_models(ideal, as_built, [g])) for g in sources] \
+        + [("all (as built)", as_built)]
+    rows = {}
+    for i, (name, rig) in enumerate(runs):
+        res = _experiments(rig, plan, out / f"{i:02d}", seed, quiet, timer, label=f"budget {name}: ")
+        rows[name] = _budget_figures(res, plan.binning)
+    return {"plan": plan.__dict__, "sources": sources, "rows": rows,
+            "dominant": _dominant(rows, sources)}
+
+
+def _dominant(rows: dict, sources: list) -> dict:
+    """Per figure: the source alone whose value lies furthest above the ideal run's (in quadrature)."""
+    out = {}
+    base = rows["none (ideal)"]
+    for key, _ in BUDGET_FIGURES:
+        b = abs(base[key] or 0.0)
+        excess = {s: math.sqrt(max(0.0, (rows[s][key] or 0.0) ** 2 - b * b)) for s in sources
+                  if rows[s][key] is not None}
+        out[key] = max(excess, key=excess.get) if excess and max(excess.values()) > 0 else None
+    return out
 
 
 def _jsonable(obj):
@@ -305,42 +420,51 @@ def _jsonable(obj):
     return obj
 
 
-def _summary(rig, plan, quick, cal, axis, cyl, cyl_m, pile, pile_m, budget, timer, t_start) -> dict:
+def _summary(rig, plan, quick, res: dict, timer, t_start) -> dict:
     from scheimpflug.model.design import coverage, design_report
 
-    res = cal["result"]
-    best = res.best
+    cal, axis, pile, pile_m = res["cal"], res["axis"], res["pile"], res["pile_m"]
+    cyl, cyl_m = res["cyl"], res["cyl_m"]
+    result = cal["result"]
+    best = result.best
     truth = cal["truth"]
-    ff = cyl["folder"]
+    ff = pile["folder"]
     cols, rows = ff.columns, ff.rows
     cov = coverage(best.hinge_u_px, best.hinge_v_px, best.F2_px_mm, best.C_mm, cols, rows)
     twin_design = {k: cov[k] for k in ("depth_range_mm", "height_range_near_mm", "height_range_far_mm",
                                        "distance_resolution_center_mm", "height_resolution_center_mm")}
     true_design = design_report(binned_rig(rig, plan.binning))
-    return {
+    s = {
         "quick": quick, "plan": plan.__dict__, "sensor": [rows, cols],
-        "calibration": {"best": best.to_json_dict(), "paper": res.paper.to_json_dict(),
-                        "refined": res.refined.to_json_dict(), "truth": truth, "twin_design": twin_design,
-                        "true_design": true_design, "skipped": [list(s) for s in res.skipped]},
+        "calibration": {"best": best.to_json_dict(), "paper": result.paper.to_json_dict(),
+                        "refined": result.refined.to_json_dict(), "truth": truth, "twin_design": twin_design,
+                        "true_design": true_design, "skipped": [list(s) for s in result.skipped]},
         "axis": {"axis_mm": axis["axis_mm"], "truth_mm": truth.get("axis_mm", rig.stage.axis_mm),
                  "column_px": float(best.pixel_from_stage(axis["axis_mm"], 0.0)[0])},
-        "cylinder": {"n_points": len(cyl["cloud"]), "all": cyl["stats"], "smooth": cyl_m["smooth"],
-                     "fit": cyl_m["fit"], "height_mm": cyl_m["height_mm"],
-                     "true_diameter_mm": cyl_m["true_diameter_mm"], "true_height_mm": cyl_m["true_height_mm"],
-                     "extract": cyl["extract"]},
+        "cylinder": None,
         "pile": {"n_points": len(pile["cloud"]), "all": pile["stats"], "regions": pile_m["regions"],
                  "ring": pile_m["ring"], "ring_true_diameter_mm": pile_m["ring_true_diameter_mm"],
                  "ring_root_diameter_mm": pile_m["ring_root_diameter_mm"],
                  "box_plane": pile_m["box_plane"], "box_plane_truth": pile_m["box_plane_truth"],
                  "extract": pile["extract"]},
-        "budget": budget, "seconds": dict(timer.seconds), "paper": PAPER,
+        "budget": res["budget"], "seconds": dict(timer.seconds), "paper": PAPER,
     }
+    if cyl is not None:
+        s["cylinder"] = {"n_points": len(cyl["cloud"]), "all": cyl["stats"], "smooth": cyl_m["smooth"],
+                         "fit": cyl_m["fit"], "height_mm": cyl_m["height_mm"],
+                         "true_diameter_mm": cyl_m["true_diameter_mm"],
+                         "true_height_mm": cyl_m["true_height_mm"], "extract": cyl["extract"]}
+    return s
 
 
-def _write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> None:
+def _write_report(out: Path, report: Path, s: dict, ideal: dict) -> None:
     from scheimpflug.app.report_md import write_report
 
-    write_report(out, report, s, cyl, cyl_m, pile, pile_m)
+    write_report(out, report, s, ideal["cyl"], ideal["cyl_m"], ideal["pile"], ideal["pile_m"])
+
+
+def _num(x) -> str:
+    return "–" if x is None else f"{x:.4g}"
 
 
 def _print_summary(s: dict, out: Path) -> None:
@@ -364,6 +488,13 @@ def _print_summary(s: dict, out: Path) -> None:
                      f"{s['pile']['ring']['mean_abs_error_mm']:.3f} mm")
     if s["pile"]["box_plane"]:
         lines.append(f"  box side     plane RMSE {s['pile']['box_plane']['rmse_mm']:.4f} mm")
+    ab = s.get("as_built")
+    if ab:
+        c = ab["calibration"]["best"]
+        ring, box = ab["pile"]["ring"] or {}, ab["pile"]["box_plane"] or {}
+        lines.append(f"  as built     σ(F²) {_num(c.get('F2_sigma_px_mm'))} px·mm, σ(C) "
+                     f"{_num(c.get('C_sigma_mm'))} mm, box RMSE {_num(box.get('rmse_mm'))} mm, ring mean "
+                     f"|error| {_num(ring.get('mean_abs_error_mm'))} mm (paper 581, 0.20, 0.1775, ≈ 2)")
     lines += [f"  time         {s['seconds']['total']:.1f} s, peak memory {s['peak_rss_mb']:.0f} MB",
               f"  report       {out / 'report' / 'report.md'}", ""]
     print("\n".join(lines), file=sys.stderr)

@@ -53,56 +53,148 @@ def _figures(report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> list[tuple[str,
     return figs
 
 
-def _calibration_table(s: dict) -> list[str]:
-    c, p, t = s["calibration"]["best"], s["paper"], s["calibration"]["truth"]
-    td, tw = s["calibration"]["true_design"], s["calibration"]["twin_design"]
-    rows = [
-        ("image hinge (u_h, v_h) [px]", p["hinge_px"], c["hinge_px"], [t["hinge_u_px"], t["hinge_v_px"]], "{:.2f}"),
-        ("F² [px·mm]", p["F2_px_mm"], c["F2_px_mm"], t["F2_px_mm"], "{:.6g}"),
-        ("σ(F²) over frames [px·mm]", p["F2_sigma_px_mm"], c["F2_sigma_px_mm"], None, "{:.4g}"),
-        ("d0 [mm]", p["d0_mm"], c["d0_mm"], t["d0_mm"], "{:.3f}"),
-        ("C [mm]", p["C_mm"], c["C_mm"], t["C_mm"], "{:.5g}"),
-        ("σ(C) over frames [mm]", p["C_sigma_mm"], c["C_sigma_mm"], None, "{:.4g}"),
-        ("endpoint line fits R² (top, bottom)", p["endpoint_fit_r2"], c["endpoint_fit_r2"], None, "{:.6f}"),
-        ("depth range [mm]", p["depth_range_mm"], tw["depth_range_mm"], td["depth_range_mm"], "{:.2f}"),
-        ("height range near end [mm]", p["height_range_near_mm"], tw["height_range_near_mm"],
+def _calibration_rows(s: dict) -> list:
+    """(quantity, paper, value of a summary, truth, format) of the calibration table."""
+    p, t, td = s["paper"], s["calibration"]["truth"], s["calibration"]["true_design"]
+
+    def cal(key):
+        return lambda x: x["calibration"]["best"].get(key)
+
+    def design(key):
+        return lambda x: x["calibration"]["twin_design"][key]
+
+    return [
+        ("image hinge (u_h, v_h) [px]", p["hinge_px"], cal("hinge_px"), [t["hinge_u_px"], t["hinge_v_px"]], "{:.2f}"),
+        ("F² [px·mm]", p["F2_px_mm"], cal("F2_px_mm"), t["F2_px_mm"], "{:.6g}"),
+        ("σ(F²) over frames [px·mm]", p["F2_sigma_px_mm"], cal("F2_sigma_px_mm"), None, "{:.4g}"),
+        ("d0 [mm]", p["d0_mm"], cal("d0_mm"), t["d0_mm"], "{:.3f}"),
+        ("C [mm]", p["C_mm"], cal("C_mm"), t["C_mm"], "{:.5g}"),
+        ("σ(C) over frames [mm]", p["C_sigma_mm"], cal("C_sigma_mm"), None, "{:.4g}"),
+        ("endpoint line fits R² (top, bottom)", p["endpoint_fit_r2"], cal("endpoint_fit_r2"), None, "{:.6f}"),
+        ("depth range [mm]", p["depth_range_mm"], design("depth_range_mm"), td["depth_range_mm"], "{:.2f}"),
+        ("height range near end [mm]", p["height_range_near_mm"], design("height_range_near_mm"),
          td["height_range_near_mm"], "{:.2f}"),
-        ("height range far end [mm]", p["height_range_far_mm"], tw["height_range_far_mm"],
+        ("height range far end [mm]", p["height_range_far_mm"], design("height_range_far_mm"),
          td["height_range_far_mm"], "{:.2f}"),
         ("distance resolution at centre [mm/px]", p["distance_resolution_center_mm"],
-         tw["distance_resolution_center_mm"], td["distance_resolution_center_mm"], "{:.4f}"),
+         design("distance_resolution_center_mm"), td["distance_resolution_center_mm"], "{:.4f}"),
         ("height resolution at centre [mm/px]", p["height_resolution_center_mm"],
-         tw["height_resolution_center_mm"], td["height_resolution_center_mm"], "{:.4f}"),
-        ("rotary axis [mm, stage]", p["axis_mm"], s["axis"]["axis_mm"], s["axis"]["truth_mm"], "{:.3f}"),
-        ("rotary axis column [px]", p["axis_column_px"], s["axis"]["column_px"], td["axis_column_px"], "{:.1f}"),
+         design("height_resolution_center_mm"), td["height_resolution_center_mm"], "{:.4f}"),
+        ("rotary axis [mm, stage]", p["axis_mm"], lambda x: x["axis"]["axis_mm"], s["axis"]["truth_mm"], "{:.3f}"),
+        ("rotary axis column [px]", p["axis_column_px"], lambda x: x["axis"]["column_px"], td["axis_column_px"],
+         "{:.1f}"),
     ]
-    return _table(rows)
 
 
-def _table(rows) -> list[str]:
-    out = ["| quantity | paper | twin (measured) | truth |", "|---|---|---|---|"]
-    for name, paper, twin, truth, fmt in rows:
-        out.append(f"| {name} | {_f(paper, fmt)} | {_f(twin, fmt)} | {_f(truth, fmt)} |")
+def _calibration_table(s: dict) -> list[str]:
+    return _table(_calibration_rows(s), s)
+
+
+def _table(rows, s: dict) -> list[str]:
+    """Markdown table: paper, twin as built (when the demo ran it), twin ideal, truth."""
+    ab = s.get("as_built")
+    if ab is None:
+        out = ["| quantity | paper | twin, ideal | truth |", "|---|---|---|---|"]
+    else:
+        out = ["| quantity | paper | twin, as built | twin, ideal | truth |", "|---|---|---|---|---|"]
+    for name, paper, value, truth, fmt in rows:
+        cells = [_f(paper, fmt)] + ([_f(_get(value, ab), fmt)] if ab is not None else []) \
+            + [_f(_get(value, s), fmt), _f(truth, fmt)]
+        out.append(f"| {name} | " + " | ".join(cells) + " |")
     return out
+
+
+def _get(value, summary):
+    """A row's value for one summary (``value`` a function of it); None when that part did not run."""
+    try:
+        return value(summary)
+    except (KeyError, TypeError):
+        return None
 
 
 def _parts_table(s: dict) -> list[str]:
     p, cyl, pile = s["paper"], s["cylinder"], s["pile"]
-    ring, box = pile["ring"] or {}, pile["box_plane"] or {}
-    bt = pile["box_plane_truth"]
+
+    def ring(key):
+        return lambda x: (x["pile"]["ring"] or {}).get(key)
+
+    def box(key):
+        return lambda x: (x["pile"]["box_plane"] or {}).get(key)
+
     rows = [
-        ("cylinder height [mm]", p["cylinder_height_mm"], cyl["height_mm"], cyl["true_height_mm"], "{:.2f}"),
-        ("cylinder diameter (fit, smooth part) [mm]", p["cylinder_diameter_mm"], cyl["fit"]["diameter_mm"],
-         cyl["true_diameter_mm"], "{:.3f}"),
-        ("cylinder RMS to mesh, smooth part [mm]", None, cyl["smooth"]["rms_mm"], 0.0, "{:.4f}"),
+        ("cylinder height [mm]", p["cylinder_height_mm"], lambda x: x["cylinder"]["height_mm"],
+         cyl["true_height_mm"], "{:.2f}"),
+        ("cylinder diameter (fit, smooth part) [mm]", p["cylinder_diameter_mm"],
+         lambda x: x["cylinder"]["fit"]["diameter_mm"], cyl["true_diameter_mm"], "{:.3f}"),
+        ("cylinder RMS to mesh, smooth part [mm]", None, lambda x: x["cylinder"]["smooth"]["rms_mm"], 0.0, "{:.4f}"),
         ("ring diameter (top-view circle) [mm]; truth: knurl crests / roots", p["ring_diameter_mm"],
-         ring.get("diameter_mm"), [pile["ring_true_diameter_mm"], pile["ring_root_diameter_mm"]], "{:.2f}"),
-        ("ring mean |error| to circle [mm]", p["ring_mean_error_mm"], ring.get("mean_abs_error_mm"), None, "{:.3f}"),
-        ("box side plane RMSE [mm]", p["box_plane_rmse_mm"], box.get("rmse_mm"), 0.0, "{:.4f}"),
+         ring("diameter_mm"), [pile["ring_true_diameter_mm"], pile["ring_root_diameter_mm"]], "{:.2f}"),
+        ("ring mean |error| to circle [mm]", p["ring_mean_error_mm"], ring("mean_abs_error_mm"), None, "{:.3f}"),
+        ("box side plane RMSE [mm]", p["box_plane_rmse_mm"], box("rmse_mm"), 0.0, "{:.4f}"),
         ("box side plane y = a + b·x + c·z", p["box_plane"],
-         [box.get("a_mm"), box.get("b"), box.get("c")] if box else None, bt, "{:.4g}"),
+         lambda x: [box("a_mm")(x), box("b")(x), box("c")(x)] if x["pile"]["box_plane"] else None,
+         pile["box_plane_truth"], "{:.4g}"),
     ]
-    return _table(rows)
+    return _table(rows, s)
+
+
+def _as_built_lines(s: dict) -> list[str]:
+    """What the as-built column is and how far it lands from the paper's scatter."""
+    ab = s.get("as_built")
+    if ab is None:
+        return []
+    plan = ab["plan"]
+    c = ab["calibration"]["best"]
+    ring, box = ab["pile"]["ring"] or {}, ab["pile"]["box_plane"] or {}
+    checks = [("σ(F²)", c.get("F2_sigma_px_mm"), 581.0), ("σ(C)", c.get("C_sigma_mm"), 0.2014),
+              ("box side plane RMSE", box.get("rmse_mm"), 0.1775)]
+    verdict = []
+    for name, value, paper in checks:
+        if value is None:
+            verdict.append(f"{name}: not measured")
+            continue
+        ratio = value / paper
+        inside = 0.5 <= ratio <= 2.0
+        verdict.append(f"{name} {value:.4g} = {ratio:.2g} × the paper's ({'within' if inside else 'outside'} "
+                       "a factor of 2)")
+    return [
+        "*Twin, as built*: the `paper-as-built` preset — every error source the twin models on, at "
+        "values of the kind of parts the paper used (sources in `rig-as-built.toml`; none was tuned to "
+        f"these outputs). Plan: binning {plan['binning']}, {plan['calibration_steps']} calibration frames, "
+        + (f"cylinder at {plan['cylinder_step_deg']:g}° steps, " if plan["cylinder_step_deg"] else "no cylinder, ")
+        + f"pile at {plan['pile_step_deg']:g}° steps. Against the paper: " + "; ".join(verdict)
+        + f"; ring mean |error| {_f(ring.get('mean_abs_error_mm'), '{:.3g}')} mm beside the paper's ≈ 2 mm.",
+        "",
+    ]
+
+
+def _source_budget_lines(s: dict) -> list[str]:
+    from scheimpflug.app.demo import BUDGET_FIGURES
+
+    b = s.get("source_budget")
+    if not b:
+        return []
+    plan, rows, dom = b["plan"], b["rows"], b["dominant"]
+    head = "| error source | " + " | ".join(label for _, label in BUDGET_FIGURES) + " |"
+    lines = ["## Error budget by source", "",
+             f"The calibration, blocker and pile rendered with no error, with each error source of the "
+             f"as-built rig alone, and with all of them, on a reduced plan: {plan['binning']} × "
+             f"{plan['binning']} binned sensor, {plan['calibration_steps']} calibration frames, pile at "
+             f"{plan['pile_step_deg']:g}° steps (numbers of this plan, not of the columns above; σ(F²) "
+             f"converted to full-resolution px·mm, × {plan['binning']}). **Bold**: the source that "
+             "dominates the figure (largest excess over the ideal run, in quadrature).", "",
+             head, "|---|" + "---|" * len(BUDGET_FIGURES)]
+    for name, vals in rows.items():
+        cells = []
+        for key, _ in BUDGET_FIGURES:
+            text = _f(vals.get(key))
+            cells.append(f"**{text}**" if dom.get(key) == name else text)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append("")
+    said = [f"{label}: {dom[key]}" for key, label in BUDGET_FIGURES if dom.get(key)]
+    if said:
+        lines += ["Dominant source — " + "; ".join(said) + ".", ""]
+    return lines
 
 
 def _score_table(s: dict) -> list[str]:
@@ -149,7 +241,9 @@ def write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> 
         "",
         f"Mode: {mode}; sensor {cols} × {rows} px. Every *twin* number below was measured in this "
         "run from rendered frames through the same pipeline as real frames; *truth* is the rendered "
-        "geometry (the rig's closed forms and the part meshes); *paper* is the seed paper's real rig.",
+        "geometry (the ideal rig's closed forms and the part meshes); *paper* is the seed paper's real rig."
+        + (" *Twin, as built* is the same pipeline on the twin with its error models on (below the "
+           "parts table)." if s.get("as_built") else ""),
         "",
         "## Calibration, axis, ranges",
         "",
@@ -166,6 +260,8 @@ def write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> 
         "",
         *_parts_table(s),
         "",
+        *_as_built_lines(s),
+        *_source_budget_lines(s),
         "## Scores against the rendered meshes",
         "",
         *_score_table(s),

@@ -27,6 +27,7 @@ from scheimpflug.errors import RigError
 
 __all__ = [
     "ERROR_MODELS",
+    "ERROR_MODEL_SHAPES",
     "ERROR_MODEL_RANGES",
     "Environment",
     "Laser",
@@ -42,6 +43,7 @@ __all__ = [
     "rig_to_dict",
     "rig_to_toml",
     "validate_rig",
+    "with_error_models",
 ]
 
 
@@ -414,8 +416,10 @@ _TABLES: dict[str, type] = {
     "environment": Environment,
 }
 
-PRESETS = ("paper",)
-"""Names of the built-in rigs (:func:`load_preset`)."""
+PRESETS = ("paper", "paper-as-built")
+"""Names of the built-in rigs (:func:`load_preset`): ``paper``, the ideal paper rig, and
+``paper-as-built``, the same rig with every modelled error source at the values of the
+kind of parts the paper used (each value's source in ``presets/paper-as-built.toml``)."""
 
 # ---------------------------------------------------------------- validation
 
@@ -570,9 +574,18 @@ ERROR_MODELS: dict[str, tuple[str, ...]] = {
     "calibration plate": ("stage.plate_height_error_mm", "stage.plate_flatness_um",
                           "stage.plate_tilt_deg", "stage.plate_yaw_deg"),
     "laser": ("laser.line_bow_mrad", "laser.fan_edge_ratio", "laser.pointing_jitter_urad"),
-    "lens": ("lens.focal_length_error_mm", "lens.focus_error_um"),
+    "speckle": ("laser.speckle_contrast",),
+    "lens": ("lens.focal_length_error_mm", "lens.focus_error_um", "lens.k1", "lens.k2"),
     "sensor": ("sensor.prnu_percent", "sensor.dsnu_e", "sensor.hot_pixel_fraction",
                "sensor.exposure_jitter_percent"),
+}
+
+
+#: Keys that shape an error model without switching it on, copied with it by
+#: :func:`with_error_models`.
+ERROR_MODEL_SHAPES: dict[str, tuple[str, ...]] = {
+    "translation stage": ("stage.translation_lead_mm", "stage.translation_travel_mm"),
+    "sensor": ("sensor.hot_pixel_e", "sensor.pattern_seed"),
 }
 
 
@@ -600,6 +613,39 @@ def active_error_models(rig: Rig) -> tuple[str, ...]:
             if getattr(obj, name) != default:
                 on.append(key)
     return tuple(on)
+
+
+def with_error_models(rig: Rig, source: Rig, groups) -> Rig:
+    """A rig with some error models taken from another rig.
+
+    Parameters
+    ----------
+    rig : Rig
+        The base instrument (e.g. the ideal ``paper`` preset).
+    source : Rig
+        The rig whose error-model values are taken (e.g. ``paper-as-built``).
+    groups : iterable of str
+        Names of :data:`ERROR_MODELS` groups (``"translation stage"``, ``"sensor"`` …).
+
+    Returns
+    -------
+    Rig
+        ``rig`` with every key of those groups (switches of :data:`ERROR_MODELS`
+        and shapes of :data:`ERROR_MODEL_SHAPES`) set to its value in ``source``.
+
+    Raises
+    ------
+    RigError
+        For an unknown group name.
+    """
+    tables: dict[str, dict[str, Any]] = {}
+    for group in groups:
+        if group not in ERROR_MODELS:
+            raise RigError(f"unknown error model {group!r} (known: {', '.join(ERROR_MODELS)})")
+        for key in ERROR_MODELS[group] + ERROR_MODEL_SHAPES.get(group, ()):
+            table, name = key.split(".")
+            tables.setdefault(table, {})[name] = getattr(getattr(source, table), name)
+    return rig.replace(**tables) if tables else rig
 
 
 def _within(value: float, text: str) -> bool:
@@ -751,7 +797,8 @@ def load_preset(name: str) -> Rig:
     Parameters
     ----------
     name : str
-        One of :data:`PRESETS` (``paper``: DESIGN.md §2 with f/5.6).
+        One of :data:`PRESETS` (``paper``: DESIGN.md §2 with f/5.6;
+        ``paper-as-built``: the same with its error models on).
 
     Returns
     -------
