@@ -7,21 +7,25 @@ Point clouds are binary little-endian PLY with one ``vertex`` element::
     property float angle_deg          rotary angle of the frame [deg]
     property int row                  sensor row [px]
     property float intensity          stripe peak above background [DN]
+    property int frame                frame index in the scan (−1: unknown)
 
 which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and whose
 extra properties those tools keep as scalar fields.  The reader accepts any
 PLY whose vertex element has x, y, z (ascii or binary, either byte order);
 missing extras come back as NaN / −1.
 
-Meshes for ``evaluate`` are read with trimesh (PLY, STL, OBJ, ...); a PLY
-face property ``object_id`` (the twin's ``truth/mesh.ply``) is returned per
-face, and a multi-object file (an OBJ with several objects) gets one id per
-object.
+Meshes are read with trimesh (PLY, STL, OBJ, ...) by one function,
+:func:`read_triangle_mesh`, which also returns a PLY's scalar face properties:
+``object_id`` (the twin's ``truth/mesh.ply``; a multi-object file such as an
+OBJ with several objects gets one id per object), a surface model's ``fill``
+and ``body`` (:mod:`scheimpflug.meshing`).  :func:`write_mesh_ply` writes a
+binary PLY mesh (double vertices) with such face properties.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +34,15 @@ from scheimpflug.errors import MeshError
 from scheimpflug.io.atomic import atomic_path
 from scheimpflug.reconstruct import PointCloud
 
-__all__ = ["height_colors", "read_mesh", "read_point_cloud", "write_point_cloud"]
+__all__ = [
+    "TriangleMesh",
+    "height_colors",
+    "read_mesh",
+    "read_point_cloud",
+    "read_triangle_mesh",
+    "write_mesh_ply",
+    "write_point_cloud",
+]
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -38,7 +50,8 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
-                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4")])
+                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4"),
+                        ("frame", "<i4")])
 _PLY_NAME = {"f4": "float", "u1": "uchar", "i4": "int"}
 
 
@@ -96,6 +109,7 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     rgb = height_colors(cloud.xyz_mm[:, 2])
     data["red"], data["green"], data["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     data["angle_deg"], data["row"], data["intensity"] = cloud.angle_deg, cloud.row, cloud.intensity
+    data["frame"] = cloud.frame if cloud.frame is not None else -1
     lines = ["ply", "format binary_little_endian 1.0",
              "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
     lines += [f"comment {' '.join(comment.split())}"] if comment else []
@@ -164,11 +178,14 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
         if not {"x", "y", "z"} <= set(dtype.names):
             raise MeshError(f"{str(p)!r}: PLY vertices lack x, y, z")
         data = _read_body(fh, fmt, dtype, n, p)
-    get = (lambda name, fill: data[name].astype(np.float64) if name in dtype.names
-           else np.full(n, fill, np.float64))
+
+    def get(name: str, fill: float) -> np.ndarray:
+        return data[name].astype(np.float64) if name in dtype.names else np.full(n, fill, np.float64)
+
     xyz = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
     return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
-                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan))
+                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan),
+                      frame=get("frame", -1).astype(np.int64))
 
 
 def _read_body(fh, fmt: str, dtype: np.dtype, n: int, path: Path) -> np.ndarray:
@@ -191,8 +208,60 @@ def _read_body(fh, fmt: str, dtype: np.dtype, n: int, path: Path) -> np.ndarray:
     return np.frombuffer(raw, dtype=dtype)
 
 
-def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Read a triangle mesh for scoring (coincident vertices welded, faces kept in file order).
+@dataclass(frozen=True)
+class TriangleMesh:
+    """A triangle mesh as read from a file, with its per-face properties.
+
+    Attributes
+    ----------
+    vertices : (nv, 3) float
+        Vertex positions [mm] (coincident vertices welded).
+    faces : (m, 3) int
+        Triangles, in file order.
+    face_properties : dict of str to (m,) ndarray
+        Scalar face properties of a PLY (``object_id``, a model's ``fill`` and
+        ``body``, ...); for a file with several objects (a trimesh Scene),
+        ``object_id`` = the object's index + 1.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_properties: dict
+
+
+def _load_trimesh(p: Path):
+    import trimesh
+
+    if not p.is_file():
+        raise MeshError(f"mesh {str(p)!r} does not exist")
+    try:
+        loaded = trimesh.load(str(p), process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise MeshError(f"mesh {str(p)!r} is unreadable: {type(exc).__name__}: {exc}") from None
+    props = {}
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        if not geoms:
+            raise MeshError(f"{str(p)!r} holds no triangles (not a mesh)")
+        props["object_id"] = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
+        loaded = trimesh.util.concatenate(geoms)
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError(f"{str(p)!r} holds no triangles (not a mesh: {type(loaded).__name__})")
+    return loaded, props
+
+
+def _ply_face_properties(loaded) -> dict:
+    raw = loaded.metadata.get("_ply_raw") if isinstance(loaded.metadata, dict) else None
+    if raw is None or "face" not in raw:
+        return {}
+    data = raw["face"]["data"]
+    names = [n for n in (data.dtype.names or ()) if n not in ("vertex_indices", "vertex_index")]
+    return {n: np.asarray(data[n]).ravel() for n in names if np.asarray(data[n]).ndim <= 2
+            and np.asarray(data[n]).size == len(loaded.faces)}
+
+
+def read_triangle_mesh(path: str | os.PathLike) -> TriangleMesh:
+    """Read a triangle mesh and its face properties (coincident vertices welded, face order kept).
 
     Parameters
     ----------
@@ -201,8 +270,39 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
     Returns
     -------
-    vertices : (nv, 3) float [mm]
+    TriangleMesh
+        Vertices [mm], faces and the PLY's scalar face properties.
+
+    Raises
+    ------
+    MeshError
+        Missing, unreadable or empty file, or a file without triangles.
+    """
+    p = Path(path)
+    loaded, props = _load_trimesh(p)
+    n_faces = len(loaded.faces)
+    props.update(_ply_face_properties(loaded))
+    loaded.merge_vertices()          # STL stores each face's own vertices: weld them (face order kept)
+    if len(loaded.faces) != n_faces:
+        raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
+    return TriangleMesh(vertices=np.asarray(loaded.vertices, np.float64),
+                        faces=np.asarray(loaded.faces, np.int64), face_properties=props)
+
+
+def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read a triangle mesh for scoring (:func:`read_triangle_mesh`, object ids only).
+
+    Parameters
+    ----------
+    path : path-like
+        PLY, STL, OBJ or any format trimesh reads.
+
+    Returns
+    -------
+    vertices : (nv, 3) float
+        Vertex positions [mm].
     faces : (m, 3) int
+        Triangles.
     face_object_id : (m,) int or None
         PLY ``object_id`` face property; for a file with several objects
         (a trimesh Scene), the object's index + 1; else None.
@@ -212,29 +312,65 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarr
     MeshError
         Missing, unreadable or empty file, or a file without triangles.
     """
-    import trimesh
+    mesh = read_triangle_mesh(path)
+    ids = mesh.face_properties.get("object_id")
+    return mesh.vertices, mesh.faces, None if ids is None else np.asarray(ids).astype(np.int64)
 
-    p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh {str(p)!r} does not exist")
-    try:
-        loaded = trimesh.load(str(p), process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise MeshError(f"mesh {str(p)!r} is unreadable: {type(exc).__name__}: {exc}") from None
-    ids = None
-    if isinstance(loaded, trimesh.Scene):
-        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-        if not geoms:
-            raise MeshError(f"{str(p)!r} holds no triangles (not a mesh)")
-        ids = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
-        loaded = trimesh.util.concatenate(geoms)
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise MeshError(f"{str(p)!r} holds no triangles (not a mesh: {type(loaded).__name__})")
-    n_faces = len(loaded.faces)
-    loaded.merge_vertices()          # STL stores each face's own vertices: weld them (face order kept)
-    if len(loaded.faces) != n_faces:
-        raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
-    raw = loaded.metadata.get("_ply_raw") if isinstance(loaded.metadata, dict) else None
-    if raw is not None and "face" in raw and "object_id" in (raw["face"]["data"].dtype.names or ()):
-        ids = np.asarray(raw["face"]["data"]["object_id"]).astype(np.int64).ravel()
-    return np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), ids
+
+_FACE_PLY = {"u1": "uchar", "i4": "int", "f4": "float", "f8": "double"}
+
+
+def write_mesh_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
+                   face_properties: dict | None = None, comment: str = "") -> Path:
+    """Write a triangle mesh as a binary PLY with scalar face properties, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination ``.ply``.
+    vertices : (nv, 3) float
+        Vertex positions [mm] (written as double).
+    faces : (m, 3) int
+        Triangles.
+    face_properties : dict of str to (m,) array, optional
+        Scalar face properties, written as ``uchar`` (uint8 arrays), ``int``,
+        ``float`` or ``double`` (e.g. a model's ``fill`` and ``body``).
+    comment : str
+        Extra header comment (one line).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    MeshError
+        Malformed arrays or a face property of the wrong length or type.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise MeshError(f"a mesh needs (n, 3) vertices and (m, 3) faces, got {v.shape} and {f.shape}")
+    props = {k: np.asarray(a) for k, a in (face_properties or {}).items()}
+    fields = [("n", "u1"), ("vertex_indices", "<i4", (3,))]
+    for name, a in props.items():
+        kind = a.dtype.str[1:] if a.dtype.str[1:] in _FACE_PLY else ("i4" if a.dtype.kind in "iub" else "f8")
+        if a.shape != (len(f),):
+            raise MeshError(f"face property {name!r} has shape {a.shape}, expected ({len(f)},)")
+        fields.append((name, "<" + kind if kind != "u1" else "u1"))
+    data = np.zeros(len(f), dtype=np.dtype(fields))
+    data["n"], data["vertex_indices"] = 3, f
+    for name, a in props.items():
+        data[name] = a
+    lines = ["ply", "format binary_little_endian 1.0", "comment scheimpflug mesh; units mm"]
+    lines += [f"comment {' '.join(comment.split())}"] if comment else []
+    lines += [f"element vertex {len(v)}", "property double x", "property double y", "property double z",
+              f"element face {len(f)}", "property list uchar int vertex_indices"]
+    lines += [f"property {_FACE_PLY[data.dtype[n].str[1:]]} {n}" for n in props]
+    header = "\n".join(lines + ["end_header"]) + "\n"
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(v.astype("<f8").tobytes())
+        fh.write(data.tobytes())
+    return Path(path)
