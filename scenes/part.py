@@ -49,16 +49,19 @@ class MeshWarning(UserWarning):
 
 
 def yaw_matrix(yaw_deg: float, position_mm=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """4 × 4 rigid transform ``T(position) · Rz(yaw)``.
+    """Rigid transform ``T(position) · Rz(yaw)``.
 
     Parameters
     ----------
-    yaw_deg : rotation about +z, counter-clockwise seen from above [deg].
-    position_mm : (3,) float, translation applied after the rotation [mm].
+    yaw_deg : float
+        Rotation about +z, counter-clockwise seen from above [deg].
+    position_mm : (3,) array_like, default (0, 0, 0)
+        Translation applied after the rotation [mm].
 
     Returns
     -------
     (4, 4) float
+        The homogeneous transform.
     """
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
     m = np.eye(4)
@@ -78,14 +81,28 @@ def _check_json(name: str, analytic: dict) -> None:
 class Part:
     """One rigid body of a scene.
 
-    Attributes
+    Frozen; validated on construction.
+
+    Parameters
     ----------
-    name : str, e.g. ``"ring"``.
-    mesh : trimesh.Trimesh, triangles in [mm], in the assembly frame (see module doc).
-    material : one of :data:`MATERIALS`.
-    analytic : dict, JSON-serialisable exact description: ``kind``, dimensions
-        [mm], knurl parameters, and ``mesh_from_part`` (4 × 4 nested list).
-    object_id : int, 1-based id, unique within an assembly (0 = background).
+    name : str
+        Part name, e.g. ``"ring"``.
+    mesh : trimesh.Trimesh
+        Triangles in the assembly frame [mm] (see the module docstring).
+    material : str, default "metal"
+        One of :data:`MATERIALS`.
+    analytic : dict, optional
+        JSON-serialisable exact description: ``kind``, dimensions [mm], knurl
+        parameters, and ``mesh_from_part`` (4 × 4 nested list).
+    object_id : int, default 1
+        1-based id, unique within an assembly (0 = background).
+
+    Raises
+    ------
+    MeshError
+        For an unknown material, an object id that is not an int ≥ 0, a mesh
+        without triangles, or an analytic description that is not
+        JSON-serialisable (NaN included).
     """
 
     name: str
@@ -106,11 +123,23 @@ class Part:
 
     @property
     def mesh_from_part(self) -> np.ndarray:
-        """(4, 4) float: own (analytic) frame → mesh frame."""
+        """Own (analytic) frame → mesh frame, (4, 4) float [mm] (identity if not set)."""
         return np.asarray(self.analytic.get("mesh_from_part", np.eye(4).tolist()), dtype=float)
 
     def transformed(self, b_from_mesh: np.ndarray) -> Part:
-        """The part moved by the rigid 4 × 4 transform ``b_from_mesh`` (analytic pose updated)."""
+        """The part moved by a rigid transform.
+
+        Parameters
+        ----------
+        b_from_mesh : (4, 4) array_like
+            Rigid transform from the mesh's frame to the new frame b [mm].
+
+        Returns
+        -------
+        Part
+            A copy with the mesh in frame b and ``analytic["mesh_from_part"]``
+            updated to ``b_from_mesh @ mesh_from_part``.
+        """
         m = np.asarray(b_from_mesh, dtype=float)
         mesh = self.mesh.copy()
         mesh.apply_transform(m)
@@ -118,11 +147,25 @@ class Part:
         return replace(self, mesh=mesh, analytic=analytic)
 
     def posed(self, position_mm=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> Part:
-        """The part turned by ``yaw_deg`` about its ``z`` axis, then moved by ``position_mm``."""
+        """The part turned about its ``z`` axis, then moved.
+
+        Parameters
+        ----------
+        position_mm : (3,) array_like, default (0, 0, 0)
+            Translation applied after the rotation [mm].
+        yaw_deg : float, default 0.0
+            Rotation about +z, counter-clockwise seen from above [deg].
+
+        Returns
+        -------
+        Part
+            ``self.transformed(yaw_matrix(yaw_deg, position_mm))``.
+        """
         return self.transformed(yaw_matrix(yaw_deg, position_mm))
 
     @property
     def triangle_count(self) -> int:
+        """Number of triangles of the mesh [-]."""
         return int(len(self.mesh.faces))
 
 
@@ -130,10 +173,19 @@ class Part:
 class Assembly:
     """Parts posed together in the assembly (= part) frame [mm].
 
-    Attributes
+    Frozen; validated on construction.
+
+    Parameters
     ----------
-    name : str, preset name, mesh file name or scene name.
-    parts : tuple of :class:`Part`, object ids 1..n in order.
+    name : str
+        Preset name, mesh file name or scene name.
+    parts : sequence of Part
+        The parts (stored as a tuple), object ids 1..n in order.
+
+    Raises
+    ------
+    MeshError
+        When there is no part, or object ids repeat or are 0.
     """
 
     name: str
@@ -148,7 +200,15 @@ class Assembly:
         object.__setattr__(self, "parts", tuple(self.parts))
 
     def combined_mesh(self) -> trimesh.Trimesh:
-        """All parts in one mesh (faces in part order; see :meth:`face_object_ids`)."""
+        """All parts in one mesh.
+
+        Returns
+        -------
+        trimesh.Trimesh
+            Vertices and faces of every part, concatenated in part order
+            (not processed: no vertex is merged), assembly frame [mm];
+            :meth:`face_object_ids` gives each face's part.
+        """
         verts, faces, offset = [], [], 0
         for p in self.parts:
             verts.append(np.asarray(p.mesh.vertices, dtype=float))
@@ -157,7 +217,13 @@ class Assembly:
         return trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
 
     def face_object_ids(self) -> np.ndarray:
-        """(m,) int32 object id of each face of :meth:`combined_mesh`."""
+        """Object id of each face of :meth:`combined_mesh`.
+
+        Returns
+        -------
+        (m,) int32
+            The object id of the part each face belongs to.
+        """
         return np.concatenate([np.full(len(p.mesh.faces), p.object_id, dtype=np.int32)
                                for p in self.parts])
 
@@ -169,14 +235,36 @@ class Assembly:
 
     @property
     def triangle_count(self) -> int:
+        """Number of triangles of all parts [-]."""
         return sum(p.triangle_count for p in self.parts)
 
     def transformed(self, b_from_assembly: np.ndarray) -> Assembly:
-        """The whole assembly moved by a rigid 4 × 4 transform (e.g. ``stage_from_part``)."""
+        """The whole assembly moved by a rigid transform.
+
+        Parameters
+        ----------
+        b_from_assembly : (4, 4) array_like
+            Rigid transform from the assembly frame to frame b (e.g.
+            ``stage_from_part``) [mm].
+
+        Returns
+        -------
+        Assembly
+            A copy with every part moved (:meth:`Part.transformed`).
+        """
         return replace(self, parts=tuple(p.transformed(b_from_assembly) for p in self.parts))
 
     def summary(self) -> dict:
-        """JSON-ready figures: per-part triangle counts, mesh memory [bytes], bounds [mm]."""
+        """Figures of the assembly, JSON-ready.
+
+        Returns
+        -------
+        dict
+            ``name``, ``triangles``, ``mesh_bytes`` (vertex and face arrays)
+            [bytes], ``bounds_mm`` [mm], and ``parts``: per part its name,
+            object id, material, analytic ``kind``, triangle and vertex counts
+            and mesh bytes.
+        """
         parts = [{"name": p.name, "object_id": p.object_id, "material": p.material,
                   "kind": p.analytic.get("kind"), "triangles": p.triangle_count,
                   "vertices": int(len(p.mesh.vertices)),
@@ -192,6 +280,16 @@ class Assembly:
         Vertices are stored as doubles (``x y z``), faces as ``vertex_indices``
         (uchar count, int indices) followed by ``int object_id``.  A comment
         line lists ``object_id name material`` for each part.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Destination file (written to a temporary name, then renamed).
+
+        Returns
+        -------
+        pathlib.Path
+            ``path``.
         """
         mesh = self.combined_mesh()
         header = _ply_header(self, len(mesh.vertices), len(mesh.faces))
@@ -247,10 +345,26 @@ def _read_own_ply(data: bytes):
 def read_ply(path: str | os.PathLike) -> tuple[trimesh.Trimesh, np.ndarray]:
     """Read a truth PLY (as written by :meth:`Assembly.to_ply`, or any triangle PLY).
 
+    The exact layout of :meth:`Assembly.to_ply` is read directly; any other
+    PLY through trimesh.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PLY file.
+
     Returns
     -------
-    mesh : trimesh.Trimesh [mm], faces in file order.
-    object_ids : (m,) int32 per face (all 1 if the file has no ``object_id``).
+    mesh : trimesh.Trimesh
+        The mesh [mm] (not processed), faces in file order.
+    object_ids : (m,) int32
+        Object id per face (all 1 if the file has no ``object_id``).
+
+    Raises
+    ------
+    MeshError
+        When the file cannot be read or parsed (including a body whose size
+        does not match the header, non-triangle faces or out-of-range indices).
     """
     path = Path(path)
     try:

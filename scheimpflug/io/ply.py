@@ -92,16 +92,19 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
 
     Parameters
     ----------
-    path : path-like
-        Destination ``.ply``.
+    path : str or os.PathLike
+        Destination ``.ply``; written to a temporary name, then renamed.
     cloud : PointCloud
-        Points [mm] with angle, row and intensity.
-    comment : str
-        Extra header comment (one line; e.g. the command that made it).
+        Points in the part frame [mm] with angle, row and intensity (stored
+        as float32 / int32).
+    comment : str, optional
+        Extra header comment (one line: whitespace runs are collapsed; e.g.
+        the command that made it).
 
     Returns
     -------
     Path
+        ``path``.
     """
     data = np.empty(len(cloud), dtype=_CLOUD_DTYPE)
     for k, name in enumerate("xyz"):
@@ -161,10 +164,24 @@ def _vertex_dtype(props: list, fmt: str, path: Path) -> np.dtype:
 def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     """Read a point cloud PLY (the vertex element; any faces after it are ignored).
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A PLY file (ascii or binary, either byte order) whose first element is
+        ``vertex`` with scalar properties x, y, z.
+
+    Returns
+    -------
+    PointCloud
+        Points (n, 3) float64 [mm] (part frame for the clouds this toolkit
+        writes); ``angle_deg`` and ``intensity`` NaN and ``row`` −1 where the
+        file lacks them.
+
     Raises
     ------
     MeshError
-        Missing, non-PLY, truncated or malformed file, or no x, y, z.
+        Missing, non-PLY, truncated or malformed file, list or unknown vertex
+        properties, or no x, y, z.
     """
     p = Path(path)
     if not p.is_file():
@@ -265,7 +282,7 @@ def read_triangle_mesh(path: str | os.PathLike) -> TriangleMesh:
 
     Parameters
     ----------
-    path : path-like
+    path : str or os.PathLike
         PLY, STL, OBJ or any format trimesh reads.
 
     Returns
@@ -299,11 +316,12 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
     Returns
     -------
-    vertices : (nv, 3) float
-        Vertex positions [mm].
-    faces : (m, 3) int
-        Triangles.
-    face_object_id : (m,) int or None
+    vertices : (nv, 3) ndarray float64
+        Vertex positions, in the file's frame and units [mm] (the part frame
+        for the twin's truth meshes).
+    faces : (m, 3) ndarray int64
+        Vertex indices of each triangle, in file order.
+    face_object_id : (m,) ndarray int64 or None
         PLY ``object_id`` face property; for a file with several objects
         (a trimesh Scene), the object's index + 1; else None.
 
