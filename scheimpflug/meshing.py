@@ -87,7 +87,7 @@ _MEASURED_ROW_SPAN = 2  # a measured triangle spans at most this many rows (neig
 class ModelSettings:
     """The meshing rule's parameters (module docstring, "The rule").
 
-    Attributes
+    Parameters
     ----------
     max_step_mm : float or None
         Largest 3-D step between consecutive points of one profile segment
@@ -146,7 +146,7 @@ class ModelSettings:
 class SurfaceModel:
     """A closed triangle mesh of a scan, with the provenance of every face.
 
-    Attributes
+    Parameters
     ----------
     vertices_mm : (nv, 3) float
         Vertices in the part frame [mm]: the measured points, plus the table

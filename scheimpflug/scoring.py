@@ -630,7 +630,7 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int,
 class TwoSidedDistance:
     """Distances between a model surface and the true surface, both ways.
 
-    Attributes
+    Parameters
     ----------
     truth_points_mm : (n, 3) float
         Area-uniform samples of the true surface [mm].

@@ -158,7 +158,7 @@ def section_areas_mm2(vertices: np.ndarray, faces: np.ndarray, z_mm) -> np.ndarr
 class Section:
     """One horizontal cross-section of a closed mesh.
 
-    Attributes
+    Parameters
     ----------
     z_mm : float
         Height of the plane [mm].

@@ -229,7 +229,7 @@ def _read_body(fh, fmt: str, dtype: np.dtype, n: int, path: Path) -> np.ndarray:
 class TriangleMesh:
     """A triangle mesh as read from a file, with its per-face properties.
 
-    Attributes
+    Parameters
     ----------
     vertices : (nv, 3) float
         Vertex positions [mm] (coincident vertices welded).
