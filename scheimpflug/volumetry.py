@@ -99,28 +99,53 @@ def mesh_area_mm2(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
 
 
-def _crossings(t: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Oriented section segments of triangles t (k, 3, 3) with planes z (k,): start, end (k, 2)."""
-    above = t[:, :, 2] >= z[:, None]
-    nxt = np.roll(np.arange(3), -1)
-    a, b = t, t[:, nxt]
-    za, zb = a[:, :, 2], b[:, :, 2]
-    dz = np.where(zb != za, zb - za, 1.0)
-    s = ((z[:, None] - za) / dz)[..., None]
-    p = a[:, :, :2] + s * (b[:, :, :2] - a[:, :, :2])             # (k, 3, 2) crossing of each edge
-    up = ~above & above[:, nxt]
-    down = above & ~above[:, nxt]
-    rows = np.arange(len(t))
-    return p[rows, np.argmax(down, axis=1)], p[rows, np.argmax(up, axis=1)], rows
+@dataclass(frozen=True)
+class _SortedFaces:
+    """Each face's vertices sorted by height, and whether that order is a rotation of the face's."""
+
+    lo: np.ndarray      # (m, 3)
+    mid: np.ndarray
+    hi: np.ndarray
+    even: np.ndarray    # (m,) bool
+
+    @classmethod
+    def of(cls, t: np.ndarray) -> _SortedFaces:
+        order = np.argsort(t[:, :, 2], axis=1, kind="stable")
+        rows = np.arange(len(t))[:, None]
+        s = t[rows, order]
+        even = ((order[:, 1] - order[:, 0]) % 3) == 1
+        return cls(lo=s[:, 0], mid=s[:, 1], hi=s[:, 2], even=even)
 
 
-def _pairs(t: np.ndarray, z_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(face, section) index pairs of faces that straddle each plane (z sorted)."""
-    lo, hi = t[:, :, 2].min(axis=1), t[:, :, 2].max(axis=1)
-    k_lo = np.searchsorted(z_mm, lo, side="right")
-    k_hi = np.searchsorted(z_mm, hi, side="right")
+def _on_edge(a: np.ndarray, b: np.ndarray, z: np.ndarray) -> np.ndarray:
+    dz = b[:, 2] - a[:, 2]
+    s = np.divide(z - a[:, 2], dz, out=np.zeros_like(z), where=dz != 0)
+    return a[:, :2] + s[:, None] * (b[:, :2] - a[:, :2])
+
+
+def _crossings(sf: _SortedFaces, face: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Oriented section segments (start, end (k, 2)) of faces straddling the planes z (k,).
+
+    The plane crosses the edge lo→hi and one of lo→mid, mid→hi.  With the
+    vertices in the face's own (counter-clockwise) order a rotation of
+    (lo, mid, hi), the edge hi→lo goes down through the plane and the short
+    one up: the segment runs from the long edge's crossing to the short one's
+    (the other way round otherwise).
+    """
+    lo, mid, hi = sf.lo[face], sf.mid[face], sf.hi[face]
+    long_ = _on_edge(lo, hi, z)
+    upper = z >= mid[:, 2]
+    short = np.where(upper[:, None], _on_edge(mid, hi, z), _on_edge(lo, mid, z))
+    even = sf.even[face][:, None]
+    return np.where(even, long_, short), np.where(even, short, long_)
+
+
+def _pairs(sf: _SortedFaces, z_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(face, section) index pairs of faces that straddle each plane (z sorted): lo < z ≤ hi."""
+    k_lo = np.searchsorted(z_mm, sf.lo[:, 2], side="right")
+    k_hi = np.searchsorted(z_mm, sf.hi[:, 2], side="right")
     n = np.maximum(k_hi - k_lo, 0)
-    face = np.repeat(np.arange(len(t)), n)
+    face = np.repeat(np.arange(len(n)), n)
     start = np.repeat(k_lo - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
     return face, start + np.arange(n.sum())
 
@@ -143,14 +168,15 @@ def section_areas_mm2(vertices: np.ndarray, faces: np.ndarray, z_mm) -> np.ndarr
         Area of material in each plane [mm²] (the shoelace sum of the
         oriented section segments; module docstring).
     """
-    t = _triangles(vertices, faces)
+    sf = _SortedFaces.of(_triangles(vertices, faces))
     z = np.asarray(z_mm, dtype=np.float64).ravel()
     order = np.argsort(z)
-    face, k = _pairs(t, z[order])
-    p, q, _ = _crossings(t[face], z[order][k])
-    cross = 0.5 * (p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])
-    out = np.empty(len(z))
-    out[order] = np.bincount(k, weights=cross, minlength=len(z))
+    out = np.zeros(len(z))
+    for chunk in np.array_split(np.arange(len(z)), max(1, len(z) // 64)):
+        face, k = _pairs(sf, z[order][chunk])
+        p, q = _crossings(sf, face, z[order][chunk][k])
+        cross = 0.5 * (p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])
+        out[order[chunk]] = np.bincount(k, weights=cross, minlength=len(chunk))
     return out
 
 
@@ -222,10 +248,10 @@ def section(vertices: np.ndarray, faces: np.ndarray, z_mm: float) -> Section:
         Area, perimeter, equivalent diameter, width and outline (all zero and
         empty when the plane misses the mesh).
     """
-    t = _triangles(vertices, faces)
+    sf = _SortedFaces.of(_triangles(vertices, faces))
     z = float(z_mm)
-    hit = (t[:, :, 2].min(axis=1) < z) & (t[:, :, 2].max(axis=1) >= z)
-    p, q, _ = _crossings(t[hit], np.full(int(hit.sum()), z))
+    face = np.flatnonzero((sf.lo[:, 2] < z) & (sf.hi[:, 2] >= z))
+    p, q = _crossings(sf, face, np.full(len(face), z))
     area = float(0.5 * np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
     perimeter = float(np.linalg.norm(q - p, axis=1).sum())
     return Section(z_mm=z, area_mm2=area, perimeter_mm=perimeter,
