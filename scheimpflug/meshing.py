@@ -15,8 +15,11 @@ The rule (what is joined, what is filled)
    of a steep wall).  A larger jump is a discontinuity: an occlusion edge, a
    face the sheet never reaches, or another body.  Rows missing inside a
    segment (a short gap) are bridged by the straight join of the points on
-   either side.  Segments of fewer than ``min_points`` points are noise and
-   are not used.
+   either side.  A profile is also cut where its neighbouring profile is cut
+   between two runs of ``min_points`` or more (at its largest step within the
+   rows of that cut), so that a face seen at some angles only (a shoulder)
+   does not join two runs in some profiles and not in others.  Segments of
+   fewer than ``min_points`` points are noise and are not used.
 2. **Segments → bodies.**  A segment is linked to one segment of the next
    frame (one to one, largest overlap first) when their height ranges overlap
    by at least ``min_overlap`` of the shorter one and their mid-points lie
@@ -271,9 +274,64 @@ def _median_row_step(grid: _Grid) -> float:
     return float(np.median(pool))
 
 
-def _segments(grid: _Grid, max_step_mm: float, min_points: int) -> _Segments:
+def _initial_cuts(grid: _Grid, max_step_mm: float) -> np.ndarray:
+    """cut[k]: no join between sorted points k and k + 1 (another frame, or a step > max_step_mm)."""
     d = np.linalg.norm(np.diff(grid.xyz, axis=0), axis=1)
-    cut = (np.diff(grid.frame) != 0) | (d > max_step_mm)
+    return (np.diff(grid.frame) != 0) | (d > max_step_mm)
+
+
+def _real_breaks(grid: _Grid, cut: np.ndarray, lo: int, hi: int, min_points: int) -> list[tuple[int, int]]:
+    """Rows (last of one, first of the next) between consecutive runs of >= min_points of one frame.
+
+    Shorter runs between them (a few points on a grazing face, noise) are skipped over.
+    """
+    edges = np.concatenate([[-1], np.flatnonzero(cut[lo:hi - 1]), [hi - lo - 1]])
+    long_runs = np.flatnonzero(np.diff(edges) >= min_points)
+    return [(int(grid.row[lo + edges[a + 1]]), int(grid.row[lo + edges[b] + 1]))
+            for a, b in zip(long_runs[:-1], long_runs[1:])]
+
+
+def _cut_like(grid: _Grid, cut: np.ndarray, lo: int, hi: int, rows: tuple[int, int], min_points: int) -> None:
+    """Cut frame [lo, hi) where a neighbour is cut between ``rows``, at its largest step nearby."""
+    r = grid.row[lo:hi]
+    w = max(2, rows[1] - rows[0])
+    window = (r[:-1] >= rows[0] - w) & (r[1:] <= rows[1] + w)
+    if not window.any() or cut[lo:hi - 1][window].any():
+        return
+    cuts = np.concatenate([[-1], np.flatnonzero(cut[lo:hi - 1]), [hi - lo - 1]])
+    k_all = np.flatnonzero(window)
+    seg = np.searchsorted(cuts, k_all, side="left")
+    room = (k_all - cuts[seg - 1] >= min_points) & (cuts[seg] - k_all >= min_points)
+    if not room.any():
+        return
+    k_all = k_all[room]
+    step = np.linalg.norm(grid.xyz[lo + k_all + 1] - grid.xyz[lo + k_all], axis=1)
+    cut[lo + k_all[np.argmax(step)]] = True
+
+
+def _propagate_cuts(grid: _Grid, cut: np.ndarray, min_points: int, max_gap_deg: float) -> None:
+    """Cut every profile where its neighbour is cut between two real runs (in place).
+
+    A face seen in some frames only (a shoulder reached at some angles) would
+    otherwise join two runs in those frames and not in the others; a forward,
+    a backward and a second forward sweep carry each break round the turn.
+    """
+    n = len(grid.angle_deg)
+    bounds = np.searchsorted(grid.frame, np.arange(n + 1))
+    for step, frames in ((-1, range(n)), (1, range(n - 1, -1, -1)), (-1, range(n))):
+        for f in frames:
+            g = f + step
+            if grid.periodic:
+                g %= n
+            elif not 0 <= g < n:
+                continue
+            if min(_angle_gap(grid, f, g), _angle_gap(grid, g, f)) > max_gap_deg + 1e-9:
+                continue
+            for rows in _real_breaks(grid, cut, bounds[g], bounds[g + 1], min_points):
+                _cut_like(grid, cut, bounds[f], bounds[f + 1], rows, min_points)
+
+
+def _segments(grid: _Grid, cut: np.ndarray, min_points: int, max_step_mm: float) -> _Segments:
     start = np.concatenate([[0], np.flatnonzero(cut) + 1])
     end = np.concatenate([start[1:], [len(grid.row)]])
     keep = end - start >= min_points
@@ -550,7 +608,9 @@ def model_from_cloud(cloud, settings: ModelSettings | None = None) -> SurfaceMod
     grid = _build_grid(cloud, settings.max_gap_deg)
     max_step = settings.max_step_mm or settings.step_factor * _median_row_step(grid)
     max_gap = settings.max_gap_deg if settings.max_gap_deg is not None else 3.0 * grid.step_deg
-    seg = _segments(grid, max_step, settings.min_points)
+    cut = _initial_cuts(grid, max_step)
+    _propagate_cuts(grid, cut, settings.min_points, max_gap)
+    seg = _segments(grid, cut, settings.min_points, max_step)
     succ, pred = _link(grid, seg, settings, max_step, max_gap)
     bodies = [(c, cyc) for c, cyc in _chains(succ, pred) if len(c) >= settings.min_profiles]
     if not bodies:
