@@ -114,6 +114,10 @@ class ModelSettings:
         Fewest points of a usable profile segment [-].
     min_profiles : int
         Fewest profiles of a usable body [-].
+    join_gap_steps : float
+        Join a body that stands on another in every profile into one body
+        when the height gap between them is at most this many median
+        row-to-row steps (rule 2) [-]; 0 keeps stacked bodies apart.
 
     Raises
     ------
@@ -129,8 +133,11 @@ class ModelSettings:
     table_gap_mm: float = 3.0
     min_points: int = 5
     min_profiles: int = 3
+    join_gap_steps: float = 3.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.join_gap_steps) and self.join_gap_steps >= 0):
+            raise MeshError(f"model setting join_gap_steps = {self.join_gap_steps!r}: must be a finite number >= 0")
         positive = {"step_factor": self.step_factor, "table_gap_mm": self.table_gap_mm,
                     "max_step_mm": self.max_step_mm, "max_gap_deg": self.max_gap_deg}
         for name, value in positive.items():
@@ -458,6 +465,7 @@ class _Body:
     xyz: list
     faces: list
     fill: list
+    part: list               # per profile: which of its stacked segments each point belongs to
     n_vertices: int = 0
 
     def add_vertices(self, xyz: np.ndarray) -> np.ndarray:
@@ -471,16 +479,51 @@ class _Body:
         self.fill.append(np.broadcast_to(np.asarray(fill, np.uint8), (len(faces),)))
 
 
-def _profiles(grid: _Grid, seg: _Segments, chain: list[int], body: _Body):
-    """Per profile: vertex ids, row keys, measured flags; and whether rows run downwards."""
+def _profiles(grid: _Grid, seg: _Segments, chain: list[list[int]], body: _Body):
+    """Per profile (its segments in row order): vertex ids, row keys; and whether rows run downwards."""
     ids, keys = [], []
-    for s in chain:
-        sl = slice(seg.start[s], seg.end[s])
-        ids.append(body.add_vertices(grid.xyz[sl]))
-        keys.append(grid.row[sl].astype(np.float64))
-    z_first = np.mean([grid.xyz[seg.start[s], 2] for s in chain])
-    z_last = np.mean([grid.xyz[seg.end[s] - 1, 2] for s in chain])
+    for prof in chain:
+        idx = np.concatenate([np.arange(seg.start[s], seg.end[s]) for s in prof])
+        ids.append(body.add_vertices(grid.xyz[idx]))
+        keys.append(grid.row[idx].astype(np.float64))
+        body.part.append(np.repeat(np.arange(len(prof)), seg.end[prof] - seg.start[prof]))
+    z_first = np.mean([grid.xyz[seg.start[p[0]], 2] for p in chain])
+    z_last = np.mean([grid.xyz[seg.end[p[-1]] - 1, 2] for p in chain])
     return ids, keys, bool(z_last < z_first)
+
+
+def _stack_gap(grid: _Grid, seg: _Segments, upper: dict, lower: dict) -> float:
+    """Median height of the gap from each profile of ``upper`` down to ``lower`` (frame → segments) [mm].
+
+    +inf unless ``upper`` lies above ``lower`` (in rows) in every frame.
+    """
+    gaps = []
+    for f, up in upper.items():
+        lo = lower[f]
+        if grid.row[seg.end[up[-1]] - 1] >= grid.row[seg.start[lo[0]]]:
+            return math.inf
+        gaps.append(grid.xyz[seg.end[up[-1]] - 1, 2] - grid.xyz[seg.start[lo[0]], 2])
+    return float(np.median(gaps))
+
+
+def _join_stacked(grid: _Grid, seg: _Segments, bodies: list, max_gap_mm: float) -> list:
+    """Join cyclic bodies that stand on each other in every frame into one (module docstring, rule 2)."""
+    bodies = list(bodies)
+    joined = True
+    while joined:
+        joined = False
+        for a, b in ((a, b) for a in range(len(bodies)) for b in range(len(bodies)) if a != b):
+            (ca, cyc_a), (cb, cyc_b) = bodies[a], bodies[b]
+            ma = {int(seg.frame[p[0]]): p for p in ca}
+            mb = {int(seg.frame[p[0]]): p for p in cb}
+            if not (cyc_a and cyc_b and ma.keys() == mb.keys() and len(ma) == len(ca) == len(cb)):
+                continue
+            if abs(_stack_gap(grid, seg, ma, mb)) <= max_gap_mm:
+                bodies[a] = ([ma[int(seg.frame[p[0]])] + mb[int(seg.frame[p[0]])] for p in ca], True)
+                del bodies[b]
+                joined = True
+                break
+    return bodies
 
 
 def _add_table_skirt(body: _Body, ids, keys, down: bool, table_z: float) -> None:
@@ -504,10 +547,10 @@ def _bottom_on_table(body: _Body, ids, down: bool, settings: ModelSettings) -> b
     return bool(abs(np.median(bottom) - settings.table_z_mm) <= settings.table_gap_mm)
 
 
-def _measured_mask(tri, rows_of, measured_of, strip_ok: bool) -> np.ndarray:
-    rows = rows_of[tri]
+def _measured_mask(tri, rows_of, measured_of, part_of, strip_ok: bool) -> np.ndarray:
+    rows, part = rows_of[tri], part_of[tri]
     ok = measured_of[tri].all(axis=1) & (rows.max(axis=1) - rows.min(axis=1) <= _MEASURED_ROW_SPAN)
-    return ok & strip_ok
+    return ok & (part.max(axis=1) == part.min(axis=1)) & strip_ok
 
 
 def _strips(body, ids, keys, angles, cyclic, step_deg, n_measured) -> None:
@@ -516,6 +559,8 @@ def _strips(body, ids, keys, angles, cyclic, step_deg, n_measured) -> None:
     rows_of = np.zeros(body.n_vertices)
     rows_of[all_ids] = np.concatenate(keys)
     measured_of = np.arange(body.n_vertices) < n_measured
+    part_of = np.zeros(body.n_vertices, np.int64)
+    part_of[:n_measured] = np.concatenate(body.part)
     table = ~measured_of
     m = len(ids)
     for j in range(m):
@@ -525,7 +570,7 @@ def _strips(body, ids, keys, angles, cyclic, step_deg, n_measured) -> None:
             body.add_faces(tri, FILL_SIDE)
             continue
         neighbours = np.mod(angles[k] - angles[j], 360.0) <= 1.5 * step_deg
-        fill = np.where(_measured_mask(tri, rows_of, measured_of, bool(neighbours)), FILL_MEASURED, FILL_GAP)
+        fill = np.where(_measured_mask(tri, rows_of, measured_of, part_of, bool(neighbours)), FILL_MEASURED, FILL_GAP)
         body.add_faces(tri, np.where(table[tri].any(axis=1), FILL_TABLE, fill))
 
 
@@ -548,12 +593,12 @@ def _winds_round_axis(xyz: np.ndarray, angles_deg: np.ndarray) -> bool:
     return bool(np.all(sheet < 0) or np.all(sheet > 0))
 
 
-def _close_body(grid: _Grid, seg: _Segments, chain: list[int], cyclic: bool,
+def _close_body(grid: _Grid, seg: _Segments, chain: list[list[int]], cyclic: bool,
                 settings: ModelSettings) -> _Body:
-    body = _Body([], [], [])
+    body = _Body([], [], [], [])
     ids, keys, down = _profiles(grid, seg, chain, body)
     n_measured = body.n_vertices
-    angles = grid.angle_deg[seg.frame[chain]]
+    angles = grid.angle_deg[seg.frame[[p[0] for p in chain]]]
     starts = np.array([i[0] for i in ids])
     ends = np.array([i[-1] for i in ids])
     xyz = np.concatenate(body.xyz)
@@ -606,13 +651,16 @@ def model_from_cloud(cloud, settings: ModelSettings | None = None) -> SurfaceMod
     """
     settings = settings or ModelSettings()
     grid = _build_grid(cloud, settings.max_gap_deg)
-    max_step = settings.max_step_mm or settings.step_factor * _median_row_step(grid)
+    row_step = _median_row_step(grid)
+    max_step = settings.max_step_mm or settings.step_factor * row_step
     max_gap = settings.max_gap_deg if settings.max_gap_deg is not None else 3.0 * grid.step_deg
     cut = _initial_cuts(grid, max_step)
     _propagate_cuts(grid, cut, settings.min_points, max_gap)
     seg = _segments(grid, cut, settings.min_points, max_step)
     succ, pred = _link(grid, seg, settings, max_step, max_gap)
-    bodies = [(c, cyc) for c, cyc in _chains(succ, pred) if len(c) >= settings.min_profiles]
+    bodies = [([[s] for s in c], cyc) for c, cyc in _chains(succ, pred) if len(c) >= settings.min_profiles]
+    if settings.join_gap_steps > 0:
+        bodies = _join_stacked(grid, seg, bodies, settings.join_gap_steps * row_step)
     if not bodies:
         raise MeshError(f"no body is seen in {settings.min_profiles} or more neighbouring profiles: "
                         f"nothing to mesh")
@@ -631,7 +679,7 @@ def _assemble(grid, seg, bodies, settings, max_step) -> SurfaceModel:
         fill.append(np.concatenate(b.fill))
         body_of.append(np.full(len(f), k, np.int64))
         offset += len(v)
-        used += int(sum(seg.end[s] - seg.start[s] for s in chain))
+        used += int(sum(seg.end[s] - seg.start[s] for p in chain for s in p))
     return SurfaceModel(vertices_mm=np.concatenate(xyz), faces=np.concatenate(faces),
                         face_fill=np.concatenate(fill).astype(np.uint8), face_body=np.concatenate(body_of),
                         n_points_used=used, n_points_unused=int(len(grid.row) - used),

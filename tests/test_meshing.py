@@ -82,9 +82,15 @@ def test_stepped_part_analytic_volume_within_0p5_percent():
     assert per_body_closed(model)
     v = mesh_volume_mm3(model.vertices_mm, model.faces)
     assert abs(v / STEPPED_VOLUME - 1) < 5e-3
-    # the shoulder the sheet never reaches separates the base from the rest: two stacked bodies
-    assert model.n_bodies == 2
+    # the shoulder the sheet never reaches is bridged: one body, the shoulder marked as a gap
+    assert model.n_bodies == 1
+    gap = model.faces[model.face_fill == FILL_GAP]
+    assert np.allclose(model.vertices_mm[gap][:, :, 2], TABLE + 30.0, atol=0.06)
     assert abs(volume_from_sections_mm3(model.vertices_mm, model.faces) / v - 1) < 1e-3
+    apart = model_from_cloud(synthetic_scan(stepped_radius, 80.0),
+                             ModelSettings(table_z_mm=TABLE, join_gap_steps=0))
+    assert apart.n_bodies == 2 and per_body_closed(apart)          # kept apart: each capped at the step
+    assert mesh_volume_mm3(apart.vertices_mm, apart.faces) == pytest.approx(v, rel=2e-3)
 
 
 def test_sections_of_the_stepped_part():
@@ -110,19 +116,24 @@ def test_hidden_bore_is_capped_marked_and_its_volume_error_shows():
     assert np.any(model.face_fill == FILL_TABLE) and np.any(model.face_fill == FILL_MEASURED)
 
 
-def test_overhang_underside_is_capped_and_marked():
+def test_overhang_underside_is_closed_and_marked():
     """A mushroom: stem Ø20 up to z = 30, head Ø60 from 30 to 45; the head's underside is never seen."""
     model = model_from_cloud(synthetic_scan(lambda p, z: np.where(z < 30, 10.0, 30.0), 45.0),
                              ModelSettings(table_z_mm=TABLE))
-    assert model.n_bodies == 2 and per_body_closed(model)
+    assert model.n_bodies == 1 and per_body_closed(model)
     truth = math.pi * (10**2 * 30 + 30**2 * 15)
-    # every cap lies at the outermost sampled row, half a row (0.05 mm) inside the true end
+    assert mesh_volume_mm3(model.vertices_mm, model.faces) == pytest.approx(truth, rel=5e-3)
+    # the underside: bridged from the stem's last row (z = 29.95) to the head's first (30.05), marked
+    under = model.faces[model.face_fill == FILL_GAP]
+    assert len(under) > 0 and np.allclose(model.vertices_mm[under][:, :, 2], TABLE + 30.0, atol=0.06)
+    r = np.hypot(*model.vertices_mm[under][:, :, :2].reshape(-1, 2).T)
+    assert r.min() == pytest.approx(10.0, abs=0.01) and r.max() == pytest.approx(30.0, abs=0.01)
+    apart = model_from_cloud(synthetic_scan(lambda p, z: np.where(z < 30, 10.0, 30.0), 45.0),
+                             ModelSettings(table_z_mm=TABLE, join_gap_steps=0))
+    # kept apart: every cap lies at the outermost sampled row, half a row (0.05 mm) inside the true end
     sampled = truth - math.pi * (30**2 * 0.1 + 10**2 * 0.05)
-    assert mesh_volume_mm3(model.vertices_mm, model.faces) == pytest.approx(sampled, rel=2e-4)
-    # the head's bottom cap lies at its lowest measured row, 0.05 mm above the true underside
-    head = model.face_body == model.face_body[np.argmax(model.vertices_mm[model.faces][:, :, 2].max(axis=1))]
-    under = model.faces[head & (model.face_fill == FILL_CAP)]
-    assert np.isclose(model.vertices_mm[under][:, :, 2].min(), TABLE + 30.05)
+    assert apart.n_bodies == 2
+    assert mesh_volume_mm3(apart.vertices_mm, apart.faces) == pytest.approx(sampled, rel=2e-4)
 
 
 # ------------------------------------------------------------------ the rule's pieces
