@@ -16,9 +16,10 @@ The rule (what is joined, what is filled)
    face the sheet never reaches, or another body.  Rows missing inside a
    segment (a short gap) are bridged by the straight join of the points on
    either side.  A profile is also cut where its neighbouring profile is cut
-   between two runs of ``min_points`` or more (at its largest step within the
-   rows of that cut), so that a face seen at some angles only (a shoulder)
-   does not join two runs in some profiles and not in others.  Segments of
+   between two runs of ``min_points`` or more, at its largest step within the
+   rows of that cut if that step is at least ¼ ``max_step_mm``, so that a
+   face seen sparsely at some angles only (a shoulder) does not join two runs
+   in some profiles and not in others.  Segments of
    fewer than ``min_points`` points are noise and are not used.
 2. **Segments → bodies.**  A segment is linked to one segment of the next
    frame (one to one, largest overlap first) when their height ranges overlap
@@ -84,6 +85,7 @@ FILL_NAMES = ("measured", "gap", "table", "cap", "side")
 
 _LINK_INCIDENCE = 6.0   # horizontal link slack per r·Δθ: tan(80.5°), faces seen up to ≈ 80° incidence
 _MEASURED_ROW_SPAN = 2  # a measured triangle spans at most this many rows (neighbours shift by a row)
+_PROPAGATE = 0.25       # a neighbour's cut is copied only onto a step of at least this × max_step_mm
 
 
 @dataclass(frozen=True)
@@ -298,8 +300,12 @@ def _real_breaks(grid: _Grid, cut: np.ndarray, lo: int, hi: int, min_points: int
             for a, b in zip(long_runs[:-1], long_runs[1:])]
 
 
-def _cut_like(grid: _Grid, cut: np.ndarray, lo: int, hi: int, rows: tuple[int, int], min_points: int) -> None:
-    """Cut frame [lo, hi) where a neighbour is cut between ``rows``, at its largest step nearby."""
+def _cut_like(grid: _Grid, cut: np.ndarray, lo: int, hi: int, rows: tuple[int, int], min_points: int,
+              min_step_mm: float) -> None:
+    """Cut frame [lo, hi) where a neighbour is cut between ``rows``, at its largest step nearby.
+
+    Only a step of at least ``min_step_mm`` is cut.
+    """
     r = grid.row[lo:hi]
     w = max(2, rows[1] - rows[0])
     window = (r[:-1] >= rows[0] - w) & (r[1:] <= rows[1] + w)
@@ -313,10 +319,12 @@ def _cut_like(grid: _Grid, cut: np.ndarray, lo: int, hi: int, rows: tuple[int, i
         return
     k_all = k_all[room]
     step = np.linalg.norm(grid.xyz[lo + k_all + 1] - grid.xyz[lo + k_all], axis=1)
-    cut[lo + k_all[np.argmax(step)]] = True
+    if step.max() >= min_step_mm:
+        cut[lo + k_all[np.argmax(step)]] = True
 
 
-def _propagate_cuts(grid: _Grid, cut: np.ndarray, min_points: int, max_gap_deg: float) -> None:
+def _propagate_cuts(grid: _Grid, cut: np.ndarray, min_points: int, max_gap_deg: float,
+                    max_step_mm: float) -> None:
     """Cut every profile where its neighbour is cut between two real runs (in place).
 
     A face seen in some frames only (a shoulder reached at some angles) would
@@ -335,7 +343,7 @@ def _propagate_cuts(grid: _Grid, cut: np.ndarray, min_points: int, max_gap_deg: 
             if min(_angle_gap(grid, f, g), _angle_gap(grid, g, f)) > max_gap_deg + 1e-9:
                 continue
             for rows in _real_breaks(grid, cut, bounds[g], bounds[g + 1], min_points):
-                _cut_like(grid, cut, bounds[f], bounds[f + 1], rows, min_points)
+                _cut_like(grid, cut, bounds[f], bounds[f + 1], rows, min_points, _PROPAGATE * max_step_mm)
 
 
 def _segments(grid: _Grid, cut: np.ndarray, min_points: int, max_step_mm: float) -> _Segments:
@@ -655,7 +663,7 @@ def model_from_cloud(cloud, settings: ModelSettings | None = None) -> SurfaceMod
     max_step = settings.max_step_mm or settings.step_factor * row_step
     max_gap = settings.max_gap_deg if settings.max_gap_deg is not None else 3.0 * grid.step_deg
     cut = _initial_cuts(grid, max_step)
-    _propagate_cuts(grid, cut, settings.min_points, max_gap)
+    _propagate_cuts(grid, cut, settings.min_points, max_gap, max_step)
     seg = _segments(grid, cut, settings.min_points, max_step)
     succ, pred = _link(grid, seg, settings, max_step, max_gap)
     bodies = [([[s] for s in c], cyc) for c, cyc in _chains(succ, pred) if len(c) >= settings.min_profiles]
