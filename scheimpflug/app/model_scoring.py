@@ -79,13 +79,15 @@ def score_model(truth_pm, labels, model_path, **kw) -> dict:
 def model_lines(out: dict) -> list[str]:
     ts = out["two_sided"]
     lines = [f"model {out.get('model', '')}: coverage {100 * out['coverage']:.2f} % of the true surface within "
-             f"{ts['coverage_mm']:g} mm; symmetric mean {out['mean_mm']:.4f} mm, Hausdorff {out['hausdorff_mm']:.4f} mm",
+             f"{ts['coverage_mm']:g} mm; symmetric mean {out['mean_mm']:.4f} mm, "
+             f"Hausdorff {out['hausdorff_mm']:.4f} mm",
              f"  truth → model: mean {ts['truth_to_model']['mean_abs_mm']:.4f} mm, p95 "
              f"{ts['truth_to_model']['p95_mm']:.4f} mm; model → truth: mean {ts['model_to_truth']['mean_abs_mm']:.4f}"
              f" mm, p95 {ts['model_to_truth']['p95_mm']:.4f} mm"]
     if out["volume_error_mm3"] is not None:
+        rel = 100 * out["volume_error_mm3"] / out["true_volume_mm3"]
         lines.append(f"  volume {out['volume_mm3']:.6g} mm³ vs true {out['true_volume_mm3']:.6g} mm³: error "
-                     f"{out['volume_error_mm3']:+.6g} mm³ ({100 * out['volume_error_mm3'] / out['true_volume_mm3']:+.3f} %)")
+                     f"{out['volume_error_mm3']:+.6g} mm³ ({rel:+.3f} %)")
     for k, o in out["objects"].items():
         if o["volume_error_mm3"] is not None and len(out["objects"]) > 1:
             lines.append(f"  object {k}: bodies {o['bodies']}, volume {o['model_volume_mm3']:.6g} vs "

@@ -199,12 +199,22 @@ def _view_basis(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
     return np.stack([right, np.cross(back, right), back])
 
 
-def _zbuffer(points: np.ndarray, values: np.ndarray, shade: np.ndarray, basis: np.ndarray, px: int):
-    """Nearest sample per pixel of an orthographic view: (image of values, image of shading, extent)."""
+def _zbuffer(points: np.ndarray, values: np.ndarray, shade: np.ndarray, basis: np.ndarray, px: int,
+             spacing_mm: float):
+    """Nearest sample per pixel of an orthographic view: (image of values, image of shading, extent).
+
+    Each sample covers a square of about ``spacing_mm`` (the samples' mean spacing) so that the
+    surface reads as closed.
+    """
     uvw = points @ basis.T
     lo, hi = uvw[:, :2].min(axis=0), uvw[:, :2].max(axis=0)
     scale = (px - 1) / max(hi - lo)
-    ij = np.floor((uvw[:, :2] - lo) * scale).astype(np.int64)
+    ij0 = np.floor((uvw[:, :2] - lo) * scale).astype(np.int64)
+    k = int(np.clip(np.ceil(spacing_mm * scale), 1, 4))
+    offsets = np.array([(a, b) for a in range(k) for b in range(k)]) - (k - 1) // 2
+    ij = np.clip((ij0[None] + offsets[:, None]).reshape(-1, 2), 0, px - 1)
+    depth, values, shade = (np.tile(a, len(offsets)) for a in (uvw[:, 2], values, shade))
+    uvw = np.column_stack([ij, depth])
     key = ij[:, 1] * px + ij[:, 0]
     order = np.lexsort((-uvw[:, 2], key))
     first = np.ones(len(order), bool)
@@ -219,7 +229,7 @@ def _zbuffer(points: np.ndarray, values: np.ndarray, shade: np.ndarray, basis: n
 
 def plot_model_distance(points_mm: np.ndarray, normals: np.ndarray, distance_mm: np.ndarray, path,
                         title: str, views=((-60.0, 20.0), (30.0, 60.0)), px: int = 700,
-                        limit_mm: float | None = None) -> None:
+                        limit_mm: float | None = None, spacing_mm: float = 0.3) -> None:
     """Rendered views of a surface (dense samples with normals) coloured by signed distance to the truth.
 
     Orthographic views with a z-buffer; Lambert shading from the sample normals darkens the colour
@@ -232,7 +242,7 @@ def plot_model_distance(points_mm: np.ndarray, normals: np.ndarray, distance_mm:
     for ax, (az, el) in zip(axes[0], views):
         basis = _view_basis(az, el)
         shade = 0.35 + 0.65 * np.abs(normals @ basis[2])
-        img, sh, extent = _zbuffer(points_mm, distance_mm, shade, basis, px)
+        img, sh, extent = _zbuffer(points_mm, distance_mm, shade, basis, px, spacing_mm)
         rgba = cmap(np.clip((img + lim) / (2 * lim), 0, 1))
         rgba[..., :3] *= np.nan_to_num(sh, nan=1.0)[..., None]
         rgba[np.isnan(img)] = [1.0, 1.0, 1.0, 1.0]
