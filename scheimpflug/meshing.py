@@ -63,6 +63,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from scheimpflug.errors import MeshError
@@ -484,7 +485,7 @@ class _Body:
 
     def add_faces(self, faces: np.ndarray, fill) -> None:
         self.faces.append(np.asarray(faces, np.int64).reshape(-1, 3))
-        self.fill.append(np.broadcast_to(np.asarray(fill, np.uint8), (len(faces),)))
+        self.fill.append(np.broadcast_to(np.asarray(fill, np.uint8), (len(self.faces[-1]),)))
 
 
 def _profiles(grid: _Grid, seg: _Segments, chain: list[list[int]], body: _Body):
@@ -555,31 +556,40 @@ def _bottom_on_table(body: _Body, ids, down: bool, settings: ModelSettings) -> b
     return bool(abs(np.median(bottom) - settings.table_z_mm) <= settings.table_gap_mm)
 
 
-def _measured_mask(tri, rows_of, measured_of, part_of, strip_ok: bool) -> np.ndarray:
-    rows, part = rows_of[tri], part_of[tri]
-    ok = measured_of[tri].all(axis=1) & (rows.max(axis=1) - rows.min(axis=1) <= _MEASURED_ROW_SPAN)
-    return ok & (part.max(axis=1) == part.min(axis=1)) & strip_ok
+def _fill_of_strips(tri: np.ndarray, strip_fill: np.ndarray, rows_of, part_of, n_measured: int) -> np.ndarray:
+    """Fill code of strip triangles.
+
+    Measured: three measured points of neighbouring rows of one segment, in
+    neighbouring frames; table: a table vertex; side; else gap.
+    """
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ra, rb, rc = rows_of[a], rows_of[b], rows_of[c]
+    span = np.maximum(np.maximum(ra, rb), rc) - np.minimum(np.minimum(ra, rb), rc)
+    same_part = (part_of[a] == part_of[b]) & (part_of[b] == part_of[c])
+    table = (a >= n_measured) | (b >= n_measured) | (c >= n_measured)
+    measured = (strip_fill == FILL_MEASURED) & (span <= _MEASURED_ROW_SPAN) & same_part
+    fill = np.where(measured, FILL_MEASURED, np.where(strip_fill == FILL_SIDE, FILL_SIDE, FILL_GAP))
+    return np.where(table & (fill != FILL_SIDE), FILL_TABLE, fill).astype(np.uint8)
 
 
 def _strips(body, ids, keys, angles, cyclic, step_deg, n_measured) -> None:
     """Strips between neighbouring profiles (and the closing strip of a path)."""
-    all_ids = np.concatenate(ids)
     rows_of = np.zeros(body.n_vertices)
-    rows_of[all_ids] = np.concatenate(keys)
-    measured_of = np.arange(body.n_vertices) < n_measured
+    rows_of[np.concatenate(ids)] = np.concatenate(keys)
     part_of = np.zeros(body.n_vertices, np.int64)
     part_of[:n_measured] = np.concatenate(body.part)
-    table = ~measured_of
+    tris, fills = [], []
     m = len(ids)
     for j in range(m):
         k = (j + 1) % m
-        tri = _strip(ids[j], keys[j], ids[k], keys[k])
+        tris.append(_strip(ids[j], keys[j], ids[k], keys[k]))
         if k == 0 and not cyclic:
-            body.add_faces(tri, FILL_SIDE)
-            continue
-        neighbours = np.mod(angles[k] - angles[j], 360.0) <= 1.5 * step_deg
-        fill = np.where(_measured_mask(tri, rows_of, measured_of, part_of, bool(neighbours)), FILL_MEASURED, FILL_GAP)
-        body.add_faces(tri, np.where(table[tri].any(axis=1), FILL_TABLE, fill))
+            fills.append(np.full(len(tris[-1]), FILL_SIDE, np.uint8))
+        else:
+            neighbours = np.mod(angles[k] - angles[j], 360.0) <= 1.5 * step_deg
+            fills.append(np.full(len(tris[-1]), FILL_MEASURED if neighbours else FILL_GAP, np.uint8))
+    tri = np.concatenate(tris)
+    body.add_faces(tri, _fill_of_strips(tri, np.concatenate(fills), rows_of, part_of, n_measured))
 
 
 def _cap(body: _Body, loop: np.ndarray, reverse: bool, z: float | None, around_axis: bool, fill: int) -> None:
@@ -625,9 +635,14 @@ def _close_body(grid: _Grid, seg: _Segments, chain: list[list[int]], cyclic: boo
     return body
 
 
+@numba.njit(cache=True)
 def _signed_volume(xyz: np.ndarray, faces: np.ndarray) -> float:
-    t = xyz[faces]
-    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
+    total = 0.0
+    for i in range(faces.shape[0]):
+        a, b, c = xyz[faces[i, 0]], xyz[faces[i, 1]], xyz[faces[i, 2]]
+        total += (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                  + a[2] * (b[0] * c[1] - b[1] * c[0]))
+    return total / 6.0
 
 
 # ------------------------------------------------------------------ entry point

@@ -367,6 +367,10 @@ class PointToMesh:
         Triangles (vertex indices), m >= 1; counter-clockwise seen from outside
         for a closed mesh (an inward-wound closed mesh is detected by its
         negative volume and handled).
+    signed : bool
+        Sign the distances of a closed mesh (default); False skips the
+        closedness test and the pseudo-normals (unsigned distances, faster
+        to build).
 
     Attributes
     ----------
@@ -393,11 +397,11 @@ class PointToMesh:
     surface (see ``benchmarks/bench_scoring.py``).
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, signed: bool = True) -> None:
         v, f = _check_mesh(vertices, faces)
         self.vertices, self.faces = v, f
         self.triangles = np.ascontiguousarray(v[f])
-        self.closed = is_closed_mesh(f)
+        self.closed = bool(signed) and is_closed_mesh(f)
         lo, hi = self.triangles.min(axis=1), self.triangles.max(axis=1)
         (self._node_min, self._node_max, self._child, self._start, self._count,
          self._order) = _build_bvh(lo, hi, self.triangles.mean(axis=1), _LEAF_SIZE)
@@ -454,7 +458,10 @@ class PointToMesh:
 
 
 def _signed_volume(tri: np.ndarray) -> float:
-    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    det = (a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) - a[:, 1] * (b[:, 0] * c[:, 2] - b[:, 2] * c[:, 0])
+           + a[:, 2] * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]))
+    return float(det.sum() / 6.0)
 
 
 def point_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> MeshDistance:

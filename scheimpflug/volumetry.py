@@ -77,7 +77,10 @@ def mesh_volume_mm3(vertices: np.ndarray, faces: np.ndarray) -> float:
         Malformed arrays.
     """
     t = _triangles(vertices, faces)
-    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    det = (a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) - a[:, 1] * (b[:, 0] * c[:, 2] - b[:, 2] * c[:, 0])
+           + a[:, 2] * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]))
+    return float(det.sum() / 6.0)
 
 
 def mesh_area_mm2(vertices: np.ndarray, faces: np.ndarray) -> float:

@@ -46,7 +46,7 @@ def score_model_mesh(truth_pm, labels, vertices, faces, body, fill, *, samples=2
     from scheimpflug.scoring import PointToMesh, is_closed_mesh, two_sided_distance
     from scheimpflug.volumetry import mesh_volume_mm3
 
-    model_pm = PointToMesh(vertices, faces)
+    model_pm = PointToMesh(vertices, faces, signed=False)   # truth → model distances are unsigned
     ts = two_sided_distance(truth_pm, model_pm, n_samples=samples, seed=seed, coverage_mm=coverage_mm)
     true_volume = mesh_volume_mm3(truth_pm.vertices, truth_pm.faces) if truth_pm.closed else None
     model_volume = mesh_volume_mm3(vertices, faces)
