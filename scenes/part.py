@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from scheimpflug.errors import MeshError
-from scheimpflug.io.atomic import atomic_path
+from scheimpflug.io.ply import read_mesh, write_mesh_ply
 
 __all__ = [
     "MATERIALS",
@@ -292,61 +292,16 @@ class Assembly:
             ``path``.
         """
         mesh = self.combined_mesh()
-        header = _ply_header(self, len(mesh.vertices), len(mesh.faces))
-        faces = np.empty(len(mesh.faces), dtype=_FACE_DTYPE)
-        faces["n"], faces["v"], faces["id"] = 3, mesh.faces, self.face_object_ids()
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            fh.write(header.encode("ascii"))
-            fh.write(np.ascontiguousarray(mesh.vertices, dtype="<f8").tobytes())
-            fh.write(faces.tobytes())
-        return Path(path)
-
-
-def _ply_header(asm: Assembly, n_vertices: int, n_faces: int) -> str:
-    lines = ["ply", "format binary_little_endian 1.0",
-             f"comment scheimpflug scene {asm.name.replace(chr(10), ' ')}; units mm"]
-    lines += [f"comment object_id {p.object_id} {p.name} {p.material}" for p in asm.parts]
-    lines += [f"element vertex {n_vertices}", "property double x", "property double y",
-              "property double z", f"element face {n_faces}",
-              "property list uchar int vertex_indices", "property int object_id", "end_header"]
-    return "\n".join(lines) + "\n"
-
-
-_FACE_DTYPE = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("id", "<i4")])
-_OUR_PROPS = ["property double x", "property double y", "property double z",
-              "property list uchar int vertex_indices", "property int object_id"]
-
-
-def _read_own_ply(data: bytes):
-    """Fast path for the exact layout written by :meth:`Assembly.to_ply`; None otherwise."""
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        return None
-    lines = data[:end].decode("ascii", "replace").splitlines()
-    if "format binary_little_endian 1.0" not in lines:
-        return None
-    props = [ln for ln in lines if ln.startswith("property")]
-    counts = [int(ln.split()[2]) for ln in lines if ln.startswith("element")]
-    elements = [ln.split()[1] for ln in lines if ln.startswith("element")]
-    if props != _OUR_PROPS or elements != ["vertex", "face"]:
-        return None
-    nv, nf = counts
-    body = memoryview(data)[end + len(b"end_header\n"):]
-    if len(body) != nv * 24 + nf * _FACE_DTYPE.itemsize:
-        raise ValueError(f"body has {len(body)} bytes, header announces {nv} vertices and {nf} faces")
-    verts = np.frombuffer(body[:nv * 24], dtype="<f8").reshape(nv, 3)
-    faces = np.frombuffer(body[nv * 24:], dtype=_FACE_DTYPE)
-    if np.any(faces["n"] != 3) or (nf and (faces["v"].min() < 0 or faces["v"].max() >= nv)):
-        raise ValueError("faces are not triangles or index missing vertices")
-    mesh = trimesh.Trimesh(verts.astype(float), faces["v"].astype(np.int64), process=False)
-    return mesh, faces["id"].astype(np.int32)
+        comments = [f"scheimpflug scene {self.name}; units mm"]
+        comments += [f"object_id {p.object_id} {p.name} {p.material}" for p in self.parts]
+        return write_mesh_ply(path, mesh.vertices, mesh.faces, self.face_object_ids(), tuple(comments))
 
 
 def read_ply(path: str | os.PathLike) -> tuple[trimesh.Trimesh, np.ndarray]:
     """Read a truth PLY (as written by :meth:`Assembly.to_ply`, or any triangle PLY).
 
-    The exact layout of :meth:`Assembly.to_ply` is read directly; any other
-    PLY through trimesh.
+    Read by :func:`scheimpflug.io.ply.read_mesh`, the project's one mesh
+    reader (trimesh's loader; vertices as stored, no welding).
 
     Parameters
     ----------
@@ -368,16 +323,12 @@ def read_ply(path: str | os.PathLike) -> tuple[trimesh.Trimesh, np.ndarray]:
     """
     path = Path(path)
     try:
-        own = _read_own_ply(path.read_bytes())
-        if own is not None:
-            return own
-        mesh = trimesh.load(path, file_type="ply", process=False, force="mesh")
-    except Exception as exc:  # trimesh raises many kinds on corrupt input
+        vertices, faces, ids = read_mesh(path)
+    except MeshError as exc:
         raise MeshError(f"{path}: cannot read PLY ({exc})") from None
-    raw = mesh.metadata.get("_ply_raw", {}).get("face", {}).get("data")
-    names = getattr(getattr(raw, "dtype", None), "names", None) or ()
-    ids = raw["object_id"] if "object_id" in names else np.ones(len(mesh.faces), dtype=np.int32)
-    return mesh, np.asarray(ids, dtype=np.int32).reshape(-1)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    ids = np.ones(len(faces), dtype=np.int32) if ids is None else ids.astype(np.int32)
+    return mesh, ids
 
 
 def warn_mesh(message: str) -> None:

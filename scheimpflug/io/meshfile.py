@@ -127,6 +127,7 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     try:
         if p.suffix.lower() == ".stl":
             return write_stl(p, vertices, faces, header=comment)
-        return write_mesh_ply(p, vertices, faces, face_properties, comment=comment)
+        return write_mesh_ply(p, vertices, faces, None, comments=(comment,) if comment else (),
+                              face_properties=face_properties)
     except OSError as exc:
         raise MeshError(f"model file {str(p)!r} cannot be written: {exc.strerror or exc}") from None

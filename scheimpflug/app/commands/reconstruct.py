@@ -27,7 +27,8 @@ def add_parser(sub):
                    help="rotary scan folder (manifest.json + frames/), or a cloud from an earlier "
                         "'reconstruct' to mesh with --model")
     p.add_argument("--calibration", metavar="CAL.json",
-                   help="calibration written by 'scheimpflug calibrate --out' (needed for a folder)")
+                   help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
+                        "or '--opencv' (needed for a folder)")
     axis = p.add_mutually_exclusive_group()
     axis.add_argument("--axis-mm", type=float, metavar="A",
                       help="rotary axis position, stage coordinate [mm]")
@@ -99,13 +100,13 @@ def _check_args(args) -> bool:
 
 
 def _from_folder(args, t0: float):
-    from scheimpflug.calibration import Calibration
     from scheimpflug.errors import FrameError
     from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
-    calibration = Calibration.load(args.calibration)
+    calibration = load_calibration(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration)
