@@ -203,14 +203,14 @@ def _zbuffer(points: np.ndarray, values: np.ndarray, shade: np.ndarray, basis: n
              spacing_mm: float):
     """Nearest sample per pixel of an orthographic view: (image of values, image of shading, extent).
 
-    Each sample covers a square of about ``spacing_mm`` (the samples' mean spacing) so that the
-    surface reads as closed.
+    Each sample covers a square of about twice ``spacing_mm`` (the samples' mean spacing): random
+    samples leave gaps, through which the far side would show.
     """
     uvw = points @ basis.T
     lo, hi = uvw[:, :2].min(axis=0), uvw[:, :2].max(axis=0)
     scale = (px - 1) / max(hi - lo)
     ij0 = np.floor((uvw[:, :2] - lo) * scale).astype(np.int64)
-    k = int(np.clip(np.ceil(spacing_mm * scale), 1, 4))
+    k = int(np.clip(np.ceil(2.0 * spacing_mm * scale), 1, 5))   # random samples: twice the mean spacing
     offsets = np.array([(a, b) for a in range(k) for b in range(k)]) - (k - 1) // 2
     ij = np.clip((ij0[None] + offsets[:, None]).reshape(-1, 2), 0, px - 1)
     depth, values, shade = (np.tile(a, len(offsets)) for a in (uvw[:, 2], values, shade))
