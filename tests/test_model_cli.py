@@ -202,3 +202,20 @@ def test_model_from_a_saved_cloud_with_sections(tmp_path, capsys):
     assert out["volume_from_sections_mm3"] == pytest.approx(out["volume_mm3"], rel=1e-3)
     m = read_triangle_mesh(tmp_path / "m.stl")                # STL: welded back into a closed mesh
     assert is_closed_mesh(m.faces) and (tmp_path / "s.png").stat().st_size > 10_000
+
+
+def test_meshing_error_leaves_no_file(tmp_path, capsys):
+    """Stripes in only two frames: a cloud, but no model (3 angles needed); neither file is written."""
+    import cv2
+
+    scan = _dark_scan(tmp_path / "two")
+    u_c = 30.0                                                 # a surface ≈ 50 mm before the axis
+    for i in (0, 1):
+        img = np.full((40, 60), 100.0)
+        img[5:35] += 3000.0 * np.exp(-0.5 * ((np.arange(60) - u_c) / 1.5) ** 2)
+        cv2.imwrite(str(scan / f"frames/{i:05d}.png"), img.astype(np.uint16))
+    status = main(["reconstruct", str(scan), "--calibration", str(scan / "cal.json"), "--axis-mm", "80",
+                   "--out", str(tmp_path / "c.ply"), "--model", str(tmp_path / "m.ply"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and "at least 3 rotary angles" in err[-1]
+    assert not (tmp_path / "c.ply").exists() and not (tmp_path / "m.ply").exists()

@@ -116,7 +116,6 @@ def _from_folder(args, t0: float):
     if len(cloud) == 0:
         raise FrameError(f"{args.dir}: no stripe found in any of the {len(folder)} frames "
                          f"({stats['saturated_rows']} saturated rows dropped): no usable frame")
-    write_point_cloud(args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
                **stats, "seconds": round(time.perf_counter() - t0, 3)}
@@ -124,10 +123,12 @@ def _from_folder(args, t0: float):
           f"({stats['blank_frames']} without stripe, {stats['saturated_rows']} saturated rows"
           f"{' kept' if args.keep_saturated else ' dropped'}), axis {axis_mm:.3f} mm "
           f"({axis_source}), {summary['seconds']:.1f} s → {args.out}", file=sys.stderr)
-    return cloud, folder, summary
+    return cloud, folder, summary, lambda: write_point_cloud(
+        args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
 
 
-def _model(args, cloud, folder, summary: dict) -> None:
+def _model(args, cloud, folder, summary: dict, write_cloud) -> None:
+    """Build the model first, then write the cloud and the model: a meshing error leaves no file."""
     from scheimpflug.app.commands._model import (
         make_model,
         model_summary,
@@ -140,6 +141,7 @@ def _model(args, cloud, folder, summary: dict) -> None:
     table_z = table_z_from_folder(args, folder)
     model = make_model(cloud, args, table_z)
     seconds = time.perf_counter() - t0
+    write_cloud()
     numbers = model_summary(model, args.section_z)
     write_model(args.model, model, comment=f"scheimpflug reconstruct {args.dir} --model-method {args.model_method}")
     if args.sections_plot:
@@ -158,10 +160,13 @@ def _run(args) -> int:
 
         cloud, folder = read_point_cloud(args.dir), None
         summary = {"cloud": str(args.dir), "n_points": len(cloud)}
+        write_cloud = lambda: None  # noqa: E731  (the cloud is the input)
     else:
-        cloud, folder, summary = _from_folder(args, t0)
+        cloud, folder, summary, write_cloud = _from_folder(args, t0)
     if args.model:
-        _model(args, cloud, folder, summary)
+        _model(args, cloud, folder, summary, write_cloud)
+    else:
+        write_cloud()
     if args.json:
         print_json(summary)
     return 0
