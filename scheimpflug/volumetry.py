@@ -76,11 +76,24 @@ def mesh_volume_mm3(vertices: np.ndarray, faces: np.ndarray) -> float:
     MeshError
         Malformed arrays.
     """
-    t = _triangles(vertices, faces)
+    return float(_face_volumes(_triangles(vertices, faces)).sum())
+
+
+def _face_volumes(t: np.ndarray) -> np.ndarray:
+    """(m,) signed volume of the tetrahedron (origin, a, b, c) of each face [mm³]."""
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
     det = (a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) - a[:, 1] * (b[:, 0] * c[:, 2] - b[:, 2] * c[:, 0])
            + a[:, 2] * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]))
-    return float(det.sum() / 6.0)
+    return det / 6.0
+
+
+def _face_areas(t: np.ndarray) -> np.ndarray:
+    """(m,) area of each face [mm²]."""
+    e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    cx = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    cy = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    cz = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
 
 
 def mesh_area_mm2(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -98,8 +111,7 @@ def mesh_area_mm2(vertices: np.ndarray, faces: np.ndarray) -> float:
     float
         Σ ½ |(b − a) × (c − a)| [mm²].
     """
-    t = _triangles(vertices, faces)
-    return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
+    return float(_face_areas(_triangles(vertices, faces)).sum())
 
 
 @dataclass(frozen=True)
@@ -143,14 +155,28 @@ def _crossings(sf: _SortedFaces, face: np.ndarray, z: np.ndarray) -> tuple[np.nd
     return np.where(even, long_, short), np.where(even, short, long_)
 
 
-def _pairs(sf: _SortedFaces, z_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(face, section) index pairs of faces that straddle each plane (z sorted): lo < z ≤ hi."""
-    k_lo = np.searchsorted(z_mm, sf.lo[:, 2], side="right")
-    k_hi = np.searchsorted(z_mm, sf.hi[:, 2], side="right")
+def _pairs(face_ids: np.ndarray, k_lo: np.ndarray, k_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(face, section) index pairs of faces that straddle planes k_lo .. k_hi − 1 each."""
     n = np.maximum(k_hi - k_lo, 0)
-    face = np.repeat(np.arange(len(n)), n)
+    face = np.repeat(face_ids, n)
     start = np.repeat(k_lo - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
     return face, start + np.arange(n.sum())
+
+
+_CHUNK_FACES = 500_000  # faces per pass of the section sum: bounds the temporary arrays
+
+
+def _section_areas(sf: _SortedFaces, z_sorted: np.ndarray) -> np.ndarray:
+    """Areas at sorted heights: lo < z ≤ hi picks the faces a plane crosses (module docstring)."""
+    k_lo = np.searchsorted(z_sorted, sf.lo[:, 2], side="right")
+    k_hi = np.searchsorted(z_sorted, sf.hi[:, 2], side="right")
+    busy = np.flatnonzero(k_hi > k_lo)
+    out = np.zeros(len(z_sorted))
+    for ids in np.array_split(busy, max(1, -(-len(busy) // _CHUNK_FACES))):
+        face, k = _pairs(ids, k_lo[ids], k_hi[ids])
+        p, q = _crossings(sf, face, z_sorted[k])
+        out += np.bincount(k, weights=0.5 * (p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]), minlength=len(z_sorted))
+    return out
 
 
 def section_areas_mm2(vertices: np.ndarray, faces: np.ndarray, z_mm) -> np.ndarray:
@@ -174,12 +200,8 @@ def section_areas_mm2(vertices: np.ndarray, faces: np.ndarray, z_mm) -> np.ndarr
     sf = _SortedFaces.of(_triangles(vertices, faces))
     z = np.asarray(z_mm, dtype=np.float64).ravel()
     order = np.argsort(z)
-    out = np.zeros(len(z))
-    for chunk in np.array_split(np.arange(len(z)), max(1, len(z) // 64)):
-        face, k = _pairs(sf, z[order][chunk])
-        p, q = _crossings(sf, face, z[order][chunk][k])
-        cross = 0.5 * (p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])
-        out[order[chunk]] = np.bincount(k, weights=cross, minlength=len(chunk))
+    out = np.empty(len(z))
+    out[order] = _section_areas(sf, z[order])
     return out
 
 
@@ -251,7 +273,10 @@ def section(vertices: np.ndarray, faces: np.ndarray, z_mm: float) -> Section:
         Area, perimeter, equivalent diameter, width and outline (all zero and
         empty when the plane misses the mesh).
     """
-    sf = _SortedFaces.of(_triangles(vertices, faces))
+    return _section(_SortedFaces.of(_triangles(vertices, faces)), z_mm)
+
+
+def _section(sf: _SortedFaces, z_mm: float) -> Section:
     z = float(z_mm)
     face = np.flatnonzero((sf.lo[:, 2] < z) & (sf.hi[:, 2] >= z))
     p, q = _crossings(sf, face, np.full(len(face), z))
@@ -286,15 +311,17 @@ def volume_from_sections_mm3(vertices: np.ndarray, faces: np.ndarray, n_slices: 
     """
     if n_slices < 1:
         raise MeshError(f"n_slices = {n_slices}: must be >= 1")
-    t = _triangles(vertices, faces)
-    z0, z1 = float(t[:, :, 2].min()), float(t[:, :, 2].max())
+    return _volume_from_sections(_SortedFaces.of(_triangles(vertices, faces)), n_slices)
+
+
+def _volume_from_sections(sf: _SortedFaces, n_slices: int) -> float:
+    z0, z1 = float(sf.lo[:, 2].min()), float(sf.hi[:, 2].max())
     dz = (z1 - z0) / n_slices
-    z = z0 + dz * (np.arange(n_slices) + 0.5)
-    return float(section_areas_mm2(vertices, faces, z).sum() * dz)
+    return float(_section_areas(sf, z0 + dz * (np.arange(n_slices) + 0.5)).sum() * dz)
 
 
 def solid_summary(vertices: np.ndarray, faces: np.ndarray, face_body: np.ndarray | None = None,
-                  section_z_mm=(), n_slices: int = 2000) -> dict:
+                  section_z_mm=(), n_slices: int = 2000, measured: np.ndarray | None = None) -> dict:
     """The volumetric numbers of a closed mesh, whole and per body.
 
     Parameters
@@ -309,27 +336,37 @@ def solid_summary(vertices: np.ndarray, faces: np.ndarray, face_body: np.ndarray
         Heights of the reported cross-sections [mm].
     n_slices : int
         Slabs of the section-integral volume [-].
+    measured : (m,) bool, optional
+        Faces that were measured (adds ``measured_area_share``).
 
     Returns
     -------
     dict
         ``volume_mm3`` (divergence theorem), ``volume_from_sections_mm3``,
-        ``area_mm2``, ``height_mm``, ``z_range_mm``, ``sections`` (list of
-        :meth:`Section.to_dict`) and ``bodies`` (per body: ``body``,
-        ``volume_mm3``, ``area_mm2``, ``height_mm``, ``z_range_mm``).
+        ``area_mm2``, ``height_mm``, ``z_range_mm`` (over the faces' vertices),
+        ``sections`` (list of :meth:`Section.to_dict`), ``bodies`` (per body:
+        ``body``, ``volume_mm3``, ``area_mm2``, ``height_mm``, ``z_range_mm``)
+        and, with ``measured``, ``measured_area_share``.
     """
-    v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    z = v[np.unique(f), 2]
-    out = {"volume_mm3": mesh_volume_mm3(v, f), "volume_from_sections_mm3": volume_from_sections_mm3(v, f, n_slices),
-           "area_mm2": mesh_area_mm2(v, f), "height_mm": float(z.max() - z.min()),
-           "z_range_mm": [float(z.min()), float(z.max())],
-           "sections": [section(v, f, zk).to_dict() for zk in section_z_mm]}
-    body = np.zeros(len(f), np.int64) if face_body is None else np.asarray(face_body, np.int64)
-    out["bodies"] = [_body_numbers(v, f[body == k], int(k)) for k in np.unique(body)]
+    t = _triangles(vertices, faces)
+    sf = _SortedFaces.of(t)
+    vol, area = _face_volumes(t), _face_areas(t)
+    z_lo, z_hi = float(sf.lo[:, 2].min()), float(sf.hi[:, 2].max())
+    out = {"volume_mm3": float(vol.sum()), "volume_from_sections_mm3": _volume_from_sections(sf, n_slices),
+           "area_mm2": float(area.sum()), "height_mm": z_hi - z_lo, "z_range_mm": [z_lo, z_hi],
+           "sections": [_section(sf, zk).to_dict() for zk in section_z_mm]}
+    if measured is not None:
+        out["measured_area_share"] = float(area[np.asarray(measured, bool)].sum() / out["area_mm2"])
+    body = np.zeros(len(t), np.int64) if face_body is None else np.asarray(face_body, np.int64)
+    out["bodies"] = _body_numbers(body, vol, area, sf.lo[:, 2], sf.hi[:, 2])
     return out
 
 
-def _body_numbers(v: np.ndarray, f: np.ndarray, k: int) -> dict:
-    z = v[np.unique(f), 2]
-    return {"body": k, "volume_mm3": mesh_volume_mm3(v, f), "area_mm2": mesh_area_mm2(v, f),
-            "height_mm": float(z.max() - z.min()), "z_range_mm": [float(z.min()), float(z.max())]}
+def _body_numbers(body: np.ndarray, vol: np.ndarray, area: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list:
+    ids, first = np.unique(body, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    starts = np.searchsorted(first[order], np.arange(len(ids)))
+    zmin, zmax = np.minimum.reduceat(lo[order], starts), np.maximum.reduceat(hi[order], starts)
+    v, a = np.bincount(first, vol, len(ids)), np.bincount(first, area, len(ids))
+    return [{"body": int(k), "volume_mm3": float(v[i]), "area_mm2": float(a[i]), "height_mm": float(zmax[i] - zmin[i]),
+             "z_range_mm": [float(zmin[i]), float(zmax[i])]} for i, k in enumerate(ids)]

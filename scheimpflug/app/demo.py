@@ -158,7 +158,7 @@ def _model(scan: dict, rig: Rig, path: Path, samples: int, names: dict | None = 
     from scheimpflug.io.meshfile import write_mesh
     from scheimpflug.meshing import FILL_NAMES, ModelSettings, model_from_cloud
     from scheimpflug.scoring import body_labels
-    from scheimpflug.volumetry import mesh_area_mm2, solid_summary
+    from scheimpflug.volumetry import solid_summary
 
     t0 = time.perf_counter()
     model = model_from_cloud(scan["cloud"], ModelSettings(table_z_mm=rig.stage.rotary_table_z_mm))
@@ -170,9 +170,7 @@ def _model(scan: dict, rig: Rig, path: Path, samples: int, names: dict | None = 
     labels = scan["object_id"] if scan["object_id"] is not None else body_labels(pm.faces)
     scores, ts = score_model_mesh(pm, labels, model.vertices_mm, model.faces, model.face_body, model.face_fill,
                                   samples=samples, seed=0)
-    numbers = solid_summary(model.vertices_mm, model.faces, model.face_body)
-    numbers["measured_area_share"] = (mesh_area_mm2(model.vertices_mm, model.faces[model.measured])
-                                      / numbers["area_mm2"])
+    numbers = solid_summary(model.vertices_mm, model.faces, model.face_body, measured=model.measured)
     t = model.vertices_mm[model.faces]
     normals = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[ts.model_face]
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)

@@ -74,18 +74,14 @@ def model_summary(model, section_z) -> dict:
     """The ``reconstruct --json`` model fields (README)."""
     from scheimpflug.meshing import FILL_NAMES
     from scheimpflug.scoring import is_closed_mesh
-    from scheimpflug.volumetry import mesh_area_mm2, solid_summary
+    from scheimpflug.volumetry import solid_summary
 
     zs = list(section_z) or _default_sections(model)
-    out = solid_summary(model.vertices_mm, model.faces, model.face_body, zs)
+    out = solid_summary(model.vertices_mm, model.faces, model.face_body, zs, measured=model.measured)
     counts = np.bincount(model.face_fill, minlength=len(FILL_NAMES))
-    measured = model.measured
     out.update(n_faces=int(len(model.faces)), n_vertices=int(len(model.vertices_mm)),
-               n_bodies=model.n_bodies,
-               watertight=all(is_closed_mesh(model.faces[model.face_body == b]) for b in range(model.n_bodies)),
+               n_bodies=model.n_bodies, watertight=bool(is_closed_mesh(model.faces)),  # bodies share no vertex
                faces_by_fill={name: int(c) for name, c in zip(FILL_NAMES, counts)},
-               measured_area_share=(mesh_area_mm2(model.vertices_mm, model.faces[measured]) / out["area_mm2"]
-                                    if measured.any() else 0.0),
                n_points_used=model.n_points_used, n_points_unused=model.n_points_unused)
     return out
 
