@@ -174,7 +174,7 @@ def plot_sections(vertices_mm: np.ndarray, faces: np.ndarray, z_mm, path, title:
     ax0.set_aspect("equal", adjustable="datalim")
     ax0.set_xlabel("x [mm]")
     ax0.set_ylabel("y [mm]")
-    ax0.legend(fontsize=7, loc="upper right")
+    ax0.legend(fontsize=7, loc="center")    # outlines ring the centre: the legend fits inside
     ax0.set_title("section outlines, top view", fontsize=9)
     ax0.grid(alpha=0.3)
     zz = np.linspace(z.min(), z.max(), n_curve + 2)[1:-1]
