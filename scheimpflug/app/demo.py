@@ -81,15 +81,15 @@ def as_built_plan_for(quick: bool) -> DemoPlan:
     """The as-built column's plan: the paper's resolution and calibration, coarser rotary steps.
 
     Full: 27 calibration frames at full resolution (σ(F²), σ(C) are per-frame
-    scatters, so the frames are the paper's), the cylinder at 4° and the pile at
-    2° steps (plane RMSE and circle error are per-point statistics; fewer
+    scatters, so the frames are the paper's), the cylinder at 6° and the pile at
+    3° steps (plane RMSE and circle error are per-point statistics; fewer
     frames, the same statistic).  Quick: the quick plan without the cylinder.
     """
     if quick:
         return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=28.0, calibration_start_mm=15.0,
                         cylinder_step_deg=0.0, pile_step_deg=10.0)
     return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=-10.0,
-                    cylinder_step_deg=4.0, pile_step_deg=2.0)
+                    cylinder_step_deg=6.0, pile_step_deg=3.0)
 
 
 def budget_plan_for(quick: bool) -> DemoPlan:
