@@ -17,7 +17,7 @@ from scheimpflug.errors import ScheimpflugError
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
-COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "demo")
+COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "demo", "dataset")
 
 
 def build_parser() -> argparse.ArgumentParser:
