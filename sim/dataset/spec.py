@@ -144,11 +144,23 @@ class DatasetSpec:
         return self.scenario["kind"]
 
     def sha256(self) -> str:
-        """SHA-256 of the canonical JSON of :attr:`raw` (the spec's identity)."""
+        """SHA-256 of the canonical JSON of :attr:`raw` (the spec's identity).
+
+        Returns
+        -------
+        str
+            64 hex digits.
+        """
         return hashlib.sha256(json.dumps(self.raw, sort_keys=True).encode()).hexdigest()
 
     def input_files(self) -> list[Path]:
-        """Files the spec refers to (rig file, mesh and scene files), resolved, existing only."""
+        """Files the spec refers to (rig file, mesh and scene files), resolved, existing only.
+
+        Returns
+        -------
+        list of Path
+            Sorted, without duplicates.
+        """
         names = []
         if self.rig_source.startswith("file:"):
             names.append(self.rig_source[5:])
@@ -159,7 +171,18 @@ class DatasetSpec:
         return sorted({p for p in paths if p.is_file()})
 
     def resolve(self, name: str) -> Path:
-        """A path of the spec, relative to the spec's folder unless absolute."""
+        """A path of the spec, relative to the spec's folder unless absolute.
+
+        Parameters
+        ----------
+        name : str
+            The path as written in the spec (``~`` expanded).
+
+        Returns
+        -------
+        Path
+            Absolute path.
+        """
         p = Path(os.path.expanduser(name))
         return p if p.is_absolute() else (self.folder / p).resolve()
 
