@@ -272,7 +272,7 @@ def _write_index(out: Path, records: dict[int, dict]) -> dict:
 
 
 def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int = 1,
-                 scheduler: str | None = None, retries: int = 1,
+                 scheduler: str | None = None, retries: int = 1, connect_timeout_s: float = 10.0,
                  progress: ProgressCallback | None = None,
                  warn: Callable[[str], None] | None = None) -> MakeResult:
     """Make (or resume) the dataset of ``spec`` in ``out``.
@@ -292,6 +292,8 @@ def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int =
         Address of a running Dask scheduler to use instead.
     retries : int
         How often a failed sample is tried again before it is recorded as failed.
+    connect_timeout_s : float
+        How long to wait for ``scheduler`` [s].
     progress : ProgressCallback, optional
         ``progress(done, total)`` over all frames of the spec.
     warn : callable, optional
@@ -319,9 +321,12 @@ def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int =
     if old is not None and old.get("generator", {}).get("versions") != generator_info()["versions"]:
         warn("the dataset was started with other library versions; frames made now may differ")
     t0 = time.perf_counter()
-    with Engine(workers=workers, scheduler=scheduler, progress=progress) as engine:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "samples").mkdir(exist_ok=True)
+    with Engine(workers=workers, scheduler=scheduler, timeout_s=connect_timeout_s,
+                progress=progress) as engine:
+        try:
+            (out / "samples").mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
         _remove_temporaries(out)
         offsets = _create_store(out, plans, spec.name) if storage == "zarr" else [0] * len(plans)
         info = _info(spec, identity, plans, storage, engine)

@@ -37,6 +37,8 @@ def add_parser(sub):
     m.add_argument("--format", choices=("png", "zarr"), default="png",
                    help="16-bit PNG frame folders (default) or one Zarr store")
     m.add_argument("--retries", type=int, default=1, help="tries again per failed sample (default 1)")
+    m.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to wait for --scheduler (default 10)")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     m.set_defaults(func=_make)
@@ -60,6 +62,9 @@ def add_parser(sub):
     g = s.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=1, metavar="N")
     g.add_argument("--scheduler", metavar="ADDRESS")
+    s.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE",
+                   help="score only the samples whose index rows match (repeatable), e.g. "
+                        "materials=cardboard or scenario=rotary")
     s.add_argument("--plot", metavar="FILE.png", help="error vs distance and vs angle of incidence")
     s.add_argument("--json", action="store_true")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -80,7 +85,8 @@ def _make(args) -> int:
         raise DatasetError(f"--retries {args.retries}: must be >= 0")
     with Progress(0, label="dataset make", quiet=args.quiet) as bar:
         result = make_dataset(spec, args.out, storage=args.format, workers=args.workers,
-                              scheduler=args.scheduler, retries=args.retries, progress=bar, warn=_warn)
+                              scheduler=args.scheduler, retries=args.retries,
+                              connect_timeout_s=args.connect_timeout, progress=bar, warn=_warn)
     summary = {"out": str(args.out), "samples": result.samples, "samples_done": result.samples_done,
                "samples_made": result.samples_made, "failures": result.failures,
                "frames": result.frames, "frames_rendered": result.frames_rendered,
@@ -123,6 +129,8 @@ def _score(args) -> int:
     if args.max_regression_px is not None and not args.max_regression_px >= 0:
         raise DatasetError(f"--max-regression-px {args.max_regression_px}: must be >= 0")
     ds = open_dataset(args.dir)
+    if args.where:
+        ds = ds.filter(**dict(_condition(w) for w in args.where))
     load_detector(args.detector)
     if args.baseline:
         load_detector(args.baseline)
@@ -156,6 +164,19 @@ def _score(args) -> int:
         print(f"scheimpflug dataset score: {args.detector} regresses against {args.baseline} by more "
               f"than {args.max_regression_px} px", file=sys.stderr)
     return status
+
+
+def _condition(text: str) -> tuple[str, object]:
+    import json
+
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise DatasetError(f"--where {text!r}: expected COLUMN=VALUE")
+    try:
+        parsed = json.loads(value)
+    except ValueError:
+        parsed = value
+    return key, parsed
 
 
 def _mapper(engine):
