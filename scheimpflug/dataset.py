@@ -693,8 +693,10 @@ class ErrorStats:
         Rows without truth where the detector found a stripe [-].
     inliers : int
         Matched rows with |e| ≤ 1 px [-].
-    sum_e, sum_e2 : float
-        Σe [px] and Σe² [px²] over the inliers.
+    sum_e, sum_e2 : list of float
+        Partial sums Σe [px] and Σe² [px²] over the inliers, one per :meth:`add`; they
+        are added with ``math.fsum`` (exactly rounded), so the result does not depend on
+        the order in which partial statistics are merged.
     hist : (bins,) int64
         Histogram of |e| over all matched rows (edges ``_EDGES``).
     """
@@ -704,8 +706,8 @@ class ErrorStats:
     empty_rows: int = 0
     false_rows: int = 0
     inliers: int = 0
-    sum_e: float = 0.0
-    sum_e2: float = 0.0
+    sum_e: list = field(default_factory=list)
+    sum_e2: list = field(default_factory=list)
     hist: np.ndarray = field(default_factory=lambda: np.zeros(len(_EDGES), dtype=np.int64))
 
     def add(self, detected: np.ndarray, truth: np.ndarray) -> None:
@@ -727,8 +729,8 @@ class ErrorStats:
         self.empty_rows += int((~has_t).sum())
         self.false_rows += int((~has_t & has_d).sum())
         self.inliers += int(inl.sum())
-        self.sum_e += float(e[inl].sum())
-        self.sum_e2 += float((e[inl] ** 2).sum())
+        self.sum_e.append(float(e[inl].sum()))
+        self.sum_e2.append(float((e[inl] ** 2).sum()))
         idx = np.clip(np.searchsorted(_EDGES, np.abs(e), side="right") - 1, 0, len(_EDGES) - 1)
         self.hist += np.bincount(idx, minlength=len(_EDGES))
 
@@ -780,8 +782,8 @@ class ErrorStats:
         def ratio(a, b):
             return a / b if b else None
 
-        bias = ratio(self.sum_e, self.inliers)
-        rms = math.sqrt(self.sum_e2 / self.inliers) if self.inliers else None
+        bias = ratio(math.fsum(self.sum_e), self.inliers)
+        rms = math.sqrt(math.fsum(self.sum_e2) / self.inliers) if self.inliers else None
         p99 = self.quantile(0.99)
         return {"n_rows": self.truth_rows, "matched_rows": self.matched, "empty_rows": self.empty_rows,
                 "bias_px": bias, "rms_px": rms, "p99_px": None if math.isnan(p99) else p99,
