@@ -256,19 +256,27 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
 
 
 def _solve_rows(rig, pose, seg, v_end, target, tol) -> np.ndarray:
-    """Secant solve of v(P(t)) = target on each segment; t in [0, 1]."""
+    """Secant solve of v(P(t)) = target on each segment; t in [0, 1].
+
+    A segment leaves the iteration once its residual is below ``tol.row_residual_px``
+    (only the unconverged ones are projected again).
+    """
     t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
     f0, f1 = v_end[:, 0] - target, v_end[:, 1] - target
+    act = np.arange(len(seg))
     for _ in range(tol.max_iterations):
-        denom = f1 - f0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t2 = np.where(denom != 0, t1 - f1 * (t1 - t0) / denom, t1)
-        t2 = np.clip(t2, 0.0, 1.0)
-        p = seg[:, 0] + t2[:, None] * (seg[:, 1] - seg[:, 0])
-        f2 = project_points(rig, p, pose).uv_px[:, 1] - target
-        t0, f0, t1, f1 = t1, f1, t2, f2
-        if not np.any(np.abs(f1) > tol.row_residual_px):
+        if len(act) == 0:
             break
+        a0, a1, b0, b1 = t0[act], t1[act], f0[act], f1[act]
+        denom = b1 - b0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t2 = np.where(denom != 0, a1 - b1 * (a1 - a0) / denom, a1)
+        t2 = np.clip(t2, 0.0, 1.0)
+        sa = seg[act]
+        p = sa[:, 0] + t2[:, None] * (sa[:, 1] - sa[:, 0])
+        f2 = project_points(rig, p, pose).uv_px[:, 1] - target[act]
+        t0[act], f0[act], t1[act], f1[act] = a1, b1, t2, f2
+        act = act[np.abs(f2) > tol.row_residual_px]
     return t1
 
 

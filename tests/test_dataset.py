@@ -362,3 +362,15 @@ def test_bad_input_one_error_and_nothing_half_written(png_dataset, tmp_path):
     res = _cli("dataset", "make", other, "--out", base / "png")
     assert res.returncode == 2 and "different spec ('spec.scenario.step_deg' differs)" in res.stderr
     assert {p: p.stat().st_mtime_ns for p in (base / "png").rglob("*")} == before
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "datasets" / "examples").glob("*.toml")), ids=lambda p: p.stem)
+def test_example_specs_parse_and_plan(path):
+    from sim.dataset.spec import load_spec, plan_sample
+
+    spec = load_spec(path)
+    plans = [plan_sample(spec, k) for k in range(min(spec.samples, 20))]
+    assert all(p.frames >= 1 for p in plans)
+    for p in plans:
+        if p.part.endswith((".toml", ".stl", ".ply", ".obj")):
+            assert Path(p.options["part"]).is_file(), p.options["part"]
