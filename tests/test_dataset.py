@@ -245,6 +245,7 @@ def test_zarr_holds_the_same_frames_and_truth_lazily(png_dataset):
     assert arr.shape == (6, 1936 // 4, 1216 // 4) and arr.chunks == (1, 1936 // 4, 1216 // 4)
     blosc = arr.metadata.codecs[-1]
     assert (blosc.cname.value, blosc.clevel, blosc.shuffle.value) == ("zstd", 1, "bitshuffle")
+    assert blosc.blocksize == 1 << 21
     for a, b in zip(png, zds):
         assert np.array_equal(a.image, b.image)
         for key in a.truth:

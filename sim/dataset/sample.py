@@ -270,7 +270,7 @@ class _ZarrSink:
         shuffle = {"bitshuffle": numcodecs.Blosc.BITSHUFFLE, "shuffle": numcodecs.Blosc.SHUFFLE,
                    "noshuffle": numcodecs.Blosc.NOSHUFFLE}[layout.codec["shuffle"]]
         self.codec = numcodecs.Blosc(cname=layout.codec["cname"], clevel=layout.codec["clevel"],
-                                     shuffle=shuffle)
+                                     shuffle=shuffle, blocksize=layout.codec.get("blocksize", 0))
 
     def _rel(self, name: str, index: int) -> str:
         g = self.offset + index
