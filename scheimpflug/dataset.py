@@ -293,15 +293,16 @@ class Dataset:
 
     # ---------------------------------------------------------------- reading
     def __getitem__(self, i: int) -> Frame:
-        rows = self.rows()
-        if not -len(rows) <= i < len(rows):
-            raise IndexError(f"frame {i} out of range (dataset view of {len(rows)} frames)")
-        meta = rows[i]
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range (dataset view of {n} frames)")
+        meta = self._rows[i] if self._rows is not None else self.index.slice(i % n, 1).to_pylist()[0]
         return Frame(self.read_image(meta), self.read_truth(meta), meta)
 
     def __iter__(self) -> Iterator[Frame]:
-        for i in range(len(self)):
-            yield self[i]
+        for batch in self.index.to_batches(max_chunksize=256):
+            for meta in batch.to_pylist():
+                yield Frame(self.read_image(meta), self.read_truth(meta), meta)
 
     def read_image(self, meta: dict) -> np.ndarray:
         """The image of the frame with index row ``meta``.
@@ -862,36 +863,50 @@ def score_frame(detect: Callable, image: np.ndarray, truth: dict, meta: dict,
             table.setdefault(label, ErrorStats()).add(found[sel], u[sel])
 
 
-def score_sample(path: str, sample: int, detector: str, progress=None) -> dict:
-    """Score a detector on one sample of a dataset (the unit of parallel work).
+def score_sample(path: str, rows: list[dict], detector: str, progress=None) -> dict:
+    """Score a detector on some frames of a dataset (one sample: the unit of parallel work).
 
     Parameters
     ----------
     path : str
         The dataset folder.
-    sample : int
-        Sample number.
+    rows : list of dict
+        The frames' index rows.
     detector : str
         Detector spec (:func:`load_detector`).
     progress : callable, optional
-        ``progress(done, total)`` over the sample's frames.
+        ``progress(done, total)`` over the frames.
 
     Returns
     -------
     dict
         Accumulators: ``{"all": ErrorStats, "material": {…}, …, "frames": n}``.
     """
-    ds = open_dataset(path).sample(sample)
+    ds = _reader(path)
     _, detect = load_detector(detector)
-    if isinstance(detect, _ProjectDetector) and ds.rows():
+    if isinstance(detect, _ProjectDetector):
         bits = ds.info.get("adc_bits")
         detect = _ProjectDetector(detect.method, float(2 ** bits - 1) if bits else None)
     stats: dict = {"all": ErrorStats()}
-    for i, meta in enumerate(ds.rows()):
+    for i, meta in enumerate(rows):
         score_frame(detect, ds.read_image(meta), ds.read_truth(meta), meta, stats)
-        report(progress, i + 1, len(ds))
-    stats["frames"] = len(ds)
+        report(progress, i + 1, len(rows))
+    stats["frames"] = len(rows)
     return stats
+
+
+_READERS: dict = {}
+
+
+def _reader(path: str) -> Dataset:
+    """A :class:`Dataset` for reading frames of ``path`` (index not loaded), cached per process."""
+    key = str(Path(path).resolve())
+    if key not in _READERS:
+        import pyarrow as pa
+
+        _READERS.clear()
+        _READERS[key] = Dataset(Path(path), read_info(Path(path)), pa.table({}))
+    return _READERS[key]
 
 
 def _merge(total: dict, part: dict) -> dict:
@@ -961,7 +976,7 @@ def score_dataset(dataset: Dataset, detector: str,
     Parameters
     ----------
     dataset : Dataset
-        The dataset (or a filtered view: only its samples are scored, all their frames).
+        The dataset or a filtered view (its frames, grouped by sample).
     detector : str
         Detector spec (:func:`load_detector`); checked here before any work.
     map_fn : callable, optional
@@ -981,28 +996,31 @@ def score_dataset(dataset: Dataset, detector: str,
         An unknown detector, an empty dataset, a failing detector.
     """
     load_detector(detector)
-    samples = dataset.samples
-    if not samples:
+    groups: dict[int, list] = {}
+    for batch in dataset.index.to_batches(max_chunksize=4096):
+        for meta in batch.to_pylist():
+            groups.setdefault(meta["sample"], []).append(meta)
+    if not groups:
         raise DatasetError(f"dataset {str(dataset.path)!r} holds no frames to score")
     work = _SampleScorer(str(dataset.path), detector)
-    results = (map_fn or map)(work, samples)
+    results = (map_fn or map)(work, [groups[k] for k in sorted(groups)])
     total: dict = {"all": ErrorStats()}
     for done, part in enumerate(results, start=1):
         _merge(total, part)
-        report(progress, done, len(samples))
+        report(progress, done, len(groups))
     overall = total.pop("all")
     frames = total.pop("frames", 0)
     return ScoreReport(detector, frames, overall, total)
 
 
 class _SampleScorer:
-    """Picklable ``sample → accumulators`` (for process pools and Dask)."""
+    """Picklable ``index rows of a sample → accumulators`` (for process pools and Dask)."""
 
     def __init__(self, path: str, detector: str) -> None:
         self.path, self.detector = path, detector
 
-    def __call__(self, sample: int) -> dict:
-        return score_sample(self.path, sample, self.detector)
+    def __call__(self, rows: list[dict]) -> dict:
+        return score_sample(self.path, rows, self.detector)
 
 
 def compare_scores(score: ScoreReport, baseline: ScoreReport, max_regression_px: float) -> dict:

@@ -225,49 +225,61 @@ def _remove_temporaries(out: Path) -> None:
 # ------------------------------------------------------------------ index and ledger
 
 
-def _load_records(out: Path, plans: list[SamplePlan]) -> dict[int, dict]:
-    records = {}
+@dataclass
+class _Part:
+    """A complete sample's share of the index and the ledger, as Arrow tables."""
+
+    rows: object
+    files: object
+    frames: int
+    lit_rows: int
+    bytes: dict
+
+
+def _part(out: Path, k: int, record: dict) -> _Part:
+    import pyarrow as pa
+
+    sj = sample_folder(out, k) / SAMPLE_FILE
+    files = [*record["files"], {"path": sj.relative_to(out).as_posix(), "sha256": file_sha256(sj),
+                                "bytes": sj.stat().st_size, "sample": k, "frame": -1}]
+    frame_files = {r["file"] for r in record["rows"]}
+    kinds = {"frames": 0, "truth": 0, "other": 0}
+    for f in files:
+        kinds["frames" if f["path"] in frame_files else "truth" if f["frame"] >= 0 else "other"] += f["bytes"]
+    return _Part(pa.Table.from_pylist(record["rows"]), pa.Table.from_pylist(files), len(record["rows"]),
+                 sum(r["lit_rows"] for r in record["rows"]), kinds)
+
+
+def _load_parts(out: Path, plans: list[SamplePlan]) -> dict[int, _Part]:
+    parts = {}
     for p in plans:
         path = sample_folder(out, p.index) / SAMPLE_FILE
         if path.is_file():
             try:
-                records[p.index] = json.loads(path.read_text("utf-8"))
-            except (OSError, ValueError) as exc:
+                parts[p.index] = _part(out, p.index, json.loads(path.read_text("utf-8")))
+            except (OSError, ValueError, KeyError) as exc:
                 raise DatasetError(f"{str(path)!r} cannot be read ({exc}): delete that sample "
                                    "folder and rerun to make it again") from None
-    return records
+    return parts
 
 
-def _write_parquet(path: Path, rows: list[dict]) -> None:
+def _write_parquet(path: Path, tables: list) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    table = pa.Table.from_pylist(rows)
+    table = pa.concat_tables(tables, promote_options="default")
     with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
 
 
-def _write_index(out: Path, records: dict[int, dict]) -> dict:
-    rows, files = [], []
-    for k in sorted(records):
-        rec = records[k]
-        rows += rec["rows"]
-        files += rec["files"]
-        sj = sample_folder(out, k) / SAMPLE_FILE
-        files.append({"path": sj.relative_to(out).as_posix(), "sha256": file_sha256(sj),
-                      "bytes": sj.stat().st_size, "sample": k, "frame": -1})
-    if not rows:
-        return {"frames": 0, "bytes": {}}
-    _write_parquet(out / INDEX_FILE, rows)
-    _write_parquet(out / FILES_FILE, files)
-    frame_files = {r["file"] for r in rows}
-    truth_files = {r["truth_file"] for r in rows}
-    kinds = {"frames": 0, "truth": 0, "other": 0}
-    for f in files:
-        kind = "frames" if f["path"] in frame_files else "truth" if (
-            f["path"] in truth_files or f["frame"] >= 0) else "other"
-        kinds[kind] += f["bytes"]
-    return {"frames": len(rows), "lit_rows": sum(r["lit_rows"] for r in rows),
+def _write_index(out: Path, parts: dict[int, _Part]) -> dict:
+    if not parts:
+        return {"frames": 0, "lit_rows": 0, "bytes": {}}
+    keys = sorted(parts)
+    _write_parquet(out / INDEX_FILE, [parts[k].rows for k in keys])
+    _write_parquet(out / FILES_FILE, [parts[k].files for k in keys])
+    kinds = {kind: sum(parts[k].bytes[kind] for k in keys) for kind in ("frames", "truth", "other")}
+    return {"frames": sum(parts[k].frames for k in keys), "lit_rows": sum(parts[k].lit_rows for k in keys),
             "bytes": {**kinds, "total": sum(kinds.values())}}
 
 
@@ -335,7 +347,7 @@ def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int =
         info = _info(spec, identity, plans, storage, engine)
         write_json_atomic(out / META_FILE, info)
         result = MakeResult(out, spec.samples)
-        records = _load_records(out, plans)
+        records = _load_parts(out, plans)
         try:
             _run(engine, plans, offsets, out, storage, records, result, retries, warn)
         except KeyboardInterrupt:
@@ -390,7 +402,7 @@ def _run(engine, plans, offsets, out, storage, records, result, retries, warn) -
                     warn(f"sample {plan.index} failed ({errors[plan.index]}); it will be tried again")
                 continue
             errors.pop(plan.index, None)
-            records[plan.index] = res.record
+            records[plan.index] = _part(out, plan.index, res.record)
             base += plan.frames
             result.samples_made += 1
             result.frames_rendered += res.frames_rendered

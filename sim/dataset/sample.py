@@ -398,6 +398,9 @@ def make_sample(plan: SamplePlan, root: str | os.PathLike, storage: str = "png",
     final = sample_folder(root, plan.index)
     if (final / SAMPLE_FILE).is_file():
         return SampleResult(plan.index, json.loads((final / SAMPLE_FILE).read_text("utf-8")))
+    if final.exists():
+        raise RenderError(f"sample folder {str(final)!r} exists but has no {SAMPLE_FILE} (it was not "
+                          "made by this program or was damaged): delete it and rerun")
     t0 = time.perf_counter()
     rig = plan.build_rig()
     scenario = _scenario(plan, rig)
