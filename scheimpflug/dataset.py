@@ -9,6 +9,8 @@ A dataset folder (``scheimpflug dataset make``, INTERFACE.md "Datasets")::
     DIR/README.md             the dataset card
     DIR/samples/NNNNNN/       one frame folder per sample (manifest.json, frames/, truth/)
                               + sample.json (its index rows and files)
+    DIR/meshes/SHA256.ply     each distinct truth mesh once; the samples' truth/*.ply are
+                              hard links to these (the ledger's ``link`` column)
     DIR/frames.zarr/          with --format zarr: frames and per-row truth, one frame per chunk
 
 Index columns: ``sample``, ``frame`` (within the sample), ``file`` (the frame's file

@@ -137,6 +137,9 @@ def test_make_writes_frame_folders_index_ledger_and_card(png_dataset):
     assert row["materials"] in ("metal", "cardboard") and row["lit_rows"] > 50
     assert -0.2 <= row["rig.sensor.roll_deg"] <= 0.2
     assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.tmp*"))
+    pool = list((out / "meshes").glob("*.ply"))           # one sphere, one pose: one shared mesh
+    assert len(pool) == 1 and pool[0].stat().st_nlink == 4
+    assert (out / "samples" / "000002" / "truth" / "mesh.ply").samefile(pool[0])
 
 
 def test_loader_reads_frames_truth_and_filters(png_dataset):

@@ -234,6 +234,7 @@ class _Part:
     frames: int
     lit_rows: int
     bytes: dict
+    pool: dict
 
 
 def _part(out: Path, k: int, record: dict) -> _Part:
@@ -241,13 +242,17 @@ def _part(out: Path, k: int, record: dict) -> _Part:
 
     sj = sample_folder(out, k) / SAMPLE_FILE
     files = [*record["files"], {"path": sj.relative_to(out).as_posix(), "sha256": file_sha256(sj),
-                                "bytes": sj.stat().st_size, "sample": k, "frame": -1}]
+                                "bytes": sj.stat().st_size, "sample": k, "frame": -1, "link": None}]
     frame_files = {r["file"] for r in record["rows"]}
     kinds = {"frames": 0, "truth": 0, "other": 0}
+    pool = {}
     for f in files:
+        if f.get("link"):
+            pool[f["link"]] = (f["sha256"], f["bytes"])
+            continue
         kinds["frames" if f["path"] in frame_files else "truth" if f["frame"] >= 0 else "other"] += f["bytes"]
     return _Part(pa.Table.from_pylist(record["rows"]), pa.Table.from_pylist(files), len(record["rows"]),
-                 sum(r["lit_rows"] for r in record["rows"]), kinds)
+                 sum(r["lit_rows"] for r in record["rows"]), kinds, pool)
 
 
 def _load_parts(out: Path, plans: list[SamplePlan]) -> dict[int, _Part]:
@@ -275,10 +280,18 @@ def _write_parquet(path: Path, tables: list) -> None:
 def _write_index(out: Path, parts: dict[int, _Part]) -> dict:
     if not parts:
         return {"frames": 0, "lit_rows": 0, "bytes": {}}
+    import pyarrow as pa
+
     keys = sorted(parts)
+    pool = {}
+    for k in keys:
+        pool.update(parts[k].pool)
+    shared = pa.Table.from_pylist([{"path": p, "sha256": s, "bytes": b, "sample": -1, "frame": -1,
+                                    "link": None} for p, (s, b) in sorted(pool.items())])
     _write_parquet(out / INDEX_FILE, [parts[k].rows for k in keys])
-    _write_parquet(out / FILES_FILE, [parts[k].files for k in keys])
+    _write_parquet(out / FILES_FILE, [parts[k].files for k in keys] + ([shared] if pool else []))
     kinds = {kind: sum(parts[k].bytes[kind] for k in keys) for kind in ("frames", "truth", "other")}
+    kinds["truth"] += sum(b for _, b in pool.values())
     return {"frames": sum(parts[k].frames for k in keys), "lit_rows": sum(parts[k].lit_rows for k in keys),
             "bytes": {**kinds, "total": sum(kinds.values())}}
 

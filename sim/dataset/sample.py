@@ -18,7 +18,9 @@ per-scene data are cached per process and reused by the next sample with the
 same scene, rig and render settings.
 
 ``sample.json`` (deterministic: no times, no host names) holds the sample's index
-rows and its files with their SHA-256 (:mod:`scheimpflug.dataset`).
+rows and its files with their SHA-256 (:mod:`scheimpflug.dataset`).  Truth meshes
+are stored once per content in ``meshes/SHA256.ply`` and hard-linked into the
+samples' ``truth/`` folders (a file's ``link`` in the ledger names its pool file).
 """
 
 from __future__ import annotations
@@ -351,7 +353,8 @@ def _row(plan: SamplePlan, scenario: Scenario, rig, frame, files: dict, truth: d
 
 def _file_entries(files: dict, k: int, frame: int) -> list[dict]:
     items = [files["file"], files["truth_file"], *files["other"]]
-    return [{"path": p, "sha256": s, "bytes": int(b), "sample": k, "frame": frame} for p, s, b in items]
+    return [{"path": p, "sha256": s, "bytes": int(b), "sample": k, "frame": frame, "link": None}
+            for p, s, b in items]
 
 
 # ------------------------------------------------------------------ the sample
@@ -499,13 +502,15 @@ def _finish(plan, root, partial, final, manifest, scenario, rig, results, storag
             no_stripe.append(f.index)
     write_json_atomic(partial / "manifest.json", dict(manifest, complete=True,
                                                       frames_without_stripe=no_stripe))
+    shared = {p.name: _share(root, p) for p in sorted((partial / "truth").glob("*.ply"))}
     rel = final.relative_to(root).as_posix()
     for p in sorted(partial.rglob("*")):
         if p.is_file() and p.name != SAMPLE_FILE and p.parent != partial / "frames" \
                 and not (p.parent == partial / "truth" and p.suffix == ".npz"):
+            link = shared.get(p.name) if p.parent == partial / "truth" else None
             files.append({"path": f"{rel}/{p.relative_to(partial).as_posix()}",
                           "sha256": file_sha256(p), "bytes": p.stat().st_size,
-                          "sample": plan.index, "frame": -1})
+                          "sample": plan.index, "frame": -1, "link": link})
     record = {"sample": plan.index, "seed": plan.seed, "kind": plan.kind, "part": plan.part,
               "frames": len(scenario.frames), "drawn": plan.drawn,
               "parts": [{"object_id": p.object_id, "name": p.name, "material": p.material}
@@ -514,6 +519,33 @@ def _finish(plan, root, partial, final, manifest, scenario, rig, results, storag
     write_json_atomic(partial / SAMPLE_FILE, _json_safe(record))
     _commit(partial, final)
     return json.loads((final / SAMPLE_FILE).read_text("utf-8"))
+
+
+MESH_POOL = "meshes"
+
+
+def _share(root: Path, path: Path) -> str | None:
+    """Make ``path`` a hard link of the identical file ``root/meshes/SHA256.ply``; return that.
+
+    Samples of the same part and pose share one copy of its (often 30 MB) truth mesh on
+    disk; every sample folder still holds its ``truth/mesh.ply``.  Returns the pool file
+    relative to ``root``, or None when hard links are not possible (the file stays a copy).
+    """
+    pool = root / MESH_POOL
+    target = pool / f"{file_sha256(path)}{path.suffix}"
+    try:
+        pool.mkdir(exist_ok=True)
+        for src, dst in ((path, target), (target, path)):
+            if dst == target and target.exists():
+                continue
+            if dst == path and os.path.samefile(target, path):
+                break
+            with atomic_path(dst) as tmp:
+                tmp.unlink()
+                os.link(src, tmp)
+    except OSError:
+        return None
+    return target.relative_to(root).as_posix()
 
 
 def _commit(partial: Path, final: Path) -> None:
