@@ -12,12 +12,12 @@ folder and reports:
   loading, JIT warm-up and the tail where one worker finishes alone (samples after
   the first on a worker reuse its scene: same part, same rig);
 * the end-to-end wall time and rate (everything included);
-* CPU seconds per frame of the whole job (this process and its worker processes,
-  ``getrusage``), from two runs of ``--samples`` and ``2 × --samples`` samples:
-  the difference removes the fixed costs (cluster start, scene loading, JIT).
-  Under load, wall-clock rates drop with the other jobs' share of the cores while
-  CPU time per frame changes far less: ``cores / CPU per frame`` is the rate an
-  otherwise idle machine would reach with every core busy (an upper bound);
+* the CPU time per frame of the frame loops (``process_time`` of each worker process —
+  all its threads: Dr.Jit's pool, the writer thread, Dask's own — over its frame
+  loops, summed over workers, divided by the frames).  Under load, wall-clock rates
+  drop with the other jobs' share of the cores while CPU time per frame changes much
+  less: ``cores / CPU per frame`` is the rate an otherwise idle machine reaches with
+  every core busy (an upper bound); the cost model uses it;
 * the time per stage summed over the workers (render, noise, truth on the worker's
   main thread; write = encode + hash + write on its background thread);
 * bytes per frame on disk.
@@ -71,7 +71,8 @@ def run(fmt: str, workers: int, samples: int, frames: int, part: str) -> dict:
     t_warm = next(t for t, d in stamps if d >= warm)
     n_end = int(0.9 * total)
     t_end = next(t for t, d in stamps if d >= n_end)
-    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    inodes = {p.stat().st_ino: p.stat().st_size for p in out.rglob("*") if p.is_file()}
+    size = sum(inodes.values())                      # hard-linked truth meshes counted once
     frame_bytes = sum(p.stat().st_size for p in (out.rglob("frames/*.png") if fmt == "png"
                                                   else (out / "frames.zarr" / "frames").rglob("*"))
                       if p.is_file() and p.name != "zarr.json")
@@ -86,7 +87,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--formats", nargs="+", default=["zarr", "png"], choices=["zarr", "png"])
     ap.add_argument("--workers", nargs="+", type=int, default=[1, 2])
-    ap.add_argument("--samples", type=int, default=8, help="samples")
+    ap.add_argument("--samples", type=int, default=8, help="samples (all of the same scene and rig)")
     ap.add_argument("--frames", type=int, default=30, help="frames per sample")
     ap.add_argument("--part", default="cylinder")
     args = ap.parse_args()
@@ -95,19 +96,20 @@ def main() -> int:
     rows = []
     for fmt in args.formats:
         for w in args.workers:
-            short = run(fmt, w, args.samples, args.frames, args.part)
-            r = run(fmt, w, 2 * args.samples, args.frames, args.part)
-            r["cpu_per_frame_s"] = (r["cpu_s"] - short["cpu_s"]) / (r["frames"] - short["frames"])
+            r = run(fmt, w, args.samples, args.frames, args.part)
+            r["cpu_per_frame_s"] = r["seconds"]["cpu_loop"] / r["frames"]
             rows.append(r)
             s, n = r["seconds"], r["frames"]
             print(f"{fmt:4s} workers {w}: steady {r['steady_fps']:5.1f} frames/s (wall; load "
                   f"{os.getloadavg()[0]:.1f}), end to end {r['fps_end_to_end']:5.1f} frames/s "
-                  f"({r['wall_s']:.1f} s for {n} frames); CPU {r['cpu_per_frame_s'] * 1e3:.1f} ms/frame "
+                  f"({r['wall_s']:.1f} s for {n} frames); frame-loop CPU {r['cpu_per_frame_s'] * 1e3:.1f} ms/frame "
                   f"→ {cores / r['cpu_per_frame_s']:5.1f} frames/s with {cores} idle cores; per frame (summed "
                   f"over workers) render {s['render'] / n * 1e3:.1f}, noise {s['noise'] / n * 1e3:.1f}, "
                   f"truth {s['truth'] / n * 1e3:.1f} ms, write {s['write'] / n * 1e3:.1f} ms (background); "
                   f"{r['bytes_per_frame'] / 1e6:.2f} MB/frame on disk ({r['frame_bytes'] / 1e6:.2f} MB the image)",
                   flush=True)
+            print(f"      worker CPU per frame: frame loop {s['cpu_loop'] / n * 1e3:.1f} ms, sample set-up "
+                  f"{s['cpu_setup'] / n * 1e3:.1f} ms, sample finish {s['cpu_finish'] / n * 1e3:.1f} ms", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     print("cost model (CPU time per frame of the steady loop; disk per frame):")
     for r in rows:

@@ -206,7 +206,7 @@ def _create_store(out: Path, plans: list[SamplePlan], name: str) -> list[int]:
             continue
         group.create_array(key, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, fill_value=fill,
                            compressors=codec, dimension_names=dims,
-                           chunk_key_encoding={"name": "default", "separator": "/"})
+                           chunk_key_encoding={"name": "default", "separator": "."})
     return offsets
 
 

@@ -114,7 +114,8 @@ class SampleResult:
         Frames rendered in this run (the others were done before) [-].
     seconds : dict
         Time per stage [s]: ``setup``, ``render``, ``noise``, ``truth``, ``write`` (background
-        thread), ``wall``.
+        thread), ``wall``; CPU time of this process (all its threads) [s]: ``cpu_setup``,
+        ``cpu_loop`` (the frame loop), ``cpu_finish`` (manifest, hashes, meshes, rename).
     """
 
     sample: int
@@ -276,8 +277,8 @@ class _ZarrSink:
 
     def _rel(self, name: str, index: int) -> str:
         g = self.offset + index
-        tail = {"frames": "/0/0", "stripe_point_mm": "/0/0"}.get(name, "/0")
-        return f"{ZARR_STORE}/{name}/c/{g}{tail}"
+        tail = {"frames": ".0.0", "stripe_point_mm": ".0.0"}.get(name, ".0")
+        return f"{ZARR_STORE}/{name}/c.{g}{tail}"
 
     def done(self, indices) -> set[int]:
         return {i for i in indices if (self.root / self._rel("frames", i)).exists()}
@@ -404,7 +405,7 @@ def make_sample(plan: SamplePlan, root: str | os.PathLike, storage: str = "png",
     if final.exists():
         raise RenderError(f"sample folder {str(final)!r} exists but has no {SAMPLE_FILE} (it was not "
                           "made by this program or was damaged): delete it and rerun")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rig = plan.build_rig()
     scenario = _scenario(plan, rig)
     twin, scene_truth = _twin(plan, rig, scenario, warn)
@@ -414,16 +415,21 @@ def make_sample(plan: SamplePlan, root: str | os.PathLike, storage: str = "png",
     _scene_truth_files(partial, rig, scenario)
     sink = _PngSink(partial, final.relative_to(root).as_posix()) if storage == "png" \
         else _ZarrSink(root, zarr)
-    seconds = {"setup": time.perf_counter() - t0, "render": 0.0, "noise": 0.0, "truth": 0.0, "write": 0.0}
+    seconds = {"setup": time.perf_counter() - t0, "render": 0.0, "noise": 0.0, "truth": 0.0, "write": 0.0,
+               "cpu_setup": time.process_time() - c0}
+    c1 = time.process_time()
     done = sink.done([f.index for f in scenario.frames])
     results = _frame_loop(plan, rig, scenario, twin, scene_truth, sink,
                           [f for f in scenario.frames if f.index not in done], seconds, progress,
                           len(done))
+    seconds["cpu_loop"] = time.process_time() - c1
     for f in scenario.frames:
         if f.index in done:
             results[f.index] = sink.read(f.index)
+    c2 = time.process_time()
     record = _finish(plan, root, partial, final, manifest, scenario, rig, results, storage,
                      zarr.offset if zarr else 0)
+    seconds["cpu_finish"] = time.process_time() - c2
     seconds["wall"] = time.perf_counter() - t0
     return SampleResult(plan.index, record, len(scenario.frames) - len(done), seconds)
 
@@ -436,7 +442,7 @@ def _manifest(plan, rig, scenario, twin, storage, zarr) -> dict:
         manifest["storage"] = "zarr"
         for entry, f in zip(manifest["frames"], scenario.frames):
             g = zarr.offset + f.index
-            entry["file"] = f"../../{ZARR_STORE}/frames/c/{g}/0/0"
+            entry["file"] = f"../../{ZARR_STORE}/frames/c.{g}.0.0"
             entry["truth"] = f"../../{ZARR_STORE} (index {g})"
             entry["zarr_index"] = g
     return manifest
