@@ -155,3 +155,31 @@ def test_scoring_on_the_cluster_equals_scoring_here(reference, cluster):
 
         there = score_dataset(ds, "gaussian3", map_fn=run).to_json()
     assert there == here and here["n_rows"] > 100
+
+
+def test_a_killed_worker_loses_only_its_frames_in_flight(reference, cluster):
+    """SIGKILL one Dask worker mid-sample: Dask reruns its task elsewhere, which resumes the
+    sample's partial folder; the result is byte-identical and nothing temporary is left.
+    """
+    import threading
+
+    from distributed import Client
+
+    from sim.dataset import load_spec, make_dataset
+
+    out = reference / "one-killed"
+    result = {}
+    job = threading.Thread(target=lambda: result.update(
+        res=make_dataset(load_spec(reference / "spec.toml"), out, scheduler=cluster)))
+    with Client(cluster) as client:
+        pids = client.run(os.getpid)
+        job.start()
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not list(out.glob("samples/.*.partial/frames/*.png")):
+            time.sleep(0.02)
+        os.kill(next(iter(pids.values())), signal.SIGKILL)
+        job.join(timeout=300)
+    assert not job.is_alive()
+    assert result["res"].complete and not result["res"].failures
+    assert _hashes(out) == _hashes(reference / "one")
+    assert _leftovers(out) == []

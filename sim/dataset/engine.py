@@ -146,8 +146,11 @@ class Engine:
         import dask
         from distributed import Client, LocalCluster
 
+        # spawn: Dr.Jit registers no fork handlers; no statistical profiler sampling the task
+        # thread every 10 ms (the nanny hands this configuration to its worker process)
         dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
-                         "distributed.worker.daemon": False})
+                         "distributed.worker.daemon": False,
+                         "distributed.worker.profile.enabled": False})
         try:
             self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                         host="127.0.0.1", dashboard_address=None,
