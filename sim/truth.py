@@ -235,12 +235,18 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
     -----
     Rows are taken half-open, min(v0, v1) ≤ r < max(v0, v1), so a polyline
     vertex on a row centre is counted once.  The crossing parameter t along the
-    segment is found by the secant method on the exact projection, starting
-    from the linear interpolation of the projected end points.
+    segment starts from the linear-fractional v(t) through the projections of the
+    end points and the midpoint — exact for a lens without distortion, where the
+    pixel of a point is its central projection through the lens centre — and is
+    refined by the secant method on the exact projection until |v − r| is below
+    the tolerance.
     """
     pose = sensor_pose(rig) if pose is None else pose
     seg = np.asarray(segments_mm, dtype=np.float64).reshape(-1, 2, 3)
-    v_end = project_points(rig, seg, pose).uv_px[..., 1]   # (k, 2)
+    k = len(seg)
+    mid = seg[:, 0] + 0.5 * (seg[:, 1] - seg[:, 0])
+    v_all = project_points(rig, np.concatenate([seg.reshape(-1, 3), mid]), pose).uv_px[:, 1]
+    v_end, v_mid = v_all[:2 * k].reshape(k, 2), v_all[2 * k:]
     lo, hi = np.minimum(v_end[:, 0], v_end[:, 1]), np.maximum(v_end[:, 0], v_end[:, 1])
     r_lo = np.clip(np.ceil(lo), 0, rig.sensor.rows)
     r_hi = np.clip(np.ceil(hi), 0, rig.sensor.rows)          # exclusive
@@ -249,21 +255,32 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
     idx = np.repeat(np.arange(len(seg)), count)
     first = np.repeat(np.cumsum(count) - count, count)
     rows = (np.repeat(r_lo, count) + np.arange(count.sum()) - first).astype(np.int64)
-    t = _solve_rows(rig, pose, seg[idx], v_end[idx], rows.astype(np.float64), tol)
+    t, u = _solve_rows(rig, pose, seg[idx], v_end[idx], v_mid[idx], rows.astype(np.float64), tol)
     pts = seg[idx, 0] + t[:, None] * (seg[idx, 1] - seg[idx, 0])
-    u = project_points(rig, pts, pose).uv_px[:, 0]
     return rows, u, pts, idx
 
 
-def _solve_rows(rig, pose, seg, v_end, target, tol) -> np.ndarray:
-    """Secant solve of v(P(t)) = target on each segment; t in [0, 1].
+def _solve_rows(rig, pose, seg, v_end, v_mid, target, tol) -> tuple[np.ndarray, np.ndarray]:
+    """Solve v(P(t)) = target on each segment, t in [0, 1]; return t and u there.
 
-    A segment leaves the iteration once its residual is below ``tol.row_residual_px``
-    (only the unconverged ones are projected again).
+    Start: the linear-fractional v(t) = (v0 + b·t)/(1 + d·t) through t = 0, ½, 1 (exact
+    without lens distortion), else the linear interpolation.  Then secant steps on the
+    segments whose residual is above ``tol.row_residual_px``.
     """
-    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
-    f0, f1 = v_end[:, 0] - target, v_end[:, 1] - target
-    act = np.arange(len(seg))
+    v0, v1, vm = v_end[:, 0], v_end[:, 1], v_mid
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = (2.0 * vm - v0 - v1) / (v1 - vm)
+        b = v1 - v0 + v1 * d
+        t_frac = (target - v0) / (b - target * d)
+        t_lin = (target - v0) / (v1 - v0)
+    t_lin = np.where(np.isfinite(t_lin), t_lin, 0.5)
+    t1 = np.clip(np.where(np.isfinite(t_frac) & (t_frac >= 0) & (t_frac <= 1), t_frac, t_lin), 0.0, 1.0)
+    uv = project_points(rig, seg[:, 0] + t1[:, None] * (seg[:, 1] - seg[:, 0]), pose).uv_px
+    f1, u1 = uv[:, 1] - target, uv[:, 0]
+    far = np.abs(t1 - 0.5) > 0.25                 # the other point of the first secant step
+    t0 = np.where(far, 0.5, np.where(t1 < 0.5, 1.0, 0.0))
+    f0 = np.where(far, vm, np.where(t1 < 0.5, v1, v0)) - target
+    act = np.flatnonzero(np.abs(f1) > tol.row_residual_px)
     for _ in range(tol.max_iterations):
         if len(act) == 0:
             break
@@ -273,11 +290,11 @@ def _solve_rows(rig, pose, seg, v_end, target, tol) -> np.ndarray:
             t2 = np.where(denom != 0, a1 - b1 * (a1 - a0) / denom, a1)
         t2 = np.clip(t2, 0.0, 1.0)
         sa = seg[act]
-        p = sa[:, 0] + t2[:, None] * (sa[:, 1] - sa[:, 0])
-        f2 = project_points(rig, p, pose).uv_px[:, 1] - target[act]
-        t0[act], f0[act], t1[act], f1[act] = a1, b1, t2, f2
+        uv = project_points(rig, sa[:, 0] + t2[:, None] * (sa[:, 1] - sa[:, 0]), pose).uv_px
+        f2 = uv[:, 1] - target[act]
+        t0[act], f0[act], t1[act], f1[act], u1[act] = a1, b1, t2, f2, uv[:, 0]
         act = act[np.abs(f2) > tol.row_residual_px]
-    return t1
+    return t1, u1
 
 
 # ------------------------------------------------------------------ visibility
