@@ -183,3 +183,23 @@ def test_a_killed_worker_loses_only_its_frames_in_flight(reference, cluster):
     assert result["res"].complete and not result["res"].failures
     assert _hashes(out) == _hashes(reference / "one")
     assert _leftovers(out) == []
+
+
+def test_a_missing_part_file_added_later_is_made_on_rerun(reference, cluster, tmp_path):
+    """The remedy for a failed sample: provide the file and rerun the same command."""
+    import shutil
+
+    from sim.dataset import load_spec, make_dataset
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.replace('part = "sphere"', "").replace(
+        'material = { choices = ["metal", "cardboard"] }',
+        'part = { choices = ["sphere", "late.ply"] }'))
+    first = make_dataset(load_spec(spec), tmp_path / "out", scheduler=cluster, warn=lambda m: None)
+    assert first.failures
+    from scenes import load_part
+
+    load_part("sphere").to_ply(tmp_path / "late.ply")
+    second = make_dataset(load_spec(spec), tmp_path / "out", scheduler=cluster)
+    assert second.complete and second.samples_made == len(first.failures)
+    shutil.rmtree(tmp_path / "out")

@@ -169,8 +169,12 @@ def _check_existing(out: Path, identity: dict) -> dict | None:
         raise DatasetError(f"{str(meta)!r} cannot be read ({exc}); remove the folder or choose "
                            "another --out") from None
     for key in _IDENTITY:
-        if json.dumps(old.get(key), sort_keys=True) != json.dumps(identity[key], sort_keys=True):
-            where = _first_difference({key: old.get(key)}, {key: identity[key]})
+        before, now = old.get(key), identity[key]
+        if key == "inputs" and isinstance(before, dict):    # a file missing before may appear now
+            before = {k: v for k, v in before.items() if k in now}
+            now = {k: v for k, v in now.items() if k in before}
+        if json.dumps(before, sort_keys=True) != json.dumps(now, sort_keys=True):
+            where = _first_difference({key: before}, {key: now})
             what = {"spec": "a different spec", "storage": "another --format",
                     "inputs": "other input files (a rig, mesh or scene file changed)",
                     "format": "another version of this program"}[key]

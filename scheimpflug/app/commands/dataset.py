@@ -63,7 +63,7 @@ def add_parser(sub):
     g.add_argument("--workers", type=int, default=1, metavar="N")
     g.add_argument("--scheduler", metavar="ADDRESS")
     s.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE",
-                   help="score only the samples whose index rows match (repeatable), e.g. "
+                   help="score only the frames whose index rows match (repeatable), e.g. "
                         "materials=cardboard or scenario=rotary")
     s.add_argument("--plot", metavar="FILE.png", help="error vs distance and vs angle of incidence")
     s.add_argument("--json", action="store_true")
