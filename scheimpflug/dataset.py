@@ -385,7 +385,9 @@ class Dataset:
             arr = da.from_zarr(str(self.path / ZARR_STORE), component="frames")
             return arr[np.asarray([int(r["zarr_index"]) for r in rows], dtype=np.int64)]
         (shape,) = shapes or {(0, 0)}
-        parts = [da.from_delayed(dask.delayed(self.read_image)(r), shape, dtype=np.uint16) for r in rows]
+        read = dask.delayed(_read_png, pure=True)
+        parts = [da.from_delayed(read(str(self.path / r["file"]), shape), shape, dtype=np.uint16)
+                 for r in rows]
         return da.stack(parts) if parts else da.zeros((0, *shape), dtype=np.uint16)
 
     def to_xarray(self):
@@ -408,6 +410,12 @@ class Dataset:
 
         xds = xr.open_zarr(str(self.path / ZARR_STORE), consolidated=False)
         return xds.isel(frame=[int(r["zarr_index"]) for r in self.rows()])
+
+
+def _read_png(path: str, shape: tuple[int, int]) -> np.ndarray:
+    from scheimpflug.io.frames import read_frame
+
+    return read_frame(path, shape)
 
 
 def open_dataset(path: str | os.PathLike) -> Dataset:
