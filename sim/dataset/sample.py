@@ -30,6 +30,7 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -131,7 +132,12 @@ _THREADS: dict = {}
 
 
 def configure_threads(n: int) -> None:
-    """Size this process's thread pools (Dr.Jit, numba, Blosc) to ``n`` cores.
+    """Size this process's thread pools (Dr.Jit, numba, Blosc) to ``n`` cores; tune malloc.
+
+    Also fixes glibc's allocator thresholds (:func:`_tune_malloc`): Dask's nanny starts
+    workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns off glibc's adaptive mmap
+    threshold, so every frame-sized array was mapped, zero-filled and unmapped again —
+    measured +25 % CPU per frame in a Dask worker.
 
     Parameters
     ----------
@@ -141,6 +147,7 @@ def configure_threads(n: int) -> None:
     n = max(1, int(n))
     if _THREADS.get("n") == n:
         return
+    _tune_malloc()
     import numba
 
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
@@ -157,6 +164,22 @@ def configure_threads(n: int) -> None:
     except (ImportError, AttributeError):  # pragma: no cover - no Dr.Jit
         pass
     _THREADS["n"] = n
+
+
+def _tune_malloc() -> None:
+    """Serve arrays up to 32 MB from the heap and keep up to 256 MB of it (glibc only)."""
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    if not name or not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(name)
+        libc.mallopt(-3, 32 << 20)    # M_MMAP_THRESHOLD
+        libc.mallopt(-1, 256 << 20)   # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        return
 
 
 def _twin_key(plan: SamplePlan) -> str:
