@@ -170,6 +170,12 @@ class Engine:
             raise EngineError(f"cannot reach the Dask scheduler at {self.scheduler!r}: {exc}") from None
         except ValueError as exc:
             raise EngineError(f"--scheduler {self.scheduler!r}: {exc}") from None
+        try:
+            self.client.wait_for_workers(1, timeout=self.timeout_s)
+        except (OSError, TimeoutError):
+            self.close()
+            raise EngineError(f"the Dask scheduler at {self.scheduler!r} has no workers "
+                              f"(waited {self.timeout_s:g} s); start some (dask worker ADDRESS)") from None
         self._subscribe()
 
     def _workers_by_host(self) -> dict:
