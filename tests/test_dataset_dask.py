@@ -46,7 +46,7 @@ def cluster():
 
     dask.config.set({"distributed.worker.multiprocessing-method": "spawn"})
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=40) as lc:
+                      dashboard_address="127.0.0.1:0", silence_logs=40) as lc:
         assert lc.scheduler_address.startswith("tcp://127.0.0.1:")
         yield lc.scheduler_address
 

@@ -153,7 +153,7 @@ class Engine:
                          "distributed.worker.profile.enabled": False})
         try:
             self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                        host="127.0.0.1", dashboard_address=None,
+                                        host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                         local_directory=tempfile.gettempdir(), silence_logs=40)
             self.client = Client(self.cluster)
         except Exception as exc:  # noqa: BLE001 - whatever keeps the cluster from starting
