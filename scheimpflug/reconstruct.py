@@ -107,6 +107,10 @@ class PointCloud:
         Sensor row v of the stripe sample [px].
     intensity : (n,) ndarray float
         Stripe peak height above background [DN].
+    frame : (n,) ndarray int or None
+        Index of the frame the point came from, in the scan's frame order
+        (−1 or None when unknown).  With ``row`` it places every point on
+        the scan's grid (frame × row), which :mod:`scheimpflug.meshing` meshes.
 
     Raises
     ------
@@ -118,12 +122,14 @@ class PointCloud:
     angle_deg: np.ndarray
     row: np.ndarray
     intensity: np.ndarray
+    frame: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.xyz_mm).shape[0]
         if np.asarray(self.xyz_mm).shape != (n, 3):
             raise ValueError(f"xyz_mm must be (n, 3), got {np.asarray(self.xyz_mm).shape}")
-        for name in ("angle_deg", "row", "intensity"):
+        names = ("angle_deg", "row", "intensity") + (("frame",) if self.frame is not None else ())
+        for name in names:
             if np.asarray(getattr(self, name)).shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {np.asarray(getattr(self, name)).shape}")
 
@@ -209,7 +215,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     -------
     PointCloud
         Points in the part frame; samples with a non-finite u (or u = u_h)
-        are dropped.
+        are dropped.  Every point keeps its frame index and row (its place on
+        the scan's grid).
 
     Raises
     ------
@@ -232,10 +239,11 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     uu, vv = cat(u), cat(rows)
     ii = cat(intensity) if intensity is not None else np.full(uu.size, np.nan)
     aa = np.repeat(angles, sizes)
+    ff = np.repeat(np.arange(len(angles), dtype=np.int64), sizes)
     xyz = points_from_pixels(uu, vv, aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
-                      intensity=ii[ok])
+                      intensity=ii[ok], frame=ff[ok])
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,

@@ -36,6 +36,7 @@ DOCUMENTED_MODULES = [
     "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
     "scenes.part", "scenes.generators", "scenes.presets", "scenes.loading", "scenes.meshfile",
     "scenes.scenefile", "scenes.section", "scenes.knurl", "scenes.revolve",
+    "scheimpflug.meshing", "scheimpflug.volumetry", "scheimpflug.io.meshfile", "scheimpflug.poisson",
     "scheimpflug.dataset", "sim.dataset.spec", "sim.dataset.sample", "sim.dataset.engine",
     "sim.dataset.make",
 ]
