@@ -18,7 +18,10 @@ def binned_rig(rig: Rig, k: int) -> Rig:
     a binned pixel has k² times the area, so the exposure time is divided by k²
     — a binned pixel collects the charge an unbinned one would (the operator
     re-exposes), and frames stay as far from saturation as at full resolution;
-    full well, read noise and ADC are those of the rig's sensor table.
+    full well, read noise and ADC are those of the rig's sensor table.  Stage
+    keys that the rule derived for ``rig`` are derived again for the binned
+    sensor (:mod:`scheimpflug.model.plan`: its pixel margins are in the pixels
+    the pipeline reads); keys the rig sets are kept.
     """
     if not isinstance(k, int) or isinstance(k, bool) or k < 1:
         raise ValueError(f"binning must be an integer >= 1, got {k!r}")

@@ -24,8 +24,10 @@ from pathlib import Path
 from typing import Any
 
 from scheimpflug.errors import RigError
+from scheimpflug.model.plan import resolve_stage
 
 __all__ = [
+    "DERIVED_STAGE_KEYS",
     "Environment",
     "Laser",
     "Lens",
@@ -132,22 +134,50 @@ class Sensor:
 class Stage:
     """Translation and rotary stages (INTERFACE.md stage conventions).
 
-    d0_mm : stage coordinate of the object hinge; a face at stage s is at D = s − d0 [mm].
-    axis_mm : rotary axis position in stage coordinates [mm].
-    calibration_table_z_mm : height of the translation stage's table (plate bottom) [mm].
-    rotary_table_z_mm : height of the rotary stage's table below/above the optical axis [mm].
-    axis_tilt_deg, axis_tilt_azimuth_deg : tilt of the rotary axis from vertical and
-        the direction it leans to (0 = toward +propagation) [deg].
-    runout_um : radial runout of the rotary axis (once per turn) [µm].
+    The five position keys below may be left out of a rig file (``None`` here):
+    a :class:`Rig` then derives them from its working volume by the rule of
+    :mod:`scheimpflug.model.plan` (stage zero at the near end of the view, the
+    tallest plate that shows both edges over the whole depth range, the axis
+    where the largest cylinder as tall as it is wide stays in view at every
+    angle).  A built :class:`Rig` always holds numbers; :attr:`Rig.derived`
+    names the keys that were derived.
+
+    Attributes
+    ----------
+    d0_mm : float or None
+        Stage coordinate of the object hinge; a face at stage s is at
+        D = s − d0 [mm].  Paper −466; rule: −⌊D at column 0⌋.
+    axis_mm : float or None
+        Rotary axis position in stage coordinates [mm].  Paper 179.45.
+    calibration_table_z_mm : float or None
+        Height of the translation stage's table (plate bottom) above the
+        meridian plane [mm].  Paper −54.
+    calibration_plate_height_mm : float or None
+        Height of the calibration plate that stands on that table [mm].
+        Paper 89.
+    rotary_table_z_mm : float or None
+        Height of the rotary stage's table above the meridian plane
+        (negative: below) [mm].  Paper −70.
+    axis_tilt_deg, axis_tilt_azimuth_deg : float
+        Tilt of the rotary axis from vertical and the direction it leans to
+        (0 = toward +propagation) [deg].
+    runout_um : float
+        Radial runout of the rotary axis (once per turn) [µm].
     """
 
-    d0_mm: float = -466.0
-    axis_mm: float = 179.45
-    calibration_table_z_mm: float = -54.0
-    rotary_table_z_mm: float = -70.0
+    d0_mm: float | None = None
+    axis_mm: float | None = None
+    calibration_table_z_mm: float | None = None
+    calibration_plate_height_mm: float | None = None
+    rotary_table_z_mm: float | None = None
     axis_tilt_deg: float = 0.0
     axis_tilt_azimuth_deg: float = 0.0
     runout_um: float = 0.0
+
+
+#: Stage keys that a rig may leave out; :mod:`scheimpflug.model.plan` derives them.
+DERIVED_STAGE_KEYS = ("d0_mm", "axis_mm", "calibration_table_z_mm", "calibration_plate_height_mm",
+                      "rotary_table_z_mm")
 
 
 @dataclass(frozen=True)
@@ -163,25 +193,71 @@ class Environment:
 
 @dataclass(frozen=True)
 class Rig:
-    """A whole instrument: one table of the rig file per field."""
+    """A whole instrument: one table of the rig file per field.
+
+    Stage position keys left as None are derived at construction from the
+    rig's working volume (:func:`scheimpflug.model.plan.resolve_stage`), so
+    ``rig.stage.d0_mm`` and the others are always numbers.
+
+    Attributes
+    ----------
+    lens, laser, sensor, stage, environment
+        The tables of the rig file.
+    derived : tuple of str
+        The ``[stage]`` keys that were derived rather than given (not part of
+        the rig's value: two rigs with the same numbers are equal).
+    """
 
     lens: Lens = field(default_factory=Lens)
     laser: Laser = field(default_factory=Laser)
     sensor: Sensor = field(default_factory=Sensor)
     stage: Stage = field(default_factory=Stage)
     environment: Environment = field(default_factory=Environment)
+    derived: tuple[str, ...] = field(default=(), init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         validate_rig(self)
+        stage, derived = resolve_stage(self)
+        object.__setattr__(self, "stage", stage)
+        object.__setattr__(self, "derived", derived)
 
-    def replace(self, **tables: Mapping[str, Any]) -> Rig:
-        """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``."""
-        data = rig_to_dict(self)
+    def replace(self, *, rederive: bool = True, **tables: Mapping[str, Any]) -> Rig:
+        """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``.
+
+        Parameters
+        ----------
+        rederive : bool
+            Derive again, for the new rig, the stage keys that were derived for
+            this one (unless given in ``stage``); False keeps their values (a
+            binned read-out of the same instrument keeps its stages).  A key
+            given as None is derived.
+        **tables : mapping
+            Keys to change, per table.
+
+        Returns
+        -------
+        Rig
+            The new rig.
+
+        Raises
+        ------
+        RigError
+            Unknown table or key, or an impossible value.
+        """
+        data: dict[str, dict[str, Any]] = rig_to_dict(self)
         for table, values in tables.items():
             if table not in data:
                 raise RigError(f"unknown rig table [{table}]")
             data[table].update(values)
-        return rig_from_dict(data)
+        given = set(tables.get("stage", {}))
+        again = tuple(k for k in self.derived if k not in given)
+        if rederive:
+            data["stage"].update({k: None for k in again})
+        new = rig_from_dict(data)
+        if not rederive:
+            object.__setattr__(new, "derived", tuple(k for k in DERIVED_STAGE_KEYS
+                                                     if k in again or k in new.derived))
+        return new
 
 
 _TABLES: dict[str, type] = {
@@ -212,6 +288,10 @@ def _check_fields(table: str, obj: Any) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         kind = hints[f.name]
+        if kind == float | None:
+            if value is None:
+                continue
+            kind = float
         if kind is int:
             _require(isinstance(value, int) and not isinstance(value, bool), table, f.name,
                      value, "must be an integer")
@@ -292,6 +372,9 @@ def _validate_sensor(s: Sensor) -> None:
 
 
 def _validate_stage(st: Stage) -> None:
+    if st.calibration_plate_height_mm is not None:
+        _require(st.calibration_plate_height_mm > 0, "stage", "calibration_plate_height_mm",
+                 st.calibration_plate_height_mm, "must be > 0")
     _require(0 <= st.axis_tilt_deg < 10, "stage", "axis_tilt_deg", st.axis_tilt_deg,
              "must be in [0, 10)")
     _require(st.runout_um >= 0, "stage", "runout_um", st.runout_um, "must be >= 0")
@@ -300,7 +383,11 @@ def _validate_stage(st: Stage) -> None:
 # ---------------------------------------------------------------- (de)serialisation
 
 
-def _coerce(table: str, key: str, kind: type, value: Any) -> Any:
+def _coerce(table: str, key: str, kind: Any, value: Any) -> Any:
+    if kind == float | None:
+        if value is None:
+            return None
+        kind = float
     if isinstance(value, bool):
         raise RigError(f"[{table}] {key} = {value!r}: must be a number, not a boolean")
     if kind is float and isinstance(value, (int, float)):
@@ -325,7 +412,28 @@ def _table_from_dict(name: str, cls: type, values: Any) -> Any:
 
 
 def rig_from_dict(data: Mapping[str, Any]) -> Rig:
-    """Build a :class:`Rig` from nested tables; missing keys take the paper defaults."""
+    """Build a :class:`Rig` from nested tables.
+
+    Missing keys take their defaults: the paper's values, except the stage
+    position keys (:data:`DERIVED_STAGE_KEYS`), which are derived from the
+    rig's working volume (:mod:`scheimpflug.model.plan`); None also means
+    "derive".
+
+    Parameters
+    ----------
+    data : mapping
+        ``{"lens": {...}, "laser": {...}, ...}`` as in the rig file.
+
+    Returns
+    -------
+    Rig
+        The rig, its stage keys resolved.
+
+    Raises
+    ------
+    RigError
+        Unknown table or key, a value of the wrong type, an impossible rig.
+    """
     if not isinstance(data, Mapping):
         raise RigError(f"a rig must be a table of tables, got {type(data).__name__}")
     unknown = sorted(set(data) - set(_TABLES))
@@ -336,16 +444,42 @@ def rig_from_dict(data: Mapping[str, Any]) -> Rig:
 
 
 def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
-    """Nested plain tables, as in the rig file (and in ``manifest.json``)."""
+    """Nested plain tables, as in the rig file (and in ``manifest.json``).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+
+    Returns
+    -------
+    dict
+        Every key of every table with its value; derived stage keys hold the
+        values the rule gave them.
+    """
     return {name: dataclasses.asdict(getattr(rig, name)) for name in _TABLES}
 
 
 def rig_to_toml(rig: Rig) -> str:
-    """The rig file text for ``rig`` (every key, with its value)."""
+    """The rig file text for ``rig``.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+
+    Returns
+    -------
+    str
+        Every key with its value; stage keys that the rule derived carry the
+        comment ``# derived``.
+    """
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
         lines.append(f"[{name}]")
-        lines += [f"{k} = {v!r}" for k, v in table.items()]
+        for k, v in table.items():
+            note = "  # derived (scheimpflug.model.plan)" if name == "stage" and k in rig.derived else ""
+            lines.append(f"{k} = {v!r}{note}")
         lines.append("")
     return "\n".join(lines)
 
