@@ -98,7 +98,29 @@ __all__ = [
 
 @dataclass(frozen=True)
 class CalibrationTolerances:
-    """Thresholds of the plate measurement, one reason each."""
+    """Thresholds of the plate measurement, one reason each.
+
+    Parameters
+    ----------
+    min_rows : int, default 20
+        Fewer lit rows: no plate in view [rows].
+    outlier_floor_px : float, default 0.5
+        Never reject stripe points closer than this to the line [px].
+    outlier_mads : float, default 4.0
+        Reject points beyond this many robust σ (1.4826 × MAD) from the line [-].
+    band_px : int, default 4
+        Half-band beside the stripe summed for the edge profile [px].
+    edge_inset_rows : int, default 4
+        Plateau starts this far inside the edge (blur ≈ 1 px) [rows].
+    plateau_rows : int, default 12
+        Rows averaged (median) for the plateau / background level [rows].
+    background_gap_rows : int, default 6
+        Background rows start this far outside the edge [rows].
+    min_frames : int, default 3
+        Fewer usable frames cannot fix a line and a hinge [-].
+    min_slope_gap : float, default 1e-3
+        Endpoint slopes closer than this are parallel [-].
+    """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
     outlier_floor_px: float = 0.5  # never reject stripe points closer than this to the line [px]
@@ -126,7 +148,7 @@ class Calibration:
     measurement noise that the fits' residuals show (module docstring); NaN
     (null in JSON) when a fit is exactly determined and cannot show its noise.
 
-    Attributes
+    Parameters
     ----------
     hinge_u_px, hinge_v_px : float
         Image hinge (u_h, v_h) [px].
@@ -194,24 +216,52 @@ class Calibration:
         Parameters
         ----------
         u, v : array_like float
-            Column and row [px], broadcast together.
+            Column and row on the sensor [px], shapes that broadcast together.
 
         Returns
         -------
         stage_mm, h_mm : ndarray float64
             ``F²/(u − u_h) + d0`` and ``C·(v − v_h)/(u − u_h)`` [mm]; NaN at u = u_h
             (:func:`scheimpflug.model.hinge.stage_from_pixel`).
+
+        Raises
+        ------
+        ValueError
+            If ``u`` and ``v`` do not broadcast together.
         """
         return stage_from_pixel(u, v, *self.constants())
 
     def pixel_from_stage(self, stage_mm, h_mm) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel (u, v) [px] of the sheet point (stage_mm, h_mm) [mm]: the inverse of
-        :meth:`stage_from_pixel` (:func:`scheimpflug.model.hinge.pixel_from_stage`).
+        """Pixel of a sheet point: the inverse of :meth:`stage_from_pixel`.
+
+        Parameters
+        ----------
+        stage_mm, h_mm : array_like float
+            Stage coordinate and height above the meridian plane [mm], shapes
+            that broadcast together.
+
+        Returns
+        -------
+        u_px, v_px : ndarray float64
+            Pixel (u, v) [px]; NaN at ``stage_mm = d0``
+            (:func:`scheimpflug.model.hinge.pixel_from_stage`).
+
+        Raises
+        ------
+        ValueError
+            If ``stage_mm`` and ``h_mm`` do not broadcast together.
         """
         return pixel_from_stage(stage_mm, h_mm, *self.constants())
 
     def constants(self) -> tuple[float, float, float, float, float]:
-        """(u_h [px], v_h [px], F² [px·mm], d0 [mm], C [mm]) in the order of the hinge functions."""
+        """The calibration constants in the order of the hinge functions.
+
+        Returns
+        -------
+        tuple of float
+            (u_h [px], v_h [px], F² [px·mm], d0 [mm], C [mm]), as
+            :func:`scheimpflug.model.hinge.stage_from_pixel` takes them.
+        """
         return self.hinge_u_px, self.hinge_v_px, self.F2_px_mm, self.d0_mm, self.C_mm
 
     def _core_dict(self) -> dict[str, Any]:
@@ -242,7 +292,13 @@ class Calibration:
         return d
 
     def save(self, path: str | Path) -> None:
-        """Write :meth:`to_json_dict` to ``path`` atomically."""
+        """Write :meth:`to_json_dict` to a file atomically.
+
+        Parameters
+        ----------
+        path : str or Path
+            Destination JSON file.
+        """
         write_json_atomic(path, self.to_json_dict())
 
     @classmethod
@@ -286,7 +342,24 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        """Read a calibration JSON written by :meth:`save` (or by ``scheimpflug calibrate``)."""
+        """Read a calibration JSON written by :meth:`save` (or by ``scheimpflug calibrate``).
+
+        Parameters
+        ----------
+        path : str or Path
+            The calibration file.
+
+        Returns
+        -------
+        Calibration
+            The calibration.
+
+        Raises
+        ------
+        CalibrationError
+            If the file is missing, unreadable or not a JSON object, lacks or
+            garbles a field, or does not have F² < 0, C > 0 and a finite d0.
+        """
         p = Path(path)
         try:
             d = json.loads(p.read_text("utf-8"))
@@ -317,14 +390,25 @@ def _float(d, key) -> float:
 
 @dataclass(frozen=True)
 class PlateMeasurement:
-    """What one calibration frame gives.
+    """What one calibration frame gives (:func:`measure_plate_frame`).
 
-    stage_mm : stage coordinate [mm].
-    u_mean_px : mean stripe centre over the lit rows [px].
-    n_rows : lit rows on the plate [-].
-    line : (a, b) of the stripe line u = a + b v [px, px/px].
-    top_px, bottom_px : (u, v) of the top and bottom endpoints, or None [px].
-    rows, u : the inlier stripe points [px].
+    Parameters
+    ----------
+    stage_mm : float
+        Stage coordinate [mm].
+    u_mean_px : float
+        Mean stripe centre over the lit (inlier) rows [px].
+    n_rows : int
+        Lit inlier rows on the plate [-].
+    line : tuple of float
+        (a, b) of the stripe line u = a + b v [px, px/px].
+    top_px, bottom_px : tuple of float or None
+        (u, v) of the top and bottom endpoints on the stripe line, or None if
+        not measurable [px].
+    rows : (n,) ndarray int64
+        Rows of the inlier stripe points [px].
+    u : (n,) ndarray float64
+        Columns of the inlier stripe points [px].
     """
 
     stage_mm: float
@@ -341,7 +425,7 @@ class PlateMeasurement:
 class CalibrationResult:
     """Both estimates, the chosen one and the diagnostics for plots.
 
-    Attributes
+    Parameters
     ----------
     best : Calibration
         The chosen estimate.
@@ -353,7 +437,7 @@ class CalibrationResult:
         (file or index, reason) of every frame not used.
     top_line, bottom_line : tuple of float
         (m, b) of the paper's endpoint fits v = m u + b.
-    partial : tuple of (str, str)
+    partial : tuple of (str, str), default ()
         (file, "top" or "bottom": the edge not seen) of frames used with one edge.
     """
 
@@ -428,9 +512,34 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
                         tol: CalibrationTolerances = CalibrationTolerances()) -> PlateMeasurement:
     """Stripe line and sub-pixel plate endpoints of one calibration frame.
 
-    Raises :class:`CalibrationError` (with the reason) when the frame holds no
-    usable plate stripe; endpoints that cannot be measured (edge outside the
-    frame) are None.
+    The stripe centres (``detector``) are fitted by a line u = a + b v with
+    iterative MAD rejection; each endpoint is the sub-pixel row where a band
+    beside the stripe falls to 50 % between its plateau and the background.
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The frame [DN].
+    stage_mm : float
+        Stage coordinate of the plate in this frame [mm].
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+    saturation_dn : float, optional
+        Saturation level [DN]; default the dtype's maximum.
+    tol : CalibrationTolerances, optional
+        Thresholds; default :class:`CalibrationTolerances`'s.
+
+    Returns
+    -------
+    PlateMeasurement
+        The stripe line and endpoints; an endpoint that cannot be measured
+        (edge outside the frame, no plateau) is None.
+
+    Raises
+    ------
+    CalibrationError
+        With the reason, when the frame holds no usable plate stripe: too few
+        lit rows, too few rows on a line, or the stripe saturated in most rows.
     """
     prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
     if len(prof) < tol.min_rows:
@@ -801,16 +910,16 @@ class CalibrationAccuracy:
 
     Defaults: the closed-loop targets of the twin (tests/test_any_rig.py).
 
-    Attributes
+    Parameters
     ----------
-    hinge_px : float
+    hinge_px : float, default 0.5
         Target for u_h and v_h [px].
-    relative : float
+    relative : float, default 5e-4
         Target for F² and C, relative [-].
-    d0_resolution : float
+    d0_resolution : float, default 0.1
         Target for d0 in units of the distance resolution at the centre
         column, |F²|/(N_u/2 − u_h)² [-].
-    coverage : float
+    coverage : float, default 2.0
         A constant meets its target when ``coverage × standard error ≤ target`` [-].
     """
 

@@ -300,11 +300,12 @@ def body_labels(faces: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    faces : (m, 3) int
+    faces : (m, 3) array_like int
+        Triangle vertex indices.
 
     Returns
     -------
-    (m,) int
+    (m,) ndarray int64
         Body index per face, 0 .. n_bodies - 1, numbered by first appearance.
     """
     from scipy.sparse import coo_matrix
@@ -324,16 +325,16 @@ def body_labels(faces: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class MeshDistance:
-    """Point-to-mesh distances of a set of points.
+    """Point-to-mesh distances of a set of points (:meth:`PointToMesh.query`).
 
-    Attributes
+    Parameters
     ----------
-    distance_mm : (n,) float
+    distance_mm : (n,) ndarray float64
         Distance to the mesh [mm]; signed (positive outside) when ``signed``.
-    face : (n,) int
+    face : (n,) ndarray int64
         Index of the nearest face.
-    closest_mm : (n, 3) float
-        Nearest point on the mesh [mm].
+    closest_mm : (n, 3) ndarray float64
+        Nearest point on the mesh, in the mesh's frame [mm].
     signed : bool
         Whether ``distance_mm`` carries a sign (mesh closed and consistently wound).
     """
@@ -349,12 +350,30 @@ class PointToMesh:
 
     Parameters
     ----------
-    vertices : (nv, 3) float
+    vertices : (nv, 3) array_like float
+        Vertex positions [mm], nv >= 3, all finite.
+    faces : (m, 3) array_like int
+        Triangles (vertex indices), m >= 1; counter-clockwise seen from outside
+        for a closed mesh (an inward-wound closed mesh is detected by its
+        negative volume and handled).
+
+    Attributes
+    ----------
+    vertices : (nv, 3) ndarray float64
         Vertex positions [mm].
-    faces : (m, 3) int
-        Triangles (vertex indices); counter-clockwise seen from outside for a
-        closed mesh (an inward-wound closed mesh is detected by its negative
-        volume and handled).
+    faces : (m, 3) ndarray int64
+        Triangles.
+    triangles : (m, 3, 3) ndarray float64
+        Corner positions of every triangle [mm].
+    closed : bool
+        Whether the mesh is closed and consistently wound
+        (:func:`is_closed_mesh`): then distances are signed.
+
+    Raises
+    ------
+    MeshError
+        If the arrays have the wrong shape, faces index missing vertices or
+        are not integers, or a vertex is not finite.
 
     Notes
     -----
@@ -377,7 +396,23 @@ class PointToMesh:
             self._orientation = -1.0
 
     def query(self, points: np.ndarray) -> MeshDistance:
-        """Distances of ``points`` (n, 3) [mm] to the mesh; see :class:`MeshDistance`."""
+        """Exact distances of points to the mesh.
+
+        Parameters
+        ----------
+        points : (n, 3) array_like float
+            Query points in the mesh's frame [mm], all finite.
+
+        Returns
+        -------
+        MeshDistance
+            Distance (signed when the mesh is closed), nearest face and point.
+
+        Raises
+        ------
+        ValueError
+            If ``points`` is not (n, 3) or holds NaN or infinite coordinates.
+        """
         p = np.ascontiguousarray(points, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must be an (n, 3) array, got shape {p.shape}")
@@ -416,16 +451,24 @@ def point_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -
 
     Parameters
     ----------
-    points : (n, 3) float
-        Query points [mm].
-    vertices : (nv, 3) float
+    points : (n, 3) array_like float
+        Query points in the mesh's frame [mm].
+    vertices : (nv, 3) array_like float
         Mesh vertices [mm].
-    faces : (m, 3) int
+    faces : (m, 3) array_like int
         Mesh triangles.
 
     Returns
     -------
     MeshDistance
+        Distance, nearest face and nearest point of every point.
+
+    Raises
+    ------
+    MeshError
+        For an invalid mesh (see :class:`PointToMesh`).
+    ValueError
+        For points not (n, 3) or not finite.
     """
     return PointToMesh(vertices, faces).query(points)
 
@@ -446,6 +489,11 @@ def distance_stats(distance_mm: np.ndarray, signed: bool) -> dict:
         ``n_points``, ``rms_mm``, ``mean_abs_mm``, ``p95_mm`` (95th percentile of
         |d|), ``max_mm`` (max |d|), and when signed ``mean_signed_mm``,
         ``std_signed_mm``, ``fraction_inside``.
+
+    Raises
+    ------
+    ValueError
+        If there are no distances.
     """
     d = np.asarray(distance_mm, dtype=np.float64)
     if d.size == 0:
@@ -470,11 +518,13 @@ def score_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
 
     Parameters
     ----------
-    points : (n, 3) float
-        Measured points in the mesh's frame [mm].
-    vertices, faces
-        The true surface (see :func:`point_to_mesh`).
-    face_object_id : (m,) int, optional
+    points : (n, 3) array_like float
+        Measured points in the mesh's frame (the part frame for a scan) [mm].
+    vertices : (nv, 3) array_like float
+        Vertices of the true surface [mm] (see :func:`point_to_mesh`).
+    faces : (m, 3) array_like int
+        Triangles of the true surface.
+    face_object_id : (m,) array_like int, optional
         Object id per face (the twin's ``truth/mesh.ply`` ``object_id``).  When
         absent, connected components of the mesh are the bodies.
 
@@ -482,8 +532,17 @@ def score_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     -------
     dict
         :func:`distance_stats` fields, ``distance_kind`` ("signed" or
-        "unsigned"), ``n_faces``, and ``regions``: {id: stats} over the points
-        whose nearest face belongs to that body (only when there are ≥ 2 bodies).
+        "unsigned"), ``n_faces``, and ``region_key`` ("object_id" or "body")
+        with ``regions``: {id: stats} over the points whose nearest face
+        belongs to that body (only when there are ≥ 2 bodies).
+
+    Raises
+    ------
+    ValueError
+        If ``points`` is not a non-empty (n, 3) array, or holds non-finite
+        coordinates.
+    MeshError
+        For an invalid mesh, or ``face_object_id`` not of one value per face.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:

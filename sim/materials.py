@@ -45,9 +45,26 @@ MATERIALS = ("cardboard", "knurled-metal", "metal", "tape")
 class MaterialSettings:
     """Parameters of the four material tags.
 
-    cardboard_albedo, tape_albedo : Lambertian albedo at the laser wavelength [-].
-    metal_alpha, knurled_alpha : GGX roughness α (≈ RMS facet slope) [-].
-    conductor : Mitsuba conductor name for both metals (``Al``, ``Cr``, ``Ni`` ...).
+    Frozen; the defaults are the table of the module docstring (assumptions,
+    not measurements).
+
+    Parameters
+    ----------
+    cardboard_albedo : float, default 0.35
+        Lambertian albedo of ``cardboard`` at the laser wavelength, in [0, 1] [-].
+    tape_albedo : float, default 0.55
+        Lambertian albedo of ``tape`` at the laser wavelength, in [0, 1] [-].
+    metal_alpha : float, default 0.25
+        GGX roughness α (≈ RMS facet slope) of ``metal``, in (0, 1] [-].
+    knurled_alpha : float, default 0.5
+        GGX roughness α of ``knurled-metal``, in (0, 1] [-].
+    conductor : str, default "Al"
+        Mitsuba conductor name for both metals (``Al``, ``Cr``, ``Ni`` ...).
+
+    Raises
+    ------
+    ValueError
+        When an albedo is outside [0, 1] or a roughness outside (0, 1].
     """
 
     cardboard_albedo: float = 0.35
@@ -85,6 +102,13 @@ def bsdf_dict(material: str, settings: MaterialSettings | None = None) -> dict[s
     settings : MaterialSettings, optional
         Albedos and roughnesses (defaults: the table in the module docstring).
 
+    Returns
+    -------
+    dict
+        ``{"type": "twosided", "material": {...}}``: a ``diffuse`` BSDF with a
+        grey RGB reflectance for ``cardboard``/``tape``, a GGX
+        ``roughconductor`` for ``metal``/``knurled-metal``.
+
     Raises
     ------
     MeshError
@@ -103,7 +127,20 @@ def bsdf_dict(material: str, settings: MaterialSettings | None = None) -> dict[s
 
 
 def channel_for_wavelength(wavelength_nm: float) -> int:
-    """RGB channel index (0 = R, 1 = G, 2 = B) whose band holds ``wavelength_nm`` [nm]."""
+    """RGB channel whose band holds a wavelength.
+
+    Bands: blue < 490 nm ≤ green < 580 nm ≤ red.
+
+    Parameters
+    ----------
+    wavelength_nm : float
+        Laser wavelength [nm].
+
+    Returns
+    -------
+    int
+        Channel index (0 = R, 1 = G, 2 = B).
+    """
     if wavelength_nm < 490.0:
         return 2
     return 1 if wavelength_nm < 580.0 else 0

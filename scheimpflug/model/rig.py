@@ -40,17 +40,23 @@ __all__ = [
     "rig_from_dict",
     "rig_to_dict",
     "rig_to_toml",
+    "validate_rig",
 ]
 
 
 @dataclass(frozen=True)
 class Lens:
-    """Ideal thin lens.
+    """Ideal thin lens (the ``[lens]`` table of the rig file).
 
-    focal_length_mm : f [mm], > 0.
-    f_number : N, aperture diameter = f / N [-], > 0.
-    k1, k2 : radial distortion of the chief-ray angle, tan θ_d = tan θ (1 + k1 t² + k2 t⁴)
-        with t = tan θ [-]; 0 for an ideal lens.
+    Parameters
+    ----------
+    focal_length_mm : float, default 55.0
+        Focal length f [mm], > 0.
+    f_number : float, default 5.6
+        N, aperture diameter = f / N [-], > 0.
+    k1, k2 : float, default 0.0
+        Radial distortion of the chief-ray angle,
+        tan θ_d = tan θ (1 + k1 t² + k2 t⁴) with t = tan θ [-]; 0 for an ideal lens.
     """
 
     focal_length_mm: float = 55.0
@@ -61,20 +67,34 @@ class Lens:
 
 @dataclass(frozen=True)
 class Laser:
-    """Line laser spreading a vertical sheet ``y = d − x·tan φ``.
+    """Line laser spreading a vertical sheet ``y = d − x·tan φ`` in the rig frame (the ``[laser]`` table).
 
-    scheimpflug_distance_mm : d, lens centre to the Scheimpflug line [mm].
-    tan_phi : tan φ, sheet angle to the optical axis [-].
-    wavelength_nm : [nm].
-    power_mw : optical power in the whole fan [mW].
-    origin_x_mm : x of the laser origin on the sheet, in the meridian plane [mm].
-    waist_um : 1/e² half-thickness of the sheet at its waist [µm].
-    waist_distance_mm : distance of the waist from the origin along the sheet [mm].
-    divergence_mrad : far-field 1/e² half-angle of the thickness [mrad]
+    Parameters
+    ----------
+    scheimpflug_distance_mm : float, default 150.0
+        d, lens centre to the Scheimpflug line [mm], > 0.
+    tan_phi : float, default 0.2075
+        tan φ, sheet angle to the optical axis [-]; d − f·tan φ must be > 0
+        (paper Eq. 5).
+    wavelength_nm : float, default 450.0
+        Laser wavelength [nm].
+    power_mw : float, default 3.0
+        Optical power in the whole fan [mW].
+    origin_x_mm : float, default 0.0
+        x of the laser origin on the sheet, in the meridian plane [mm]; < f.
+    waist_um : float, default 150.0
+        1/e² half-thickness of the sheet at its waist [µm].
+    waist_distance_mm : float, default 640.0
+        Distance of the waist from the origin along the sheet [mm].
+    divergence_mrad : float, default 1.5
+        Far-field 1/e² half-angle of the thickness [mrad]
         (≥ λ / (π w0), the diffraction limit).
-    fan_angle_deg : full opening of the fan in the sheet [deg].
-    fan_edge_deg : width of the soft fan edge (Gaussian roll-off) [deg].
-    speckle_contrast : multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
+    fan_angle_deg : float, default 40.0
+        Full opening of the fan in the sheet [deg], in (0, 180).
+    fan_edge_deg : float, default 1.0
+        Width of the soft fan edge (Gaussian roll-off) [deg].
+    speckle_contrast : float, default 0.0
+        Multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
     """
 
     scheimpflug_distance_mm: float = 150.0
@@ -92,23 +112,38 @@ class Laser:
 
 @dataclass(frozen=True)
 class Sensor:
-    """Image sensor, tilted by the Scheimpflug angle (placement set by the hinge pixel).
+    """Image sensor, tilted by the Scheimpflug angle, placement set by the hinge pixel (the ``[sensor]`` table).
 
-    pixel_pitch_um : p [µm].
-    columns, rows : N_u × N_v; columns run along the tilt (distance) direction and
+    Parameters
+    ----------
+    pixel_pitch_um : float, default 5.86
+        Pixel pitch p [µm].
+    columns, rows : int, default 1216, 1936
+        N_u × N_v [px]; columns run along the tilt (distance) direction and
         increase toward the image hinge; rows run along height, increasing downward.
-    hinge_column : u_h, column of the image hinge [px]; must lie beyond the last column.
-    axis_row : v_h, row of the meridian plane [px].
-    roll_deg, tilt_error_deg : misalignment of the sensor about its normal and about
-        its row axis (changes β), through the sensor centre [deg].
-    offset_u_px, offset_v_px, offset_normal_um : sensor displacement [px, px, µm].
-    quantum_efficiency : electrons per photon at the laser wavelength [-].
-    full_well_e : saturation charge [e⁻].
-    read_noise_e : RMS read noise [e⁻].
-    dark_offset_dn : black level added by the ADC [DN].
-    adc_bits : ADC depth; frames are stored as 16-bit PNG [bit].
-    gain_e_per_dn : conversion gain; 0 = full well maps to full scale [e⁻/DN].
-    exposure_ms : exposure time [ms].
+    hinge_column : float, default 3196.0
+        u_h, column of the image hinge [px]; must lie beyond the last column.
+    axis_row : float, default 771.0
+        v_h, row of the meridian plane [px].
+    roll_deg, tilt_error_deg : float, default 0.0
+        Misalignment of the sensor about its normal and about its row axis
+        (changes β), through the sensor centre [deg]; within ±45° and ±30°.
+    offset_u_px, offset_v_px, offset_normal_um : float, default 0.0
+        Sensor displacement along columns, rows and the normal [px, px, µm].
+    quantum_efficiency : float, default 0.75
+        Electrons per photon at the laser wavelength [-], in (0, 1].
+    full_well_e : float, default 32000.0
+        Saturation charge [e⁻].
+    read_noise_e : float, default 6.0
+        RMS read noise [e⁻].
+    dark_offset_dn : float, default 16.0
+        Black level added by the ADC [DN].
+    adc_bits : int, default 12
+        ADC depth, 1..16; frames are stored as 16-bit PNG [bit].
+    gain_e_per_dn : float, default 0.0
+        Conversion gain; 0 = full well maps to full scale [e⁻/DN].
+    exposure_ms : float, default 0.5
+        Exposure time [ms].
     """
 
     pixel_pitch_um: float = 5.86
@@ -132,36 +167,36 @@ class Sensor:
 
 @dataclass(frozen=True)
 class Stage:
-    """Translation and rotary stages (INTERFACE.md stage conventions).
+    """Translation and rotary stages (INTERFACE.md stage conventions; the ``[stage]`` table).
 
-    The five position keys below may be left out of a rig file (``None`` here):
-    a :class:`Rig` then derives them from its working volume by the rule of
-    :mod:`scheimpflug.model.plan` (stage zero at the near end of the view, the
-    tallest plate that shows both edges over the whole depth range, the axis
-    where the largest cylinder as tall as it is wide stays in view at every
-    angle).  A built :class:`Rig` always holds numbers; :attr:`Rig.derived`
-    names the keys that were derived.
+    The five position keys (:data:`DERIVED_STAGE_KEYS`) may be left out of a
+    rig file (None here): a :class:`Rig` then derives them from its working
+    volume by the rule of :mod:`scheimpflug.model.plan` — stage zero at the
+    near end of the view, the tallest plate that shows both edges over the
+    whole depth range, the axis where the largest cylinder as tall as it is
+    wide stays in view at every angle.  A built :class:`Rig` always holds
+    numbers; :attr:`Rig.derived` names the keys that were derived.  The paper
+    preset sets them all (the values below).
 
-    Attributes
+    Parameters
     ----------
-    d0_mm : float or None
+    d0_mm : float or None, default None
         Stage coordinate of the object hinge; a face at stage s is at
         D = s − d0 [mm].  Paper −466; rule: −⌊D at column 0⌋.
-    axis_mm : float or None
+    axis_mm : float or None, default None
         Rotary axis position in stage coordinates [mm].  Paper 179.45.
-    calibration_table_z_mm : float or None
+    calibration_table_z_mm : float or None, default None
         Height of the translation stage's table (plate bottom) above the
         meridian plane [mm].  Paper −54.
-    calibration_plate_height_mm : float or None
-        Height of the calibration plate that stands on that table [mm].
-        Paper 89.
-    rotary_table_z_mm : float or None
+    calibration_plate_height_mm : float or None, default None
+        Height of the calibration plate on that table [mm], > 0.  Paper 89.
+    rotary_table_z_mm : float or None, default None
         Height of the rotary stage's table above the meridian plane
         (negative: below) [mm].  Paper −70.
-    axis_tilt_deg, axis_tilt_azimuth_deg : float
-        Tilt of the rotary axis from vertical and the direction it leans to
-        (0 = toward +propagation) [deg].
-    runout_um : float
+    axis_tilt_deg, axis_tilt_azimuth_deg : float, default 0.0
+        Tilt of the rotary axis from vertical, in [0, 10), and the direction it
+        leans to (0 = toward +propagation) [deg].
+    runout_um : float, default 0.0
         Radial runout of the rotary axis (once per turn) [µm].
     """
 
@@ -182,10 +217,13 @@ DERIVED_STAGE_KEYS = ("d0_mm", "axis_mm", "calibration_table_z_mm", "calibration
 
 @dataclass(frozen=True)
 class Environment:
-    """Light that is not the laser.
+    """Light that is not the laser (the ``[environment]`` table).
 
-    ambient_irradiance_w_m2 : diffuse ambient irradiance on the scene within the
-        camera's spectral band [W/m²].
+    Parameters
+    ----------
+    ambient_irradiance_w_m2 : float, default 0.02
+        Diffuse ambient irradiance on the scene within the camera's spectral
+        band [W/m²], >= 0.
     """
 
     ambient_irradiance_w_m2: float = 0.02
@@ -195,17 +233,35 @@ class Environment:
 class Rig:
     """A whole instrument: one table of the rig file per field.
 
-    Stage position keys left as None are derived at construction from the
-    rig's working volume (:func:`scheimpflug.model.plan.resolve_stage`), so
-    ``rig.stage.d0_mm`` and the others are always numbers.
+    The rig is validated on construction (:func:`validate_rig`); stage position
+    keys left as None are then derived from the rig's working volume
+    (:func:`scheimpflug.model.plan.resolve_stage`), so ``rig.stage.d0_mm`` and
+    the others are always numbers, and :attr:`derived` names them.
+
+    Parameters
+    ----------
+    lens : Lens, optional
+        The ``[lens]`` table; default the paper lens.
+    laser : Laser, optional
+        The ``[laser]`` table; default the paper laser.
+    sensor : Sensor, optional
+        The ``[sensor]`` table; default the paper sensor.
+    stage : Stage, optional
+        The ``[stage]`` table; default: every position key derived.
+    environment : Environment, optional
+        The ``[environment]`` table; default the paper's ambient light.
 
     Attributes
     ----------
-    lens, laser, sensor, stage, environment
-        The tables of the rig file.
     derived : tuple of str
         The ``[stage]`` keys that were derived rather than given (not part of
         the rig's value: two rigs with the same numbers are equal).
+
+    Raises
+    ------
+    RigError
+        If a table has the wrong type, a key the wrong type or a non-finite
+        value, or the values are impossible (the message names the key).
     """
 
     lens: Lens = field(default_factory=Lens)
@@ -226,23 +282,23 @@ class Rig:
 
         Parameters
         ----------
-        rederive : bool
+        rederive : bool, default True
             Derive again, for the new rig, the stage keys that were derived for
-            this one (unless given in ``stage``); False keeps their values (a
-            binned read-out of the same instrument keeps its stages).  A key
-            given as None is derived.
-        **tables : mapping
-            Keys to change, per table.
+            this one (unless given in ``stage``); False keeps their values.  A
+            key given as None is derived.
+        **tables : Mapping[str, Any]
+            Per table name (``lens``, ``laser``, ``sensor``, ``stage``,
+            ``environment``), the keys to change and their new values.
 
         Returns
         -------
         Rig
-            The new rig.
+            The new, validated rig; ``self`` is unchanged.
 
         Raises
         ------
         RigError
-            Unknown table or key, or an impossible value.
+            For an unknown table or key, or if the changed rig is invalid.
         """
         data: dict[str, dict[str, Any]] = rig_to_dict(self)
         for table, values in tables.items():
@@ -269,6 +325,7 @@ _TABLES: dict[str, type] = {
 }
 
 PRESETS = ("paper",)
+"""Names of the built-in rigs (:func:`load_preset`)."""
 
 # ---------------------------------------------------------------- validation
 
@@ -302,7 +359,21 @@ def _check_fields(table: str, obj: Any) -> None:
 
 
 def validate_rig(rig: Rig) -> None:
-    """Raise :class:`RigError` naming the key and the reason if ``rig`` is impossible."""
+    """Check that a rig is possible.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig to check (called by ``Rig.__post_init__``).
+
+    Raises
+    ------
+    RigError
+        Naming the table, key, value and reason: a table of the wrong type, a
+        non-integer or non-finite value, or a physically impossible one (e.g.
+        f ≤ 0, d − f·tan φ ≤ 0, the hinge column inside the sensor, a
+        divergence below the diffraction limit).
+    """
     for name, cls in _TABLES.items():
         obj = getattr(rig, name)
         if not isinstance(obj, cls):
@@ -412,7 +483,7 @@ def _table_from_dict(name: str, cls: type, values: Any) -> Any:
 
 
 def rig_from_dict(data: Mapping[str, Any]) -> Rig:
-    """Build a :class:`Rig` from nested tables.
+    """Build a rig from nested tables.
 
     Missing keys take their defaults: the paper's values, except the stage
     position keys (:data:`DERIVED_STAGE_KEYS`), which are derived from the
@@ -421,18 +492,20 @@ def rig_from_dict(data: Mapping[str, Any]) -> Rig:
 
     Parameters
     ----------
-    data : mapping
-        ``{"lens": {...}, "laser": {...}, ...}`` as in the rig file.
+    data : Mapping[str, Any]
+        ``{table: {key: value}}`` as in the rig file (or ``manifest.json``);
+        integral floats are accepted for integer keys.
 
     Returns
     -------
     Rig
-        The rig, its stage keys resolved.
+        The validated rig, its stage keys resolved.
 
     Raises
     ------
     RigError
-        Unknown table or key, a value of the wrong type, an impossible rig.
+        For a non-table, an unknown table or key, a boolean or non-numeric
+        value, or an invalid rig.
     """
     if not isinstance(data, Mapping):
         raise RigError(f"a rig must be a table of tables, got {type(data).__name__}")
@@ -449,30 +522,30 @@ def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
     Parameters
     ----------
     rig : Rig
-        The rig.
+        The instrument.
 
     Returns
     -------
-    dict
-        Every key of every table with its value; derived stage keys hold the
-        values the rule gave them.
+    dict of str to dict
+        ``{table: {key: value}}``, every key of every table; derived stage
+        keys hold the values the rule gave them.
     """
     return {name: dataclasses.asdict(getattr(rig, name)) for name in _TABLES}
 
 
 def rig_to_toml(rig: Rig) -> str:
-    """The rig file text for ``rig``.
+    """The rig file text of a rig (every key, with its value).
 
     Parameters
     ----------
     rig : Rig
-        The rig.
+        The instrument.
 
     Returns
     -------
     str
-        Every key with its value; stage keys that the rule derived carry the
-        comment ``# derived``.
+        TOML text, one ``[table]`` per rig table; :func:`load_rig` reads it
+        back.  Stage keys that the rule derived carry the comment ``# derived``.
     """
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
@@ -485,7 +558,25 @@ def rig_to_toml(rig: Rig) -> str:
 
 
 def load_rig(path: str | Path) -> Rig:
-    """Read a TOML rig file; a missing, unreadable or malformed file raises :class:`RigError`."""
+    """Read a TOML rig file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The rig file (INTERFACE.md).
+
+    Returns
+    -------
+    Rig
+        The validated rig; keys not in the file take their defaults
+        (:func:`rig_from_dict`).
+
+    Raises
+    ------
+    RigError
+        If the file is missing, unreadable, not UTF-8, not valid TOML, or
+        describes an invalid rig.
+    """
     p = Path(path)
     try:
         text = p.read_bytes().decode("utf-8")
@@ -501,7 +592,23 @@ def load_rig(path: str | Path) -> Rig:
 
 
 def load_preset(name: str) -> Rig:
-    """A built-in rig by name (``paper``: DESIGN.md §2 with f/5.6)."""
+    """A built-in rig by name.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`PRESETS` (``paper``: DESIGN.md §2 with f/5.6).
+
+    Returns
+    -------
+    Rig
+        The preset, read from ``scheimpflug/model/presets/<name>.toml``.
+
+    Raises
+    ------
+    RigError
+        If ``name`` is not a known preset.
+    """
     if name not in PRESETS:
         raise RigError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     text = resources.files("scheimpflug.model").joinpath("presets", f"{name}.toml").read_text("utf-8")
