@@ -509,7 +509,8 @@ def _edge_row(frame, line, v_end: int, direction: int, side: int,
 
 def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "cog",
                         saturation_dn: float | None = None,
-                        tol: CalibrationTolerances = CalibrationTolerances()) -> PlateMeasurement:
+                        tol: CalibrationTolerances = CalibrationTolerances(),
+                        window_px: int | str = "auto") -> PlateMeasurement:
     """Stripe line and sub-pixel plate endpoints of one calibration frame.
 
     The stripe centres (``detector``) are fitted by a line u = a + b v with
@@ -528,6 +529,9 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         Saturation level [DN]; default the dtype's maximum.
     tol : CalibrationTolerances, optional
         Thresholds; default :class:`CalibrationTolerances`'s.
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
+        widens it beyond 7 px for stripes wider than σ = 7/3 px.
 
     Returns
     -------
@@ -541,7 +545,7 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         With the reason, when the frame holds no usable plate stripe: too few
         lit rows, too few rows on a line, or the stripe saturated in most rows.
     """
-    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
+    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px=window_px)
     if len(prof) < tol.min_rows:
         raise CalibrationError(f"no stripe ({len(prof)} lit rows < {tol.min_rows})")
     v = prof.rows.astype(np.float64)
@@ -662,8 +666,7 @@ def _intersection_sigmas(lt, lb, cov_t, cov_b) -> tuple[float, float]:
         J[:, i] = (np.subtract(up, um)) / (2 * dp[i])
     cov = np.zeros((4, 4))
     cov[:2, :2], cov[2:, 2:] = cov_t, cov_b
-    var = np.diag(J @ cov @ J.T)
-    return _sqrt_or_nan(var[0]), _sqrt_or_nan(var[1])
+    return _sqrt_or_nan(J[0] @ cov @ J[0]), _sqrt_or_nan(J[1] @ cov @ J[1])
 
 
 def _line_sigma(x: np.ndarray, y: np.ndarray) -> float | None:
@@ -712,17 +715,13 @@ def _paper_estimate(d: _Data, tol: CalibrationTolerances, sigma_u: float | None)
 
 
 def _scaled_covariance(J: np.ndarray, rss: float, dof: int) -> np.ndarray | None:
-    """σ²·(JᵀJ)⁻¹ with σ² = rss/dof (columns scaled for conditioning); None if dof ≤ 0."""
+    """σ²·(JᵀJ)⁻¹ with σ² = rss/dof; None if dof ≤ 0 or JᵀJ is singular."""
     if dof <= 0:
         return None
-    norm = np.linalg.norm(J, axis=0)
-    norm[norm == 0] = 1.0
-    Js = J / norm
     try:
-        inv = np.linalg.inv(Js.T @ Js)
+        return np.linalg.inv(J.T @ J) * rss / dof
     except np.linalg.LinAlgError:
         return None
-    return inv / np.outer(norm, norm) * rss / dof
 
 
 def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None):
@@ -756,7 +755,7 @@ def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None):
 
 
 def _endpoint_system(d: _Data, uh: float) -> tuple[np.ndarray, np.ndarray]:
-    """v = v_h + (u − u_h)·a_t (top) or ·a_b (bottom): design matrix and rows."""
+    """Design matrix and rows of the endpoint fit v = v_h + (u − u_h)·a_t (top) or ·a_b (bottom)."""
     top, bot = d.top[d.has_t], d.bot[d.has_b]
     nt = len(top)
     A = np.zeros((nt + len(bot), 3))

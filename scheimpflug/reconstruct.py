@@ -213,7 +213,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
-                   keep_saturated: bool = False, progress: ProgressCallback | None = None):
+                   keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                   window_px: int | str = "auto"):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -230,6 +231,9 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Keep rows whose stripe is saturated (dropped by default).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
+        widens it beyond 7 px, frame by frame, for stripes wider than σ = 7/3 px.
 
     Returns
     -------
@@ -248,7 +252,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         For an unknown ``method`` or a bad ``min_snr``.
     """
     def one(rec, frame):
-        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame))
+        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame),
+                               window_px=window_px)
 
     rows, us, peaks = [], [], []
     stats = {"blank_frames": 0, "saturated_rows": 0}

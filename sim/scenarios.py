@@ -41,12 +41,11 @@ from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.plan import (
     CALIBRATION_STEPS,
     EDGE_MARGIN_ROWS,
-    STRIPE_MARGIN_COLUMNS,
     axis_warnings,
     calibration_plan,
+    calibration_volume,
     plate_interval_mm,
     plate_warnings,
-    working_volume,
 )
 from scheimpflug.model.rig import Rig
 
@@ -297,7 +296,7 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int | None = None, step
 
 def _edge_warnings(rig: Rig, frames, plate_height_mm: float, empty: frozenset) -> tuple:
     """Frames in view that show one plate edge only, and the stage key that hides the plate."""
-    vol = working_volume(rig, EDGE_MARGIN_ROWS, STRIPE_MARGIN_COLUMNS)
+    vol = calibration_volume(rig)
     both = plate_interval_mm(vol, plate_height_mm, rig.stage.calibration_table_z_mm)
     d0 = rig.stage.d0_mm
     one = [f for f in frames if f.index not in empty

@@ -96,8 +96,8 @@ def design_report(rig: Rig) -> dict:
         ``axis_column_px`` and ``stage_zero_column_px`` (columns that see the
         rotary axis and stage coordinate 0) [px], ``focal_length_check_mm``
         (:func:`focal_length_from_endpoint` at stage 0) [mm]; ``stage`` (the
-        stage position keys) [mm] and ``stage_derived`` (those the rule
-        derived); ``calibration_plan`` and ``rotary_plan``
+        stage position keys) [mm] and ``derived`` (the keys the rule derived,
+        as ``"table.key"``); ``calibration_plan`` and ``rotary_plan``
         (:mod:`scheimpflug.model.plan`); ``warnings`` (stage settings that put
         the axis or the plate out of view, naming the key).  Figures that do
         not exist (the columns of stage zero and the f check when stage zero is
@@ -126,7 +126,7 @@ def design_report(rig: Rig) -> dict:
         "focal_length_check_mm": (None if u_stage0 is None
                                   else _finite_or_none(focal_length_from_endpoint(g, u_stage0, d_hinge_stage0))),
         "stage": {k: getattr(rig.stage, k) for k in DERIVED_STAGE_KEYS},
-        "stage_derived": list(rig.derived),
+        "derived": list(rig.derived),
         "calibration_plan": calibration_plan(rig).to_json_dict(),
         "rotary_plan": rotary_plan(rig).to_json_dict(),
         "warnings": stage_warnings(rig),

@@ -70,11 +70,12 @@ import numpy as np
 from scheimpflug.model.hinge import hinge_geometry
 
 if TYPE_CHECKING:
-    from scheimpflug.model.rig import Rig, Stage
+    from scheimpflug.model.rig import Laser, Rig, Sensor, Stage
 
 __all__ = [
     "CALIBRATION_STEPS",
     "EDGE_MARGIN_ROWS",
+    "EXPOSURE_FULL_WELL_FRACTION",
     "PART_MARGIN_PX",
     "STRIPE_MARGIN_COLUMNS",
     "CalibrationPlan",
@@ -82,11 +83,16 @@ __all__ = [
     "WorkingVolume",
     "axis_warnings",
     "calibration_plan",
+    "calibration_volume",
+    "lambertian_peak_electrons_per_ms",
+    "laser_distance_mm",
     "plate_interval_mm",
     "plate_warnings",
-    "resolve_stage",
+    "resolve_defaults",
+    "sheet_half_width_mm",
     "rotary_plan",
     "stage_warnings",
+    "stripe_sigma_px",
     "working_volume",
 ]
 
@@ -94,6 +100,7 @@ EDGE_MARGIN_ROWS = 24        # rows between a plate edge and the sensor border (
 STRIPE_MARGIN_COLUMNS = 8    # columns between a plate stripe and the sensor's ends (cog window ±7) [px]
 PART_MARGIN_PX = 4           # pixels between a rotary part and the view's border [px]
 CALIBRATION_STEPS = 27       # frames of the default calibration plan (the paper's count) [-]
+EXPOSURE_FULL_WELL_FRACTION = 1 / 6  # white Lambertian stripe peak on the axis / full well [-]
 _REFERENCE_ASPECT = 2.0      # reference part: height = 2 × radius (as tall as wide) [-]
 _GRID = 2001                 # samples of D for the interval searches [-]
 
@@ -173,16 +180,20 @@ class WorkingVolume:
         return np.linspace(self.near_mm, self.far_mm, n)
 
 
-def working_volume(rig: Rig, margin_rows: float = 0.0, margin_columns: float = 0.0) -> WorkingVolume:
+def working_volume(rig: Rig, margin_rows: float = 0.0,
+                   margin_columns: float | tuple[float, float] = 0.0) -> WorkingVolume:
     """The working volume of a rig's ideal geometry, inside pixel margins.
 
     Parameters
     ----------
     rig : Rig
         The rig; only its lens, laser and sensor tables are read.
-    margin_rows, margin_columns : float
-        Pixels kept free at the sensor's borders (capped at a sixth of the
+    margin_rows : float
+        Rows kept free at the top and bottom (capped at a sixth of the
         sensor so that a small or binned sensor keeps a view) [px].
+    margin_columns : float or tuple of float
+        Columns kept free at the near (column 0) and far ends, one value for
+        both or a (near, far) pair (capped at a sixth of the sensor) [px].
 
     Returns
     -------
@@ -192,8 +203,9 @@ def working_volume(rig: Rig, margin_rows: float = 0.0, margin_columns: float = 0
     g = hinge_geometry(rig)
     s, laser = rig.sensor, rig.laser
     mr = min(float(margin_rows), s.rows / 6.0)
-    mc = min(float(margin_columns), s.columns / 6.0)
-    near, far = (float(x) for x in g.distance_from_column([mc, s.columns - 1.0 - mc]))
+    mc = np.broadcast_to(np.asarray(margin_columns, dtype=np.float64), (2,))
+    mc = np.minimum(mc, s.columns / 6.0)
+    near, far = (float(x) for x in g.distance_from_column([mc[0], s.columns - 1.0 - mc[1]]))
     k = g.C_mm / abs(g.F2_px_mm)
     half_fan = math.radians(0.5 * laser.fan_angle_deg - laser.fan_edge_deg)
     half_fan = max(half_fan, math.radians(0.25 * laser.fan_angle_deg))
@@ -201,6 +213,28 @@ def working_volume(rig: Rig, margin_rows: float = 0.0, margin_columns: float = 0
     return WorkingVolume(near_mm=near, far_mm=far, top_slope=k * (s.axis_row - mr + 0.5),
                          bottom_slope=k * (s.axis_row - s.rows + 0.5 + mr),
                          fan_origin_mm=origin, fan_tan=math.tan(half_fan))
+
+
+def calibration_volume(rig: Rig) -> WorkingVolume:
+    """The working volume where a calibration plate's stripe and both edges can be measured.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig; its laser's ``waist_distance_mm`` must be set.
+
+    Returns
+    -------
+    WorkingVolume
+        :data:`EDGE_MARGIN_ROWS` rows free at the top and bottom; at each end
+        of the columns :data:`STRIPE_MARGIN_COLUMNS` or, for a wider stripe
+        there, ⌈3σ⌉ + 1 columns (:func:`stripe_sigma_px`: the detector's
+        window must fit on the sensor).
+    """
+    ends = hinge_geometry(rig).distance_from_column([0.0, rig.sensor.columns - 1.0])
+    margins = tuple(max(STRIPE_MARGIN_COLUMNS, math.ceil(3.0 * stripe_sigma_px(rig, float(D))) + 1)
+                    for D in ends)
+    return working_volume(rig, EDGE_MARGIN_ROWS, margins)
 
 
 def _bisect(cond, a: float, b: float, iters: int = 60) -> float:
@@ -359,39 +393,186 @@ def _rotary_layout(vol: WorkingVolume, axis_D: float | None, table: float | None
 # ---------------------------------------------------------------- stage resolution
 
 
-def resolve_stage(rig: Rig) -> tuple[Stage, tuple[str, ...]]:
-    """The rig's stage with every position key that is None derived by the rule.
+def _missing(table) -> list[str]:
+    return [f.name for f in dataclasses.fields(table) if getattr(table, f.name) is None]
+
+
+def _stage_positions(rig: Rig) -> dict:
+    """d0, the rotary axis and its table by the rule (the keys that are None)."""
+    st = rig.stage
+    vals = {f.name: getattr(st, f.name) for f in dataclasses.fields(st)}
+    if vals["d0_mm"] is None:
+        vals["d0_mm"] = -float(math.floor(float(hinge_geometry(rig).distance_from_column(0.0))))
+    if vals["axis_mm"] is None or vals["rotary_table_z_mm"] is None:
+        part = working_volume(rig, PART_MARGIN_PX, PART_MARGIN_PX)
+        axis_D = None if vals["axis_mm"] is None else vals["axis_mm"] - vals["d0_mm"]
+        D_a, vals["rotary_table_z_mm"] = _rotary_layout(part, axis_D, vals["rotary_table_z_mm"])
+        if vals["axis_mm"] is None:
+            vals["axis_mm"] = round(D_a + vals["d0_mm"], 1)
+    return vals
+
+
+def laser_distance_mm(rig: Rig, distance_mm):
+    """In-sheet distance from the laser origin of a sheet point at distance D from the hinge.
 
     Parameters
     ----------
     rig : Rig
-        A rig whose lens, laser and sensor are valid; its stage may hold None
-        for keys of :data:`scheimpflug.model.rig.DERIVED_STAGE_KEYS`.
+        The rig (lens and laser are read).
+    distance_mm : array_like float
+        D from the object hinge [mm].
 
     Returns
     -------
-    stage : Stage
-        The stage with numbers everywhere.
-    derived : tuple of str
-        The keys that were derived (in the order of the stage table).
+    ndarray float64
+        ``D − D_l`` with ``D_l = (origin_x − f)/cos φ`` the laser origin's D [mm].
     """
-    st = rig.stage
-    names = [f.name for f in dataclasses.fields(st)]
-    missing = tuple(k for k in names if getattr(st, k) is None)
-    if not missing:
-        return st, ()
-    vals = {k: getattr(st, k) for k in names}
-    if vals["d0_mm"] is None:
-        vals["d0_mm"] = -float(math.floor(float(hinge_geometry(rig).distance_from_column(0.0))))
-    edge = working_volume(rig, EDGE_MARGIN_ROWS, STRIPE_MARGIN_COLUMNS)
-    vals["calibration_plate_height_mm"], vals["calibration_table_z_mm"] = _plate_layout(
-        edge, vals["calibration_plate_height_mm"], vals["calibration_table_z_mm"])
-    part = working_volume(rig, PART_MARGIN_PX, PART_MARGIN_PX)
-    axis_D = None if vals["axis_mm"] is None else vals["axis_mm"] - vals["d0_mm"]
-    D_a, vals["rotary_table_z_mm"] = _rotary_layout(part, axis_D, vals["rotary_table_z_mm"])
-    if vals["axis_mm"] is None:
-        vals["axis_mm"] = round(D_a + vals["d0_mm"], 1)
-    return dataclasses.replace(st, **vals), missing
+    origin = (rig.laser.origin_x_mm - rig.lens.focal_length_mm) * math.hypot(1.0, rig.laser.tan_phi)
+    return np.asarray(distance_mm, dtype=np.float64) - origin
+
+
+def sheet_half_width_mm(rig: Rig, distance_mm: float) -> float:
+    """1/e² half thickness of the sheet at a distance D from the hinge (Gaussian-beam law).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig; its laser's ``waist_distance_mm`` must be set.
+    distance_mm : float
+        D from the object hinge [mm].
+
+    Returns
+    -------
+    float
+        w = √(w0² + θ²·(r − r_w)²) at r = D − D_l [mm].
+    """
+    L = rig.laser
+    r = float(laser_distance_mm(rig, distance_mm))
+    return math.hypot(L.waist_um * 1e-3, L.divergence_mrad * 1e-3 * (r - L.waist_distance_mm))
+
+
+def stripe_sigma_px(rig: Rig, distance_mm: float) -> float:
+    """Standard deviation across the columns of the stripe on a surface facing the laser.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (ideal geometry).
+    distance_mm : float
+        D of the surface from the object hinge [mm].
+
+    Returns
+    -------
+    float
+        ``(w/2)·|du/dδ|`` [px]: the sheet's Gaussian σ = w/2 across its plane,
+        δ along the sheet normal, imaged by the chief ray through the lens
+        centre onto the tilted sensor (u = u_h + (s_h − s)/p with s the
+        position along the sensor from the Scheimpflug line, s = d/(cos β −
+        sin β·y/x) for a point (x, y)).
+    """
+    g = hinge_geometry(rig)
+    x, y, _ = g.rig_from_sheet(distance_mm, 0.0)
+    b, phi = g.beta_rad, g.phi_rad
+    denom = math.cos(b) - math.sin(b) * y / x
+    dratio = (math.cos(phi) * x - y * math.sin(phi)) / (x * x)   # d(y/x)/dδ along n = (sin φ, cos φ)
+    ds = g.scheimpflug_distance_mm * math.sin(b) * dratio / denom ** 2
+    return 0.5 * sheet_half_width_mm(rig, distance_mm) * abs(ds) / g.pixel_pitch_mm
+
+
+def lambertian_peak_electrons_per_ms(rig: Rig, distance_mm: float, albedo: float = 1.0) -> float:
+    """Stripe peak on a Lambertian surface that faces the laser, in the meridian plane (closed form).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig; its laser's ``waist_distance_mm`` must be set.
+    distance_mm : float
+        D of the surface from the object hinge [mm].
+    albedo : float
+        Lambertian albedo of the surface [-].
+
+    Returns
+    -------
+    float
+        Expected photo-electrons per millisecond of exposure in the pixel at
+        the stripe's centre [e⁻/ms].
+
+    Notes
+    -----
+    Fan of power P spread evenly over F: I = P/F [W/rad]; at in-sheet distance
+    r the peak irradiance is E = I/(r·√(2π)·w(r)/2), w the 1/e² half
+    thickness (:func:`sheet_half_width_mm`); radiance ρE/π; image irradiance
+    π·L·cos⁴θ/(4·N²·(1 + m)²) with m = f/(x − f) the magnification and θ the
+    field angle; times the pixel area, the quantum efficiency and λ/(h·c),
+    and the share of a Gaussian stripe of σ pixels (:func:`stripe_sigma_px`)
+    that its centre pixel holds relative to a uniform patch,
+    √(2π)·σ·erf(1/(2√2·σ)).  The tilted sensor's obliquity and the fan's soft
+    edge are left out: a first-order figure for choosing an exposure (within
+    ≈ 15 % of the twin's on a Lambertian plate at the paper's resolution).
+    """
+    L, lens, s = rig.laser, rig.lens, rig.sensor
+    r = float(laser_distance_mm(rig, distance_mm))
+    w = sheet_half_width_mm(rig, distance_mm)
+    irradiance = L.power_mw * 1e-3 / math.radians(L.fan_angle_deg) / (r * math.sqrt(2 * math.pi) * 0.5 * w)
+    x, y, _ = hinge_geometry(rig).rig_from_sheet(distance_mm, 0.0)
+    m = lens.focal_length_mm / (x - lens.focal_length_mm)
+    cos4 = (x * x / (x * x + y * y)) ** 2
+    image = albedo * irradiance / (4 * lens.f_number ** 2 * (1 + m) ** 2) * cos4  # [W/mm²]
+    sigma = stripe_sigma_px(rig, distance_mm)
+    share = math.sqrt(2 * math.pi) * sigma * math.erf(1 / (2 * math.sqrt(2) * sigma))
+    photon_j = 6.62607015e-34 * 299792458.0 / (L.wavelength_nm * 1e-9)
+    return image * (s.pixel_pitch_um * 1e-3) ** 2 * share * s.quantum_efficiency / photon_j * 1e-3
+
+
+def resolve_defaults(rig: Rig) -> tuple[Laser, Sensor, Stage, tuple[str, ...]]:
+    """The rig's tables with every key that is None derived by the rule (module docstring).
+
+    Order: d0; the rotary axis and its table; the laser's waist (at the axis);
+    the calibration plate and its table (their margins depend on the stripe's
+    width); the exposure (a white Lambertian surface on the axis).
+
+    Parameters
+    ----------
+    rig : Rig
+        A rig whose lens, laser and sensor geometry are valid; keys of
+        :data:`scheimpflug.model.rig.DERIVED_KEYS` may be None.
+
+    Returns
+    -------
+    laser, sensor, stage : Laser, Sensor, Stage
+        The tables with numbers everywhere.
+    derived : tuple of str
+        The keys that were derived, as ``"table.key"``.
+    """
+    derived = tuple(f"{name}.{k}" for name in ("laser", "sensor", "stage")
+                    for k in _missing(getattr(rig, name)))
+    if not derived:
+        return rig.laser, rig.sensor, rig.stage, ()
+    vals = _stage_positions(rig)
+    D_axis = vals["axis_mm"] - vals["d0_mm"]
+    laser = rig.laser
+    if laser.waist_distance_mm is None:
+        laser = dataclasses.replace(laser, waist_distance_mm=round(float(laser_distance_mm(rig, D_axis)), 1))
+    probe = _Probe(rig.lens, laser, rig.sensor, rig.stage)
+    if vals["calibration_plate_height_mm"] is None or vals["calibration_table_z_mm"] is None:
+        vals["calibration_plate_height_mm"], vals["calibration_table_z_mm"] = _plate_layout(
+            calibration_volume(probe), vals["calibration_plate_height_mm"], vals["calibration_table_z_mm"])
+    sensor = rig.sensor
+    if sensor.exposure_ms is None:
+        per_ms = lambertian_peak_electrons_per_ms(probe, D_axis)
+        exposure = EXPOSURE_FULL_WELL_FRACTION * sensor.full_well_e / per_ms if per_ms > 0 else 1.0
+        sensor = dataclasses.replace(sensor, exposure_ms=float(f"{exposure:.3g}"))
+    return laser, sensor, dataclasses.replace(rig.stage, **vals), derived
+
+
+@dataclass(frozen=True)
+class _Probe:
+    """The tables the closed forms read, before a Rig exists (its keys resolved)."""
+
+    lens: object
+    laser: object
+    sensor: object
+    stage: object
 
 
 # ---------------------------------------------------------------- plans
@@ -480,7 +661,7 @@ def calibration_plan(rig: Rig, plate_height_mm: float | None = None,
     if steps < 1 or not H > 0:
         raise ValueError(f"a calibration plan needs steps >= 1 and a plate height > 0 (got {steps}, {H})")
     d0, z = rig.stage.d0_mm, rig.stage.calibration_table_z_mm
-    vol = working_volume(rig, EDGE_MARGIN_ROWS, STRIPE_MARGIN_COLUMNS)
+    vol = calibration_volume(rig)
     both = plate_interval_mm(vol, H, z)
     depth = vol.far_mm - vol.near_mm
     use = both if both and both[1] - both[0] >= 0.5 * depth else (vol.near_mm, vol.far_mm)
@@ -658,7 +839,7 @@ def plate_warnings(rig: Rig, plate_height_mm: float | None = None) -> list[str]:
     """
     st = rig.stage
     H = float(st.calibration_plate_height_mm if plate_height_mm is None else plate_height_mm)
-    vol = working_volume(rig, EDGE_MARGIN_ROWS, STRIPE_MARGIN_COLUMNS)
+    vol = calibration_volume(rig)
     both = plate_interval_mm(vol, H, st.calibration_table_z_mm)
     depth = vol.far_mm - vol.near_mm
     if both is not None and both[1] - both[0] >= 0.5 * depth:

@@ -24,9 +24,10 @@ from pathlib import Path
 from typing import Any
 
 from scheimpflug.errors import RigError
-from scheimpflug.model.plan import resolve_stage
+from scheimpflug.model.plan import resolve_defaults
 
 __all__ = [
+    "DERIVED_KEYS",
     "DERIVED_STAGE_KEYS",
     "Environment",
     "Laser",
@@ -84,8 +85,10 @@ class Laser:
         x of the laser origin on the sheet, in the meridian plane [mm]; < f.
     waist_um : float, default 150.0
         1/e² half-thickness of the sheet at its waist [µm].
-    waist_distance_mm : float, default 640.0
-        Distance of the waist from the origin along the sheet [mm].
+    waist_distance_mm : float or None, default None
+        Distance of the waist from the origin along the sheet [mm].  Paper
+        640 (assumed: focused near the rotary axis); left out (None), the
+        waist sits at the rotary axis (:mod:`scheimpflug.model.plan`).
     divergence_mrad : float, default 1.5
         Far-field 1/e² half-angle of the thickness [mrad]
         (≥ λ / (π w0), the diffraction limit).
@@ -103,7 +106,7 @@ class Laser:
     power_mw: float = 3.0
     origin_x_mm: float = 0.0
     waist_um: float = 150.0
-    waist_distance_mm: float = 640.0
+    waist_distance_mm: float | None = None
     divergence_mrad: float = 1.5
     fan_angle_deg: float = 40.0
     fan_edge_deg: float = 1.0
@@ -142,8 +145,11 @@ class Sensor:
         ADC depth, 1..16; frames are stored as 16-bit PNG [bit].
     gain_e_per_dn : float, default 0.0
         Conversion gain; 0 = full well maps to full scale [e⁻/DN].
-    exposure_ms : float, default 0.5
-        Exposure time [ms].
+    exposure_ms : float or None, default None
+        Exposure time [ms].  Paper 0.5; left out (None), the exposure at which
+        a white Lambertian surface on the rotary axis, facing the laser, peaks
+        at 1/6 of the full well (closed form,
+        :func:`scheimpflug.model.plan.lambertian_peak_electrons_per_ms`).
     """
 
     pixel_pitch_um: float = 5.86
@@ -162,7 +168,7 @@ class Sensor:
     dark_offset_dn: float = 16.0
     adc_bits: int = 12
     gain_e_per_dn: float = 0.0
-    exposure_ms: float = 0.5
+    exposure_ms: float | None = None
 
 
 @dataclass(frozen=True)
@@ -213,6 +219,8 @@ class Stage:
 #: Stage keys that a rig may leave out; :mod:`scheimpflug.model.plan` derives them.
 DERIVED_STAGE_KEYS = ("d0_mm", "axis_mm", "calibration_table_z_mm", "calibration_plate_height_mm",
                       "rotary_table_z_mm")
+#: Every key a rig may leave out, as ``"table.key"`` (derived in this order).
+DERIVED_KEYS = ("laser.waist_distance_mm", "sensor.exposure_ms", *(f"stage.{k}" for k in DERIVED_STAGE_KEYS))
 
 
 @dataclass(frozen=True)
@@ -233,10 +241,11 @@ class Environment:
 class Rig:
     """A whole instrument: one table of the rig file per field.
 
-    The rig is validated on construction (:func:`validate_rig`); stage position
-    keys left as None are then derived from the rig's working volume
-    (:func:`scheimpflug.model.plan.resolve_stage`), so ``rig.stage.d0_mm`` and
-    the others are always numbers, and :attr:`derived` names them.
+    The rig is validated on construction (:func:`validate_rig`); keys left as
+    None (:data:`DERIVED_KEYS`: the stage positions, the laser's waist, the
+    exposure) are then derived from the rig's working volume
+    (:func:`scheimpflug.model.plan.resolve_defaults`), so ``rig.stage.d0_mm``
+    and the others are always numbers, and :attr:`derived` names them.
 
     Parameters
     ----------
@@ -254,8 +263,8 @@ class Rig:
     Attributes
     ----------
     derived : tuple of str
-        The ``[stage]`` keys that were derived rather than given (not part of
-        the rig's value: two rigs with the same numbers are equal).
+        The keys that were derived rather than given, as ``"table.key"`` (not
+        part of the rig's value: two rigs with the same numbers are equal).
 
     Raises
     ------
@@ -273,9 +282,10 @@ class Rig:
 
     def __post_init__(self) -> None:
         validate_rig(self)
-        stage, derived = resolve_stage(self)
-        object.__setattr__(self, "stage", stage)
-        object.__setattr__(self, "derived", derived)
+        laser, sensor, stage, derived = resolve_defaults(self)
+        for name, table in (("laser", laser), ("sensor", sensor), ("stage", stage)):
+            object.__setattr__(self, name, table)
+        object.__setattr__(self, "derived", tuple(k for k in DERIVED_KEYS if k in derived))
 
     def replace(self, *, rederive: bool = True, **tables: Mapping[str, Any]) -> Rig:
         """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``.
@@ -283,9 +293,9 @@ class Rig:
         Parameters
         ----------
         rederive : bool, default True
-            Derive again, for the new rig, the stage keys that were derived for
-            this one (unless given in ``stage``); False keeps their values.  A
-            key given as None is derived.
+            Derive again, for the new rig, the keys that were derived for this
+            one (unless given); False keeps their values.  A key given as None
+            is derived.
         **tables : Mapping[str, Any]
             Per table name (``lens``, ``laser``, ``sensor``, ``stage``,
             ``environment``), the keys to change and their new values.
@@ -305,14 +315,15 @@ class Rig:
             if table not in data:
                 raise RigError(f"unknown rig table [{table}]")
             data[table].update(values)
-        given = set(tables.get("stage", {}))
+        given = {f"{t}.{k}" for t, values in tables.items() for k in values}
         again = tuple(k for k in self.derived if k not in given)
         if rederive:
-            data["stage"].update({k: None for k in again})
+            for key in again:
+                table, name = key.split(".")
+                data[table][name] = None
         new = rig_from_dict(data)
         if not rederive:
-            object.__setattr__(new, "derived", tuple(k for k in DERIVED_STAGE_KEYS
-                                                     if k in again or k in new.derived))
+            object.__setattr__(new, "derived", tuple(k for k in DERIVED_KEYS if k in again or k in new.derived))
         return new
 
 
@@ -436,7 +447,8 @@ def _validate_sensor(s: Sensor) -> None:
              s.dark_offset_dn, f"must be in [0, {2 ** s.adc_bits})")
     _require(s.gain_e_per_dn >= 0, "sensor", "gain_e_per_dn", s.gain_e_per_dn,
              "must be >= 0 (0 = full well at full scale)")
-    _require(s.exposure_ms > 0, "sensor", "exposure_ms", s.exposure_ms, "must be > 0")
+    if s.exposure_ms is not None:
+        _require(s.exposure_ms > 0, "sensor", "exposure_ms", s.exposure_ms, "must be > 0")
     _require(abs(s.roll_deg) < 45, "sensor", "roll_deg", s.roll_deg, "must be within ±45°")
     _require(abs(s.tilt_error_deg) < 30, "sensor", "tilt_error_deg", s.tilt_error_deg,
              "must be within ±30°")
@@ -485,10 +497,10 @@ def _table_from_dict(name: str, cls: type, values: Any) -> Any:
 def rig_from_dict(data: Mapping[str, Any]) -> Rig:
     """Build a rig from nested tables.
 
-    Missing keys take their defaults: the paper's values, except the stage
-    position keys (:data:`DERIVED_STAGE_KEYS`), which are derived from the
-    rig's working volume (:mod:`scheimpflug.model.plan`); None also means
-    "derive".
+    Missing keys take their defaults: the paper's values, except the keys of
+    :data:`DERIVED_KEYS` (the stage positions, the laser's waist distance, the
+    exposure), which are derived from the rig's working volume
+    (:mod:`scheimpflug.model.plan`); None also means "derive".
 
     Parameters
     ----------
@@ -545,13 +557,13 @@ def rig_to_toml(rig: Rig) -> str:
     -------
     str
         TOML text, one ``[table]`` per rig table; :func:`load_rig` reads it
-        back.  Stage keys that the rule derived carry the comment ``# derived``.
+        back.  Keys that the rule derived carry the comment ``# derived``.
     """
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
         lines.append(f"[{name}]")
         for k, v in table.items():
-            note = "  # derived (scheimpflug.model.plan)" if name == "stage" and k in rig.derived else ""
+            note = "  # derived (scheimpflug.model.plan)" if f"{name}.{k}" in rig.derived else ""
             lines.append(f"{k} = {v!r}{note}")
         lines.append("")
     return "\n".join(lines)

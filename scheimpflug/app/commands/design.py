@@ -132,11 +132,15 @@ def format_report(rig: Rig, rep: dict, source: str) -> str:
 
 def _plan_lines(rig: Rig, rep: dict) -> list[str]:
     """The stage settings, the calibration plan and the rotary plan, with the warnings."""
-    derived = set(rep["stage_derived"])
-    keys = ", ".join(f"{k} = {v:g}{' (derived)' if k in derived else ''}" for k, v in rep["stage"].items())
+    derived = set(rep["derived"])
+    keys = ", ".join(f"{k} = {v:g}{' (derived)' if f'stage.{k}' in derived else ''}"
+                     for k, v in rep["stage"].items())
+    optics = (f"  laser waist at {rig.laser.waist_distance_mm:g} mm from the origin"
+              f"{' (derived)' if 'laser.waist_distance_mm' in derived else ''}; exposure "
+              f"{rig.sensor.exposure_ms:g} ms{' (derived)' if 'sensor.exposure_ms' in derived else ''}")
     c, r = rep["calibration_plan"], rep["rotary_plan"]
     last = c["start_mm"] + (c["steps"] - 1) * c["step_mm"]
-    lines = [f"  stage   {keys}",
+    lines = [f"  stage   {keys}", optics,
              "          (derived: by the rule of scheimpflug.model.plan, from the working volume)" if derived else "",
              f"  calibration plan  plate {c['plate_height_mm']:g} mm on a table at {c['table_z_mm']:g} mm; "
              f"{c['steps']} frames, s = {c['start_mm']:g} … {last:.6g} mm in steps of {c['step_mm']:g} mm; "
