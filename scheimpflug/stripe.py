@@ -78,6 +78,7 @@ from scheimpflug.errors import FrameError
 
 __all__ = [
     "DEFAULT_WINDOW_PX",
+    "MIN_WINDOW_PX",
     "METHODS",
     "MULTI_PEAK_RULES",
     "StripeProfile",
@@ -470,7 +471,8 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     return _profile_from_table(out, method)
 
 
-DEFAULT_WINDOW_PX = 7   # centre-of-gravity half window that suits stripes of σ ≤ 7/3 px [px]
+DEFAULT_WINDOW_PX = 7   # centre-of-gravity half window before the stripe's width is known [px]
+MIN_WINDOW_PX = 3       # narrowest "auto" window: ±3 px holds ±3σ of a stripe up to σ = 1 px [px]
 
 
 def measured_stripe_sigma_px(frame, profile: StripeProfile, window_px: int) -> float:

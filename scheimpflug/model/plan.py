@@ -669,6 +669,8 @@ def calibration_plan(rig: Rig, plate_height_mm: float | None = None,
     q = _step_quantum(step)
     step = round(_floor_to(step, q), 10) if steps > 1 else 0.0
     start = round(_ceil_to(use[0] + d0, q), 10) if steps > 1 else round(0.5 * (use[0] + use[1]) + d0, 3)
+    while steps > 1 and start + (steps - 1) * step > use[1] + d0 and step > q:
+        step = round(step - q, 10)  # rounding the start up must not push the last frame out
     D = start - d0 + step * np.arange(steps)
     n_both = int(np.sum((D >= both[0] - 1e-9) & (D <= both[1] + 1e-9))) if both else 0
     plan = CalibrationPlan(H, z, start, step, steps, n_both,
