@@ -56,7 +56,10 @@ The stripe centre is measured with a centre detector, not the paper's
 light-bar edge: an edge sits ``σ·sqrt(2 ln 2)`` beyond the centre, an offset
 that varies with the stripe width across the sensor and biases ``u_h``
 (``detector="edge"`` reproduces the paper).  The default is the windowed
-centre of gravity (``cog``, ±7 px): every row of a plate frame sees the stripe
+centre of gravity (``cog``, ±⌈3σ⌉ px, at least ±3, σ the frame's stripe width:
+``window_px="auto"`` of :func:`scheimpflug.stripe.extract_stripes`; a fixed
+±7 px window cuts wide stripes' tails and adds the noise of 14 background
+pixels to narrow ones): every row of a plate frame sees the stripe
 at the same sub-pixel phase, so a detector's phase-dependent bias does not
 average out over rows; on noisy 2 px-wide stripes the 3-point Gaussian's
 (noise-induced, log-nonlinearity) bias reaches 0.02 px per frame and moves

@@ -1,11 +1,11 @@
 """Working volume and stage plan of a rig: where the plate, the axis and the tables go.
 
-A rig file need not say where its stages are.  The position keys of
-``[stage]`` (:data:`scheimpflug.model.rig.DERIVED_STAGE_KEYS`) that it leaves
-out are derived here from the rig's *working volume* — the part of the sheet
-that the sensor sees and the laser lights — so that the defaults work for any
-rig, not only the paper's.  The paper preset sets every key to the paper's
-measured values, so nothing is derived for it.
+A rig file need not say where its stages are, where its laser is focused or
+how long it exposes.  The keys of :data:`scheimpflug.model.rig.DERIVED_KEYS`
+that it leaves out are derived here from the rig's *working volume* — the part
+of the sheet that the sensor sees and the laser lights — so that the defaults
+work for any rig, not only the paper's.  The paper preset sets every key to
+the paper's values, so nothing is derived for it.
 
 Working volume (ideal rig: no misalignment, no distortion)
 ----------------------------------------------------------
@@ -29,7 +29,9 @@ The rule for the keys a rig leaves out
     The tallest plate whose two edges stay in view, with a margin of
     :data:`EDGE_MARGIN_ROWS` rows to the sensor border (the edge finder needs
     18 rows of background beyond an edge), at *every* stage position of the
-    depth range (columns :data:`STRIPE_MARGIN_COLUMNS` … N_u − 1 − 8): height
+    depth range (:func:`calibration_volume`: :data:`STRIPE_MARGIN_COLUMNS`
+    columns from each end, or ⌈3σ⌉ + 1 where the stripe is wider, so that the
+    detector's ±3σ window stays on the sensor): height
     ``min_D h_top − max_D h_bottom`` rounded down (1 mm above 10 mm, else
     0.1 mm), table at ``max_D h_bottom`` (plus half the rounding).  With one of
     the two keys set, the other is chosen so that both edges are in view over
@@ -43,6 +45,20 @@ The rule for the keys a rig leaves out
     at the part's binding end (rounded up to 0.1 mm); the axis is rounded to
     0.1 mm.  With one key set, the other is chosen for the largest reference
     part.
+``[laser] waist_distance_mm``
+    The sheet's waist at the rotary axis (in-sheet distance from the laser
+    origin, 0.1 mm).
+``[sensor] exposure_ms``
+    The exposure at which a white Lambertian surface on the rotary axis,
+    facing the laser, peaks at :data:`EXPOSURE_FULL_WELL_FRACTION` of the full
+    well (:func:`lambertian_peak_electrons_per_ms`, three significant
+    digits): 0.49 ms for the paper rig, whose preset says 0.5 ms.  A metal
+    plate seen at a steep angle is dimmer, near its specular direction up to
+    ≈ 3.5 × brighter.
+
+Order: d0; the rotary axis and its table; the waist; the plate and its table
+(their column margins depend on the stripe's width, hence on the waist); the
+exposure.
 
 Calibration plan (:func:`calibration_plan`): :data:`CALIBRATION_STEPS` frames
 spanning the stretch where both plate edges are in view (if it is at least
