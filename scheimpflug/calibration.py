@@ -56,7 +56,7 @@ The stripe centre is measured with a centre detector, not the paper's
 light-bar edge: an edge sits ``σ·sqrt(2 ln 2)`` beyond the centre, an offset
 that varies with the stripe width across the sensor and biases ``u_h``
 (``detector="edge"`` reproduces the paper).  The default is the windowed
-centre of gravity (``cog``, ±⌈3σ⌉ px, at least ±3, σ the frame's stripe width:
+centre of gravity (``cog``, ±(⌈3σ⌉ + 1) px, at least ±3, σ the frame's stripe width:
 ``window_px="auto"`` of :func:`scheimpflug.stripe.extract_stripes`; a fixed
 ±7 px window cuts wide stripes' tails and adds the noise of 14 background
 pixels to narrow ones): every row of a plate frame sees the stripe

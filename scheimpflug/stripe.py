@@ -416,7 +416,7 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     window_px : int or "auto", default 7
         Half-width of the centre-of-gravity window and the inner edge of the
         background flanks; use ≥ 3 σ of the stripe [px], >= 1.  "auto": 7, or
-        ⌈3σ⌉ (at least 3) for the frame's stripe (:func:`stripe_window_px`).
+        ⌈3σ⌉ + 1 (at least 3) for the frame's stripe (:func:`stripe_window_px`).
     flank_px : int, default 8
         Width of each background flank [px], >= 2.
     multi_peak : {"nearest", "strongest"}, default "nearest"
@@ -472,7 +472,7 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
 
 
 DEFAULT_WINDOW_PX = 7   # centre-of-gravity half window before the stripe's width is known [px]
-MIN_WINDOW_PX = 3       # narrowest "auto" window: ±3 px holds ±3σ of a stripe up to σ = 1 px [px]
+MIN_WINDOW_PX = 3       # narrowest "auto" window: ±3 px = ⌈3σ⌉ + 1 for stripes up to σ = 2/3 px [px]
 
 
 def measured_stripe_sigma_px(frame, profile: StripeProfile, window_px: int) -> float:
@@ -521,9 +521,12 @@ def stripe_window_px(sigma_px: float) -> int:
     Returns
     -------
     int
-        ``max(MIN_WINDOW_PX, ⌈3σ⌉)`` [px]; 7 when σ is unknown.  A window
+        ``max(MIN_WINDOW_PX, ⌈3σ⌉ + 1)`` [px]; 7 when σ is unknown.  A window
         under ±3σ cuts the tails and pulls the centre toward the window's
-        integer centre (0.1 px at σ = 3.5 px in a ±7 window); a window much
+        integer centre (0.1 px at σ = 3.5 px in a ±7 window); the extra pixel
+        holds the skewed tail of a thick sheet on a curved surface (on the
+        paper's cylinder, σ = 1.3 px, ±4 px scatters 1.5 × more than ±5 … 9 px,
+        which agree within 4 %); a window much
         wider than the stripe adds the noise of its background pixels and the
         error of the background level, weighted by their distance (on a
         σ = 0.5 px stripe a ±7 window triples the scatter of the plate's
@@ -531,11 +534,11 @@ def stripe_window_px(sigma_px: float) -> int:
     """
     if not math.isfinite(sigma_px):
         return DEFAULT_WINDOW_PX
-    return max(MIN_WINDOW_PX, math.ceil(3.0 * sigma_px - 1e-9))
+    return max(MIN_WINDOW_PX, math.ceil(3.0 * sigma_px - 1e-9) + 1)
 
 
 def _extract_auto(frame, method: str, **options) -> StripeProfile:
-    """:func:`extract_stripes` with the window widened until it holds ±3σ of the stripe.
+    """:func:`extract_stripes` with the window fitted to the stripe: ±(⌈3σ⌉ + 1), at least ±3 px.
 
     A stripe much wider than the default window hides in its own flanks (the
     background estimate lands on the stripe): when the default window finds no

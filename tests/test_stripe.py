@@ -165,7 +165,7 @@ def test_bad_input():
 
 @pytest.mark.parametrize("sigma", [0.5, 1.0, 4.0, 6.0])
 def test_auto_window_holds_three_sigma(sigma):
-    """'auto' measures the stripe's width and uses ±⌈3σ⌉ (at least ±3): near the Cramér–Rao bound on
+    """'auto' measures the stripe's width and uses ±(⌈3σ⌉ + 1) (at least ±3): near the Cramér–Rao bound on
     narrow and wide stripes alike, where the fixed ±7 window loses on both (noise of its background
     pixels on narrow stripes, cut tails on wide ones)."""
     rng = np.random.default_rng(int(10 * sigma))

@@ -30,8 +30,8 @@ The rule for the keys a rig leaves out
     :data:`EDGE_MARGIN_ROWS` rows to the sensor border (the edge finder needs
     18 rows of background beyond an edge), at *every* stage position of the
     depth range (:func:`calibration_volume`: :data:`STRIPE_MARGIN_COLUMNS`
-    columns from each end, or ⌈3σ⌉ + 1 where the stripe is wider, so that the
-    detector's ±3σ window stays on the sensor): height
+    columns from each end, or ⌈3σ⌉ + 2 where the stripe is wider, so that the
+    detector's ±(⌈3σ⌉ + 1) window stays on the sensor): height
     ``min_D h_top − max_D h_bottom`` rounded down (1 mm above 10 mm, else
     0.1 mm), table at ``max_D h_bottom`` (plus half the rounding).  With one of
     the two keys set, the other is chosen so that both edges are in view over
@@ -244,11 +244,11 @@ def calibration_volume(rig: Rig) -> WorkingVolume:
     WorkingVolume
         :data:`EDGE_MARGIN_ROWS` rows free at the top and bottom; at each end
         of the columns :data:`STRIPE_MARGIN_COLUMNS` or, for a wider stripe
-        there, ⌈3σ⌉ + 1 columns (:func:`stripe_sigma_px`: the detector's
+        there, ⌈3σ⌉ + 2 columns (:func:`stripe_sigma_px`: the detector's
         window must fit on the sensor).
     """
     ends = hinge_geometry(rig).distance_from_column([0.0, rig.sensor.columns - 1.0])
-    margins = tuple(max(STRIPE_MARGIN_COLUMNS, math.ceil(3.0 * stripe_sigma_px(rig, float(D))) + 1)
+    margins = tuple(max(STRIPE_MARGIN_COLUMNS, math.ceil(3.0 * stripe_sigma_px(rig, float(D))) + 2)
                     for D in ends)
     return working_volume(rig, EDGE_MARGIN_ROWS, margins)
 
