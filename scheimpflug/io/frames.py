@@ -328,6 +328,9 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     params = data.get("scenario_params") or {}
     if not isinstance(params, dict):
         raise FrameError(f"{str(mpath)!r}: 'scenario_params' must be an object")
+    bits = shape[2] if shape else None
+    if bits is None and isinstance(data.get("adc_bits"), int) and not isinstance(data.get("adc_bits"), bool):
+        bits = int(data["adc_bits"])        # real frames imported without a rig (scheimpflug import)
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
-                       adc_bits=shape[2] if shape else None)
+                       adc_bits=bits)

@@ -19,7 +19,8 @@ def add_parser(sub):
                                    "row and intensity.")
     p.add_argument("dir", metavar="DIR", help="rotary scan folder (manifest.json + frames/)")
     p.add_argument("--calibration", required=True, metavar="CAL.json",
-                   help="calibration written by 'scheimpflug calibrate --out'")
+                   help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
+                        "or '--opencv'")
     axis = p.add_mutually_exclusive_group(required=True)
     axis.add_argument("--axis-mm", type=float, metavar="A",
                       help="rotary axis position, stage coordinate [mm]")
@@ -74,14 +75,14 @@ def _extract(folder, args):
 
 
 def _run(args) -> int:
-    from scheimpflug.calibration import Calibration
     from scheimpflug.errors import FrameError
     from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
     t0 = time.perf_counter()
-    calibration = Calibration.load(args.calibration)
+    calibration = load_calibration(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration)
