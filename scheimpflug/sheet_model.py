@@ -755,8 +755,9 @@ class ModelSelection:
         dict
             JSON-ready.
         """
-        return {"chosen": self.chosen, "F": _json_float(self.F), "p_value": float(self.p_value),
-                "rss_paper_px2": self.rss_paper_px2, "rss_general_px2": self.rss_general_px2,
+        return {"chosen": self.chosen, "F": _json_float(self.F), "p_value": _json_float(self.p_value),
+                "rss_paper_px2": _json_float(self.rss_paper_px2),
+                "rss_general_px2": _json_float(self.rss_general_px2),
                 "dof": list(self.dof), "alpha": self.alpha, "min_rss_drop": self.min_rss_drop,
                 "reason": self.reason}
 

@@ -282,7 +282,7 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int | None = None, step
     ref_from_rig = np.linalg.inv(rig_from_stage(rig))
     frames = []
     for i in range(steps):
-        s = start_mm + i * step_mm
+        s = round(start_mm + i * step_mm, 9)  # 30.3, not 30.299999999999997, in the manifest
         pose = rig_from_plate(rig, s)
         frames.append(FrameSpec(i, pose, ref_from_rig @ pose, frame_seed(seed, i), stage_mm=s))
     params = {"steps": steps, "step_mm": step_mm, "start_mm": start_mm,
