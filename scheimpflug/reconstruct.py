@@ -109,6 +109,10 @@ class PointCloud:
         Sensor row v of the stripe sample [px].
     intensity : (n,) ndarray float
         Stripe peak height above background [DN].
+    frame : (n,) ndarray int or None
+        Index of the frame the point came from, in the scan's frame order
+        (−1 or None when unknown).  With ``row`` it places every point on
+        the scan's grid (frame × row), which :mod:`scheimpflug.meshing` meshes.
 
     Raises
     ------
@@ -120,12 +124,14 @@ class PointCloud:
     angle_deg: np.ndarray
     row: np.ndarray
     intensity: np.ndarray
+    frame: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.xyz_mm).shape[0]
         if np.asarray(self.xyz_mm).shape != (n, 3):
             raise ValueError(f"xyz_mm must be (n, 3), got {np.asarray(self.xyz_mm).shape}")
-        for name in ("angle_deg", "row", "intensity"):
+        names = ("angle_deg", "row", "intensity") + (("frame",) if self.frame is not None else ())
+        for name in names:
             if np.asarray(getattr(self, name)).shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {np.asarray(getattr(self, name)).shape}")
 
@@ -211,7 +217,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     -------
     PointCloud
         Points in the part frame; samples with a non-finite u (or u = u_h)
-        are dropped.
+        are dropped.  Every point keeps its frame index and row (its place on
+        the scan's grid).
 
     Raises
     ------
@@ -234,10 +241,11 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     uu, vv = cat(u), cat(rows)
     ii = cat(intensity) if intensity is not None else np.full(uu.size, np.nan)
     aa = np.repeat(angles, sizes)
+    ff = np.repeat(np.arange(len(angles), dtype=np.int64), sizes)
     xyz = points_from_pixels(uu, vv, aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
-                      intensity=ii[ok])
+                      intensity=ii[ok], frame=ff[ok])
 
 
 ISOLATION_PX = 2.0  # a row's stripe needs a neighbour row's within this many columns [px]

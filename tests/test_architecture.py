@@ -36,6 +36,7 @@ DOCUMENTED_MODULES = [
     "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
     "scenes.part", "scenes.generators", "scenes.presets", "scenes.loading", "scenes.meshfile",
     "scenes.scenefile", "scenes.section", "scenes.knurl", "scenes.revolve",
+    "scheimpflug.meshing", "scheimpflug.volumetry", "scheimpflug.io.meshfile", "scheimpflug.poisson",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
 #: parameter is documented with a type and a description and no unknown one is, a function that
