@@ -37,6 +37,8 @@ DOCUMENTED_MODULES = [
     "scenes.part", "scenes.generators", "scenes.presets", "scenes.loading", "scenes.meshfile",
     "scenes.scenefile", "scenes.section", "scenes.knurl", "scenes.revolve",
     "scheimpflug.meshing", "scheimpflug.volumetry", "scheimpflug.io.meshfile", "scheimpflug.poisson",
+    "scheimpflug.dataset", "sim.dataset.spec", "sim.dataset.sample", "sim.dataset.engine",
+    "sim.dataset.make",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
 #: parameter is documented with a type and a description and no unknown one is, a function that
