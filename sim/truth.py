@@ -909,18 +909,10 @@ class SceneTruth:
         (k,) int64
             A superset of the faces the plane cuts.
         """
-        n = np.asarray(plane_normal, dtype=np.float64)
-        centre = 0.5 * (self._cell_lo + self._cell_hi)
-        radius = 0.5 * (self._cell_hi - self._cell_lo) @ np.abs(n)
-        d = centre @ n - np.asarray(plane_point_mm, dtype=np.float64) @ n
-        hit = np.flatnonzero(np.abs(d) <= radius + self._eps)
-        if len(hit) == 0:
-            return np.zeros(0, dtype=np.int64)
-        counts = self._counts[hit]
-        offsets = np.repeat(self._starts[hit] - np.cumsum(counts) + counts, counts)
-        return self._order[offsets + np.arange(counts.sum())]
+        return self.candidate_faces_near(plane_point_mm, plane_normal, 0.0)
 
-    def frame(self, rig_from_part, ref_from_part, caster: RayCaster) -> tuple[StripeTruth, dict]:
+    def frame(self, rig_from_part, ref_from_part, caster: RayCaster,
+              rig_from_laser=None) -> tuple[StripeTruth, dict]:
         """Per-row truth of the frame with the scene posed by ``rig_from_part``.
 
         Parameters
@@ -931,6 +923,10 @@ class SceneTruth:
             Part frame → truth reference frame.
         caster : RayCaster
             First-hit queries for the scene posed by ``rig_from_part``.
+        rig_from_laser : (4, 4) float, optional
+            This frame's pose of the laser sheet (pointing drift) [mm]; None = nominal.
+            With it, a bowed sheet or a moved lens (error models) the cut is the
+            sheet actually rendered, as in :func:`stripe_truth`.
 
         Returns
         -------
@@ -944,6 +940,8 @@ class SceneTruth:
         """
         rig, g, tol = self.rig, self.geometry, self.tol
         part_from_rig = invert(rig_from_part)
+        if rig_from_laser is not None or rig.laser.line_bow_mrad != 0.0 or lens_centre_mm(rig)[0] != 0.0:
+            return self._frame_erring(rig_from_part, ref_from_part, caster, rig_from_laser)
         point = transform_points(part_from_rig, g.object_hinge_mm)
         normal = part_from_rig[:3, :3] @ g.sheet_normal
         normal = normal / np.linalg.norm(normal)
@@ -963,26 +961,92 @@ class SceneTruth:
                                      self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
         return truth, self._extras(rows[first], pts[first], faces[first], rig_from_part)
 
-    def _visible_and_lit(self, caster: RayCaster, pts: np.ndarray) -> np.ndarray:
+    def _frame_erring(self, rig_from_part, ref_from_part, caster, rig_from_laser):
+        """:meth:`frame` for a turned or bowed sheet or a moved lens (the rules of :func:`stripe_truth`)."""
+        rig, tol = self.rig, self.tol
+        part_from_rig = invert(rig_from_part)
+        sheet = posed_sheet(light_sheet(rig), rig_from_laser)
+        rot = part_from_rig[:3, :3]
+        local = dataclasses.replace(sheet, origin_mm=transform_points(part_from_rig, sheet.origin_mm),
+                                    prop_dir=rot @ sheet.prop_dir, normal=rot @ sheet.normal, up=rot @ sheet.up)
+        reach = np.linalg.norm(self.vertices - local.origin_mm, axis=1).max(initial=0.0)
+        bound = 1.5 * reach * abs(sheet.bow_rad)       # the bowed surface's largest offset in the fan
+        cand = self.candidate_faces_near(local.origin_mm, local.normal, bound)
+        used, sub = np.unique(self.faces[cand], return_inverse=True)
+        d = sheet_offset_mm(local, self.vertices[used])
+        seg, _, which = surface_section(self.vertices[used], sub.reshape(-1, 3), self.face_ids[cand], d,
+                                        return_faces=True)
+        face_of = cand[which]
+        seg = transform_points(rig_from_part, seg)
+        c = lens_centre_mm(rig)
+        front = (seg[:, :, 0] > lens_state(rig).focal_length_mm + c[0]).all(axis=1)
+        seg, face_of = seg[front], face_of[front]
+        rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose)
+        faces = face_of[idx]
+        if sheet.bow_rad != 0.0 and len(idx):
+            pts = _onto_bowed_section(rig, sheet, pts, rows.astype(np.float64),
+                                      self.normals[faces] @ rig_from_part[:3, :3].T, tol)
+            u = project_points(rig, pts, self.pose).uv_px[:, 0]
+        keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts, sheet)
+        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
+        keep = self._visible_and_lit(caster, pts, c, sheet.origin_mm)
+        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
+        truth, first = _primary_rows(rig.sensor.rows, rows, u,
+                                     transform_points(ref_from_part @ part_from_rig, pts),
+                                     self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
+        return truth, self._extras(rows[first], pts[first], faces[first], rig_from_part, sheet.origin_mm)
+
+    def candidate_faces_near(self, plane_point_mm, plane_normal, margin_mm: float) -> np.ndarray:
+        """Faces in blocks whose bounding box comes within ``margin_mm`` of a plane.
+
+        Parameters
+        ----------
+        plane_point_mm : (3,) float
+            A point of the plane, part frame [mm].
+        plane_normal : (3,) float
+            Its unit normal.
+        margin_mm : float
+            Extra distance (≥ 0) a block may lie off the plane [mm].
+
+        Returns
+        -------
+        (k,) int64
+            A superset of the faces a surface within ``margin_mm`` of the plane cuts.
+        """
+        n = np.asarray(plane_normal, dtype=np.float64)
+        centre = 0.5 * (self._cell_lo + self._cell_hi)
+        radius = 0.5 * (self._cell_hi - self._cell_lo) @ np.abs(n)
+        d = centre @ n - np.asarray(plane_point_mm, dtype=np.float64) @ n
+        hit = np.flatnonzero(np.abs(d) <= radius + self._eps + margin_mm)
+        if len(hit) == 0:
+            return np.zeros(0, dtype=np.int64)
+        counts = self._counts[hit]
+        offsets = np.repeat(self._starts[hit] - np.cumsum(counts) + counts, counts)
+        return self._order[offsets + np.arange(counts.sum())]
+
+    def _visible_and_lit(self, caster: RayCaster, pts: np.ndarray, lens_mm=None,
+                         laser_mm=None) -> np.ndarray:
         """(n,) bool: seen from the lens centre and lit by the laser (one ray query)."""
         n = len(pts)
         if n == 0:
             return np.zeros(0, dtype=bool)
-        origins = np.concatenate([np.zeros((n, 3)), np.broadcast_to(laser_origin_mm(self.rig), (n, 3))])
+        lens = np.zeros(3) if lens_mm is None else lens_mm
+        laser = laser_origin_mm(self.rig) if laser_mm is None else laser_mm
+        origins = np.concatenate([np.broadcast_to(lens, (n, 3)), np.broadcast_to(laser, (n, 3))])
         delta = np.concatenate([pts, pts]) - origins
         dist = np.linalg.norm(delta, axis=1)
         hit_t, _ = caster.first_hit(origins, delta / dist[:, None])
         ok = hit_t >= dist - self.tol.visibility_mm
         return ok[:n] & ok[n:]
 
-    def _extras(self, rows, pts, faces, rig_from_part) -> dict:
+    def _extras(self, rows, pts, faces, rig_from_part, laser_mm=None) -> dict:
         n_rows = self.rig.sensor.rows
         distance = np.full(n_rows, np.nan)
         incidence = np.full(n_rows, np.nan)
         if len(rows):
             distance[rows] = (pts - self.geometry.object_hinge_mm) @ self.geometry.propagation_dir
             normal = self.normals[faces] @ np.asarray(rig_from_part)[:3, :3].T
-            ray = pts - laser_origin_mm(self.rig)
+            ray = pts - (laser_origin_mm(self.rig) if laser_mm is None else laser_mm)
             ray /= np.linalg.norm(ray, axis=1)[:, None]
             cos = np.clip(np.abs(np.sum(normal * ray, axis=1)), 0.0, 1.0)
             incidence[rows] = np.degrees(np.arccos(cos))

@@ -493,9 +493,10 @@ def _frame_loop(plan, rig, scenario, twin, scene_truth, sink, todo, seconds, pro
             t0 = time.perf_counter()
             electrons = twin.render(frame)
             t1 = time.perf_counter()
-            image = apply_sensor(electrons, model, frame_rng(frame.seed, 0))
+            image = apply_sensor(electrons, model, frame_rng(frame.seed, 0), None, frame.exposure_factor)
             t2 = time.perf_counter()
-            truth, extra = scene_truth.frame(frame.rig_from_part, frame.ref_from_part, twin.caster(frame))
+            truth, extra = scene_truth.frame(frame.rig_from_part, frame.ref_from_part, twin.caster(frame),
+                                             frame.rig_from_laser)
             arrays = {**truth.arrays(), **extra}
             if scenario.wants_pixel_truth(frame.index):
                 directions = pixel_directions(rig) if directions is None else directions
