@@ -214,7 +214,7 @@ def _as_built_lines(s: dict) -> list[str]:
 
 
 def _source_budget_lines(s: dict) -> list[str]:
-    from scheimpflug.app.demo import BUDGET_FIGURES
+    from scheimpflug.app.demo import BUDGET_FIGURES, DOMINANCE_MIN_RISE
 
     b = s.get("source_budget")
     if not b:
@@ -227,7 +227,8 @@ def _source_budget_lines(s: dict) -> list[str]:
              f"{plan['binning']} binned sensor, {plan['calibration_steps']} calibration frames, pile at "
              f"{plan['pile_step_deg']:g}° steps (numbers of this plan, not of the columns above; σ(F²) "
              f"converted to full-resolution px·mm, × {plan['binning']}). **Bold**: the source that "
-             "dominates the figure (largest excess over the ideal run, in quadrature).", "",
+             "dominates the figure: the largest excess over the ideal run, in quadrature, among the sources "
+             f"that alone raise it by at least {100 * DOMINANCE_MIN_RISE:.0f} %.", "",
              head, "|---|" + "---|" * len(BUDGET_FIGURES)]
     for name, vals in rows.items():
         cells = []
