@@ -57,7 +57,7 @@ PAPER = {
 class DemoPlan:
     """What the demo renders: sensor binning and the frames of each experiment.
 
-    ``cylinder_step_deg`` 0 leaves the cylinder scan out.
+    ``cylinder_step_deg`` or ``pile_step_deg`` 0 leaves that scan out.
     """
 
     binning: int
@@ -97,10 +97,12 @@ def budget_plan_for(quick: bool) -> DemoPlan:
     """The error budget's plan: binned, few frames, no cylinder (calibration, blocker, pile only).
 
     The plate positions (31 … 239 mm) all show both plate edges at 4 × 4 binning.
+    Quick: no pile either (the budget then covers σ(F²), σ(C) and the axis), to keep
+    ``--quick`` within a minute.
     """
     if quick:
         return DemoPlan(binning=4, calibration_steps=7, calibration_step_mm=35.0, calibration_start_mm=31.0,
-                        cylinder_step_deg=0.0, pile_step_deg=30.0)
+                        cylinder_step_deg=0.0, pile_step_deg=0.0)
     return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=26.0, calibration_start_mm=31.0,
                     cylinder_step_deg=0.0, pile_step_deg=15.0)
 
@@ -387,13 +389,15 @@ def _experiments(rig: Rig, plan: DemoPlan, out: Path, seed: int, quiet: bool, ti
         res["cyl"] = timer.run(f"{label}reconstruct + score cylinder", _scan, cyl_dir, calibration,
                                axis["axis_mm"], out / "cylinder.ply", quiet)
         res["cyl_m"] = _cylinder_metrics(res["cyl"], rig)
-    pile_dir = timer.run(f"{label}render pile scan", _render, "rotary", out / "pile", rig, plan, seed, quiet,
-                         part="pile", step_deg=plan.pile_step_deg)
-    res["pile"] = timer.run(f"{label}reconstruct + score pile", _scan, pile_dir, calibration,
-                            axis["axis_mm"], out / "pile.ply", quiet)
-    if models and res["cyl"] is not None:
-        _models(res, rig, out, plan.binning > 1, timer)
-    res["pile_m"] = _pile_metrics(res["pile"], rig)
+    res["pile"] = res["pile_m"] = None
+    if plan.pile_step_deg > 0:
+        pile_dir = timer.run(f"{label}render pile scan", _render, "rotary", out / "pile", rig, plan, seed,
+                             quiet, part="pile", step_deg=plan.pile_step_deg)
+        res["pile"] = timer.run(f"{label}reconstruct + score pile", _scan, pile_dir, calibration,
+                                axis["axis_mm"], out / "pile.ply", quiet)
+        if models and res["cyl"] is not None:
+            _models(res, rig, out, plan.binning > 1, timer)
+        res["pile_m"] = _pile_metrics(res["pile"], rig)
     if res["cyl"] is not None:
         res["budget"] = _budget(axis["axis_mm"], res["cyl"], cal["truth"], calibration, res["cyl_m"])
     return res
@@ -417,7 +421,7 @@ def _models(res: dict, rig: Rig, out: Path, quick: bool, timer: _Timer) -> None:
 def _budget_figures(res: dict, binning: int) -> dict:
     """The paper's scatter figures of one budget run; σ(F²) in full-resolution px·mm (× binning)."""
     best = res["cal"]["result"].best.to_json_dict()
-    ring, box = res["pile_m"]["ring"], res["pile_m"]["box_plane"]
+    ring, box = (res["pile_m"]["ring"], res["pile_m"]["box_plane"]) if res["pile_m"] else (None, None)
     return {"F2_sigma_px_mm": _times(best.get("F2_sigma_px_mm"), binning),
             "C_sigma_mm": best.get("C_sigma_mm"),
             "box_plane_rmse_mm": box["rmse_mm"] if box else None,

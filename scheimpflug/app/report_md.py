@@ -224,8 +224,10 @@ def _source_budget_lines(s: dict) -> list[str]:
     lines = ["## Error budget by source", "",
              f"The calibration, blocker and pile rendered with no error, with each error source of the "
              f"as-built rig alone, and with all of them, on a reduced plan: {plan['binning']} × "
-             f"{plan['binning']} binned sensor, {plan['calibration_steps']} calibration frames, pile at "
-             f"{plan['pile_step_deg']:g}° steps (numbers of this plan, not of the columns above; σ(F²) "
+             f"{plan['binning']} binned sensor, {plan['calibration_steps']} calibration frames, "
+             + (f"pile at {plan['pile_step_deg']:g}° steps" if plan["pile_step_deg"] else
+                "no pile scan (quick mode: the full run has the pile's figures)")
+             + " (numbers of this plan, not of the columns above; σ(F²) "
              f"converted to full-resolution px·mm, × {plan['binning']}). **Bold**: the source that "
              "dominates the figure: the largest excess over the ideal run, in quadrature, among the sources "
              f"that alone raise it by at least {100 * DOMINANCE_MIN_RISE:.0f} %.", "",
@@ -238,7 +240,8 @@ def _source_budget_lines(s: dict) -> list[str]:
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines.append("")
     said = [f"{label}: {dom[key]}" for key, label in BUDGET_FIGURES if dom.get(key)]
-    unresolved = [label for key, label in BUDGET_FIGURES if not dom.get(key)]
+    unresolved = [label for key, label in BUDGET_FIGURES
+                  if not dom.get(key) and rows["none (ideal)"].get(key) is not None]
     if said:
         lines += ["Dominant source — " + "; ".join(said) + ".", ""]
     if unresolved:
