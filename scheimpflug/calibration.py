@@ -47,6 +47,7 @@ average out over rows; on noisy 2 px-wide stripes the 3-point Gaussian's
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import warnings
@@ -60,9 +61,9 @@ from scipy import optimize
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
-from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.io.frames import FrameFolder, open_frame_folder, scenario_number
 from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
-from scheimpflug.stripe import extract_stripes
+from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
     "Calibration",
@@ -99,6 +100,19 @@ class CalibrationTolerances:
         Fewer usable frames cannot fix a line and a hinge [-].
     min_slope_gap : float, default 1e-3
         Endpoint slopes closer than this are parallel [-].
+    recommended_frames : int, default 6
+        Fewer usable frames give a warning: the refined fit has three unknowns
+        (u_h, F², d0), so with 3 frames it is exactly determined (no σ) and with
+        4–5 its σ rests on one or two degrees of freedom [-].
+    max_condition : float, default 1e12
+        A fit whose normal matrix is worse conditioned than this is nearly
+        singular: its standard errors are reported as undefined [-].
+    fit_outlier_mads : float, default 5.0
+        A frame whose residual in the distance fit u = u_h + F²/(s − d0) exceeds
+        this many robust σ (1.4826 × MAD of the residuals) … [-]
+    fit_outlier_floor_px : float, default 0.5
+        … and this floor is an outlier (a wrong stage position): left out and
+        named [px].
     """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
@@ -110,6 +124,10 @@ class CalibrationTolerances:
     background_gap_rows: int = 6  # background rows start this far outside the edge [rows]
     min_frames: int = 3           # fewer usable frames cannot fix a line and a hinge [-]
     min_slope_gap: float = 1e-3   # endpoint slopes closer than this are parallel [-]
+    recommended_frames: int = 6   # fewer usable frames: warn (3 unknowns in the refined fit) [-]
+    max_condition: float = 1e12   # a worse conditioned fit is nearly singular: σ undefined [-]
+    fit_outlier_mads: float = 5.0  # distance-fit residual beyond this many robust σ … [-]
+    fit_outlier_floor_px: float = 0.5  # … and beyond this floor: a wrong stage position [px]
 
 
 # ---------------------------------------------------------------- result types
@@ -222,8 +240,9 @@ class Calibration:
 
     def _core_dict(self) -> dict[str, Any]:
         return {"hinge_px": [self.hinge_u_px, self.hinge_v_px], "F2_px_mm": self.F2_px_mm,
-                "F2_sigma_px_mm": self.F2_sigma_px_mm, "d0_mm": self.d0_mm, "C_mm": self.C_mm,
-                "C_sigma_mm": self.C_sigma_mm, "endpoint_fit_r2": list(self.endpoint_fit_r2),
+                "F2_sigma_px_mm": _json_float(self.F2_sigma_px_mm), "d0_mm": self.d0_mm,
+                "C_mm": self.C_mm, "C_sigma_mm": _json_float(self.C_sigma_mm),
+                "endpoint_fit_r2": [_json_float(x) for x in self.endpoint_fit_r2],
                 "hinge_u_sigma_px": _json_float(self.hinge_u_sigma_px), "method": self.method,
                 "n_frames": self.n_frames}
 
@@ -275,20 +294,19 @@ class Calibration:
             If a required field is missing or a field has the wrong type.
         """
         try:
-            r2 = d.get("endpoint_fit_r2", [math.nan, math.nan])
-            return cls(hinge_u_px=float(d["hinge_px"][0]), hinge_v_px=float(d["hinge_px"][1]),
-                       F2_px_mm=float(d["F2_px_mm"]),
-                       F2_sigma_px_mm=float(d.get("F2_sigma_px_mm", math.nan)),
-                       d0_mm=float(d["d0_mm"]), C_mm=float(d["C_mm"]),
-                       C_sigma_mm=float(d.get("C_sigma_mm", math.nan)),
-                       endpoint_fit_r2=(float(r2[0]), float(r2[1])),
-                       method=str(d.get("method", "paper")), columns=int(d.get("columns", 0)),
-                       rows=int(d.get("rows", 0)),
-                       plate_height_mm=float(d.get("plate_height_mm", 89.0)),
-                       n_frames=int(d.get("n_frames", 0)),
-                       hinge_u_sigma_px=float(d.get("hinge_u_sigma_px") or math.nan),
+            r2 = d.get("endpoint_fit_r2") or [None, None]
+            return cls(hinge_u_px=_num(d["hinge_px"][0]), hinge_v_px=_num(d["hinge_px"][1]),
+                       F2_px_mm=_num(d["F2_px_mm"]), F2_sigma_px_mm=_num(d.get("F2_sigma_px_mm")),
+                       d0_mm=_num(d["d0_mm"]), C_mm=_num(d["C_mm"]),
+                       C_sigma_mm=_num(d.get("C_sigma_mm")),
+                       endpoint_fit_r2=(_num(r2[0]), _num(r2[1])),
+                       method=str(d.get("method", "paper")), columns=_whole(d.get("columns", 0)),
+                       rows=_whole(d.get("rows", 0)),
+                       plate_height_mm=_num(d.get("plate_height_mm", 89.0)),
+                       n_frames=_whole(d.get("n_frames", 0)),
+                       hinge_u_sigma_px=_num(d.get("hinge_u_sigma_px")),
                        estimates={k: d[k] for k in ("paper", "refined") if k in d})
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise CalibrationError(f"calibration data lacks or garbles a field: {exc!r}") from None
 
     @classmethod
@@ -309,7 +327,8 @@ class Calibration:
         ------
         CalibrationError
             If the file is missing, unreadable or not a JSON object, lacks or
-            garbles a field, or does not have F² < 0, C > 0 and a finite d0.
+            garbles a field, or describes an impossible calibration
+            (:meth:`validate`).
         """
         p = Path(path)
         try:
@@ -321,13 +340,72 @@ class Calibration:
         if not isinstance(d, dict):
             raise CalibrationError(f"calibration file {str(p)!r} must hold a JSON object")
         cal = cls.from_json_dict(d)
-        if not (cal.F2_px_mm < 0 and cal.C_mm > 0 and math.isfinite(cal.d0_mm)):
-            raise CalibrationError(f"calibration file {str(p)!r}: need F2_px_mm < 0 and C_mm > 0")
+        problem = cal.problem()
+        if problem:
+            raise CalibrationError(f"calibration file {str(p)!r}: {problem}")
         return cal
+
+    def problem(self, columns: int | None = None) -> str | None:
+        """What makes this calibration impossible, or None (the checks of a loaded file).
+
+        Parameters
+        ----------
+        columns : int, optional
+            Columns of the frames it will be applied to [px]; default the
+            calibration's own (0: unknown, the hinge check is skipped).
+
+        Returns
+        -------
+        str or None
+            The first problem, naming the field: a non-finite constant, a σ
+            that is negative or infinite, F² ≥ 0, C ≤ 0, a value beyond any
+            rig (|u_h|, |v_h| > 1e7 px, |d0| > 1e6 mm), the image hinge not
+            beyond the last column (the sensor would contain the hinge), a
+            plate height not > 0; None if none.
+        """
+        names = ("hinge_u_px", "hinge_v_px", "F2_px_mm", "d0_mm", "C_mm")
+        for name, value in zip(names, self.constants()):
+            if not math.isfinite(value):
+                return f"{name} = {value} must be finite"
+        for name in ("F2_sigma_px_mm", "C_sigma_mm", "hinge_u_sigma_px"):
+            value = getattr(self, name)
+            if not (math.isnan(value) or 0 <= value < math.inf):
+                return f"{name} = {value} must be >= 0 (or null: undefined)"
+        if not self.F2_px_mm < 0:
+            return f"F2_px_mm = {self.F2_px_mm:.6g} must be < 0 (columns increase toward the hinge)"
+        if not self.C_mm > 0:
+            return f"C_mm = {self.C_mm:.6g} must be > 0"
+        if max(abs(self.hinge_u_px), abs(self.hinge_v_px)) > 1e7 or abs(self.d0_mm) > 1e6:
+            return "hinge_px beyond ±1e7 px or d0_mm beyond ±1e6 mm: not a rig's calibration"
+        n = self.columns if columns is None else columns
+        if n and not self.hinge_u_px > n - 0.5:
+            return (f"image hinge u_h = {self.hinge_u_px:.6g} px lies inside the {n}-column sensor: it "
+                    f"must lie beyond the last column (> {n - 0.5}); a hinge on the sensor images "
+                    "points at infinity")
+        if not (math.isfinite(self.plate_height_mm) and self.plate_height_mm > 0):
+            return f"plate_height_mm = {self.plate_height_mm} must be > 0"
+        return None
 
 
 def _json_float(x: float):
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _num(x) -> float:
+    """A JSON number as float; null = undefined = NaN; booleans and strings are refused."""
+    if x is None:
+        return math.nan
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"{x!r:.40} is not a number")
+    return float(x)
+
+
+def _whole(x) -> int:
+    """A JSON count as int in [0, 65535] (an integral float is fine)."""
+    v = _num(x)
+    if not (v.is_integer() and 0 <= v <= 65535):
+        raise ValueError(f"{x!r:.40} is not a count in [0, 65535]")
+    return int(v)
 
 
 @dataclass(frozen=True)
@@ -351,6 +429,8 @@ class PlateMeasurement:
         Rows of the inlier stripe points [px].
     u : (n,) ndarray float64
         Columns of the inlier stripe points [px].
+    file : str, default ""
+        The frame's file (for messages); empty when unknown.
     """
 
     stage_mm: float
@@ -361,6 +441,17 @@ class PlateMeasurement:
     bottom_px: tuple[float, float] | None
     rows: np.ndarray = field(repr=False)
     u: np.ndarray = field(repr=False)
+    file: str = ""
+
+    def name(self) -> str:
+        """The frame's file, or its stage position when the file is unknown.
+
+        Returns
+        -------
+        str
+            ``file`` or ``"stage s mm"``.
+        """
+        return self.file or f"stage {self.stage_mm:g} mm"
 
 
 @dataclass(frozen=True)
@@ -379,6 +470,9 @@ class CalibrationResult:
         (file or index, reason) of every frame not used.
     top_line, bottom_line : tuple of float
         (m, b) of the paper's endpoint fits v = m u + b [px/px, px].
+    warnings : tuple of str, optional
+        What the user should know about the result (too few frames, an
+        undefined σ, an estimate preferred for that reason), one line each.
     """
 
     best: Calibration
@@ -388,6 +482,7 @@ class CalibrationResult:
     skipped: tuple[tuple[str, str], ...]
     top_line: tuple[float, float]
     bottom_line: tuple[float, float]
+    warnings: tuple[str, ...] = ()
 
 
 # ---------------------------------------------------------------- one frame
@@ -482,7 +577,7 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
     """
     prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
     if len(prof) < tol.min_rows:
-        raise CalibrationError(f"no stripe ({len(prof)} lit rows < {tol.min_rows})")
+        raise CalibrationError(_no_stripe(frame, len(prof), tol.min_rows, saturation_dn))
     v = prof.rows.astype(np.float64)
     keep, line = _robust_line(v, prof.u, tol)
     if keep.sum() < tol.min_rows:
@@ -497,6 +592,15 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
     return PlateMeasurement(stage_mm=float(stage_mm), u_mean_px=float(prof.u[keep].mean()),
                             n_rows=int(keep.sum()), line=line, top_px=ends[0], bottom_px=ends[1],
                             rows=rows_in, u=prof.u[keep])
+
+
+def _no_stripe(frame: np.ndarray, n_rows: int, min_rows: int, saturation_dn: float | None) -> str:
+    """Why a frame gave too few stripe rows: saturated, or no stripe."""
+    sat = saturated_fraction(frame, saturation_dn)
+    if sat > 0.5:
+        return (f"frame saturated ({100 * sat:.0f} % of the pixels at the saturation level): no stripe "
+                "can be found; lower the exposure or the laser power")
+    return f"no stripe ({n_rows} lit rows < {min_rows})"
 
 
 # ---------------------------------------------------------------- the fits
@@ -557,8 +661,9 @@ def _paper_estimate(s, u, top, bot, H, tol):
                 C_sigma_mm=_std(C_i), endpoint_fit_r2=(r2t, r2b), hinge_u_sigma_px=sig_uh), lt, lb
 
 
-def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None):
-    """Least squares u = u_h + F²/(s − d0): (u_h, F², d0), σ(u_h)."""
+def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None,
+                  max_condition: float = CalibrationTolerances.max_condition):
+    """Least squares u = u_h + F²/(s − d0): (u_h, F², d0), σ(u_h) (NaN when undefined)."""
     span = float(s.max() - s.min())
 
     def linear(d0):
@@ -579,19 +684,33 @@ def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None):
 
     sol = optimize.least_squares(resid, x0=[uh, F2, d0], x_scale=[100.0, 1e5, 10.0],
                                  xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    dof = max(len(s) - 3, 1)
-    r = sol.fun
+    return sol.x, _sigma_first(sol.jac, sol.fun, max_condition)
+
+
+def _sigma_first(jac: np.ndarray, r: np.ndarray, max_condition: float) -> float:
+    """Standard error of the first parameter of a least-squares fit; NaN when undefined.
+
+    Undefined: no degree of freedom (as many data as unknowns: the fit passes
+    through every point and its residuals say nothing), or a nearly singular
+    normal matrix (condition number of the column-scaled Jacobian above
+    ``max_condition``).
+    """
+    n, k = jac.shape
+    if n <= k:
+        return math.nan
+    scale = np.linalg.norm(jac, axis=0)
+    if not np.all(scale > 0) or np.linalg.cond(jac / scale) ** 2 > max_condition:
+        return math.nan
     try:
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof
-        sig = float(math.sqrt(max(cov[0, 0], 0.0)))
+        cov = np.linalg.inv(jac.T @ jac) * float(r @ r) / (n - k)
     except np.linalg.LinAlgError:
-        sig = math.nan
-    return sol.x, sig
+        return math.nan
+    return float(math.sqrt(max(cov[0, 0], 0.0)))
 
 
-def _refined_estimate(s, u, top, bot, H, r2, guess_d0):
+def _refined_estimate(s, u, top, bot, H, r2, guess_d0, tol):
     """Joint distance fit + endpoint fit through the hinge (module docstring)."""
-    (uh, F2, d0), sig_uh = _distance_fit(s, u, guess_d0)
+    (uh, F2, d0), sig_uh = _distance_fit(s, u, guess_d0, tol.max_condition)
     if not (F2 < 0 and np.all(s > d0)):
         raise CalibrationError(f"the distance relation gives F² = {F2:.4g} px·mm, d0 = {d0:.4g} mm:"
                                " not a Scheimpflug geometry (need F² < 0 and every s > d0)")
@@ -603,8 +722,10 @@ def _refined_estimate(s, u, top, bot, H, r2, guess_d0):
     (vh, at, ab), *_ = np.linalg.lstsq(A, np.concatenate([top[:, 1], bot[:, 1]]), rcond=None)
     F2_i = (u - uh) * (s - d0)
     C_i = _per_frame_C(H, uh, vh, top, bot)
+    # exactly determined (3 frames, 3 unknowns): every F2_i equals F² by construction
+    sig_F2 = _std(F2_i) if len(s) > 3 else math.nan
     return dict(hinge_u_px=float(uh), hinge_v_px=float(vh), F2_px_mm=float(F2),
-                F2_sigma_px_mm=_std(F2_i), d0_mm=float(d0), C_mm=float(H / (at - ab)),
+                F2_sigma_px_mm=sig_F2, d0_mm=float(d0), C_mm=float(H / (at - ab)),
                 C_sigma_mm=_std(C_i), endpoint_fit_r2=r2, hinge_u_sigma_px=sig_uh)
 
 
@@ -647,9 +768,31 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     """
     if method not in ("best", "paper", "refined"):
         raise ValueError(f"unknown calibration method {method!r} (paper, refined, best)")
-    if not plate_height_mm > 0:
-        raise CalibrationError(f"plate height must be > 0 mm, got {plate_height_mm}")
+    if not (math.isfinite(plate_height_mm) and plate_height_mm > 0):
+        raise CalibrationError(f"plate height must be a finite number > 0 mm, got {plate_height_mm}")
     ms = tuple(m for m in measurements if m.top_px is not None and m.bottom_px is not None)
+    _require_frames(ms, tol)
+    _check_stage_positions(ms, tol)
+    ms, outliers, notes = _reject_distance_outliers(ms, tol)
+    s = np.array([m.stage_mm for m in ms])
+    u = np.array([m.u_mean_px for m in ms])
+    top = np.array([m.top_px for m in ms])
+    bot = np.array([m.bottom_px for m in ms])
+    H = float(plate_height_mm)
+    pap, lt, lb = _paper_estimate(s, u, top, bot, H, tol)
+    ref = _refined_estimate(s, u, top, bot, H, pap["endpoint_fit_r2"], pap["d0_mm"], tol)
+    common = dict(columns=int(columns), rows=int(rows), plate_height_mm=H, n_frames=len(ms))
+    estimates = {"paper": _estimate_json(pap), "refined": _estimate_json(ref)}
+    paper = Calibration(**pap, method="paper", estimates=estimates, **common)
+    refined = Calibration(**ref, method="refined", estimates=estimates, **common)
+    best, why = _choose(paper, refined, method)
+    notes += _frame_count_notes(len(ms), tol) + why
+    return CalibrationResult(best=best, paper=paper, refined=refined, measurements=ms,
+                             skipped=tuple(skipped) + outliers, top_line=lt, bottom_line=lb,
+                             warnings=tuple(notes))
+
+
+def _require_frames(ms, tol: CalibrationTolerances) -> None:
     if len(ms) < tol.min_frames:
         raise CalibrationError(f"only {len(ms)} usable calibration frame(s) (a stripe with both plate "
                                f"edges in view); need at least {tol.min_frames}")
@@ -658,22 +801,100 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     if np.ptp(s) <= 0 or np.ptp(u) < 1.0:
         raise CalibrationError(f"the plate did not move: stage positions span {np.ptp(s):.4g} mm and "
                                f"the stripe {np.ptp(u):.3g} px")
-    top = np.array([m.top_px for m in ms])
-    bot = np.array([m.bottom_px for m in ms])
-    H = float(plate_height_mm)
-    pap, lt, lb = _paper_estimate(s, u, top, bot, H, tol)
-    ref = _refined_estimate(s, u, top, bot, H, pap["endpoint_fit_r2"], pap["d0_mm"])
-    common = dict(columns=int(columns), rows=int(rows), plate_height_mm=H, n_frames=len(ms))
-    estimates = {"paper": _estimate_json(pap), "refined": _estimate_json(ref)}
-    paper = Calibration(**pap, method="paper", estimates=estimates, **common)
-    refined = Calibration(**ref, method="refined", estimates=estimates, **common)
-    if method == "best":
-        sp, sr = paper.hinge_u_sigma_px, refined.hinge_u_sigma_px
-        best = paper if (math.isfinite(sp) and not (sr <= sp)) else refined
-    else:
-        best = paper if method == "paper" else refined
-    return CalibrationResult(best=best, paper=paper, refined=refined, measurements=ms,
-                             skipped=tuple(skipped), top_line=lt, bottom_line=lb)
+
+
+def _check_stage_positions(ms, tol: CalibrationTolerances) -> None:
+    """Refuse stage positions that contradict the frames (a typo in the manifest, flipped frames).
+
+    Columns grow toward the hinge as the plate moves away (u = u_h + F²/(s − d0),
+    F² < 0): sorted by stage position, the stripe columns must increase.  Equal
+    positions must show the stripe at the same column.
+    """
+    s = np.array([m.stage_mm for m in ms])
+    u = np.array([m.u_mean_px for m in ms])
+    order = np.argsort(s, kind="stable")
+    du = np.diff(u[order])
+    floor = tol.fit_outlier_floor_px
+    if np.all(du < -floor):
+        raise CalibrationError(
+            "the stripe moves to smaller columns as the stage moves away from the camera: the frames "
+            "look flipped left–right (columns must increase toward the image hinge, the far end of "
+            "the range); flip the frames horizontally (or check the stage_mm sign)")
+    for k in range(len(du)):
+        a, b = ms[order[k]], ms[order[k + 1]]
+        if s[order[k + 1]] == s[order[k]] and abs(du[k]) > floor:
+            raise CalibrationError(
+                f"{a.name()} and {b.name()} have the same stage position s = {a.stage_mm:g} mm but "
+                f"their stripes lie {abs(du[k]):.3g} px apart: is a stage_mm in the manifest wrong?")
+        if du[k] < -floor:
+            raise CalibrationError(
+                f"stage positions and stripe columns disagree: {a.name()} (s = {a.stage_mm:g} mm, "
+                f"u = {a.u_mean_px:.2f} px) and {b.name()} (s = {b.stage_mm:g} mm, "
+                f"u = {b.u_mean_px:.2f} px); the stripe must move toward the hinge as s grows: "
+                "is a stage_mm in the manifest wrong or swapped?")
+
+
+def _reject_distance_outliers(ms, tol: CalibrationTolerances):
+    """Leave out, one at a time, frames whose distance-fit residual is an outlier.
+
+    The residual test of u = u_h + F²/(s − d0) needs ≥ 5 frames (two degrees of
+    freedom).  At most a quarter of the frames may go: beyond that the model,
+    not a stage position, is what fails, and only a warning is given.
+
+    Returns
+    -------
+    ms : tuple of PlateMeasurement
+        The frames kept.
+    outliers : tuple of (str, str)
+        (frame, reason) of the frames left out.
+    notes : list of str
+        Warnings.
+    """
+    ms, outliers = tuple(ms), []
+    while len(ms) >= 5:
+        s = np.array([m.stage_mm for m in ms])
+        u = np.array([m.u_mean_px for m in ms])
+        (uh, F2, d0), _ = _distance_fit(s, u, None, tol.max_condition)
+        r = u - (uh + F2 / (s - d0))
+        scale = 1.4826 * float(np.median(np.abs(r)))
+        limit = max(tol.fit_outlier_mads * scale, tol.fit_outlier_floor_px)
+        worst = int(np.argmax(np.abs(r)))
+        if abs(r[worst]) <= limit:
+            break
+        if len(outliers) + 1 > (len(ms) + len(outliers)) // 4:
+            return ms, tuple(outliers), [
+                f"the distance fit u = u_h + F²/(s − d0) leaves residuals up to {abs(r[worst]):.3g} px "
+                f"(robust σ {scale:.3g} px) on several frames: the paper's model may not describe this "
+                "rig (lens distortion, sensor roll) or several stage positions are wrong"]
+        outliers.append((ms[worst].name(), f"outlier in the distance fit: residual {r[worst]:+.3g} px "
+                         f"(limit {limit:.3g} px = max({tol.fit_outlier_mads:g} robust σ, "
+                         f"{tol.fit_outlier_floor_px:g} px)): is its stage_mm ({ms[worst].stage_mm:g} mm) "
+                         "wrong?"))
+        ms = ms[:worst] + ms[worst + 1:]
+    return ms, tuple(outliers), []
+
+
+def _frame_count_notes(n: int, tol: CalibrationTolerances) -> list[str]:
+    if n >= tol.recommended_frames:
+        return []
+    return [f"only {n} usable calibration frames (recommended: at least {tol.recommended_frames}): "
+            "the refined fit has 3 unknowns (u_h, F², d0), so its standard errors are "
+            + ("undefined" if n <= 3 else f"poorly determined ({n - 3} degree(s) of freedom)")]
+
+
+def _choose(paper: Calibration, refined: Calibration, method: str) -> tuple[Calibration, list[str]]:
+    """The estimate for ``method``; "best" prefers a defined σ(u_h), then the smaller one."""
+    if method != "best":
+        return (paper if method == "paper" else refined), []
+    sp, sr = paper.hinge_u_sigma_px, refined.hinge_u_sigma_px
+    if math.isfinite(sr) and (not math.isfinite(sp) or sr <= sp):
+        return refined, []
+    if math.isfinite(sp):
+        why = [] if math.isfinite(sr) else [
+            "the refined fit's σ(u_h) is undefined (exactly determined or nearly singular): "
+            "using the paper's over-determined estimate"]
+        return paper, why
+    return refined, ["no estimate has a defined σ(u_h): using the refined one"]
 
 
 def _estimate_json(e: dict) -> dict:
@@ -731,7 +952,7 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:
-        plate_height_mm = float(ff.scenario_params.get("plate_height_mm", 89.0))
+        plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]
     if missing:
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; "
@@ -752,7 +973,7 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
             skipped.append((rec.file, "plate edge outside the frame"))
             warnings.warn(f"{rec.file}: skipped: plate edge outside the frame", stacklevel=2)
             continue
-        ms.append(m)
+        ms.append(dataclasses.replace(m, file=rec.file))
     report(progress, len(ff), len(ff))
     return calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
                                   rows=ff.rows, method=method, tol=tol, skipped=skipped)

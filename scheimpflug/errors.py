@@ -8,6 +8,7 @@ printed by the command line on one line with a non-zero exit status.
 __all__ = [
     "CalibrationError",
     "FrameError",
+    "LockError",
     "MeshError",
     "RenderError",
     "RigError",
@@ -29,6 +30,10 @@ class FrameError(ScheimpflugError, ValueError):
 
 class CalibrationError(ScheimpflugError, ValueError):
     """A calibration set that cannot determine the calibration (too few frames, degenerate)."""
+
+
+class LockError(ScheimpflugError, RuntimeError):
+    """A folder is being written by another process (its lock file names the owner)."""
 
 
 class MeshError(ScheimpflugError, ValueError):

@@ -28,7 +28,11 @@ import numpy as np
 
 from scheimpflug.errors import FrameError
 
-__all__ = ["FrameFolder", "FrameRecord", "open_frame_folder", "read_frame"]
+__all__ = ["MAX_SIDE_PX", "FrameFolder", "FrameRecord", "open_frame_folder", "read_frame",
+           "scenario_number"]
+
+MAX_SIDE_PX = 65535
+"""Largest frame side a manifest may declare (the rig's ``sensor.rows``/``columns`` range) [px]."""
 
 
 @dataclass(frozen=True)
@@ -276,18 +280,29 @@ def _record(mpath: Path, i: int, entry: Any) -> FrameRecord:
                        extra={k: v for k, v in entry.items() if k not in known})
 
 
+def _whole(mpath: Path, sensor: dict, key: str, lo: int, hi: int, required: bool) -> int | None:
+    """rig.sensor[key] as an integer in [lo, hi] (an integral float is fine), or FrameError."""
+    value = sensor.get(key)
+    if value is None and not required:
+        return None
+    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+          and float(value).is_integer() and lo <= value <= hi)
+    if not ok:
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:20] + "…"
+        raise FrameError(f"{str(mpath)!r}: rig.sensor.{key} = {shown} must be an integer in "
+                         f"[{lo}, {hi}]")
+    return int(value)
+
+
 def _sensor_shape(mpath: Path, rig: Any) -> tuple[int, int, int | None] | None:
     if rig is None:
         return None
     sensor = rig.get("sensor") if isinstance(rig, dict) else None
     if not isinstance(sensor, dict):
         raise FrameError(f"{str(mpath)!r}: 'rig' must hold a 'sensor' table")
-    try:
-        rows, cols = int(sensor["rows"]), int(sensor["columns"])
-    except (KeyError, TypeError, ValueError):
-        raise FrameError(f"{str(mpath)!r}: rig.sensor needs integer 'rows' and 'columns'") from None
-    bits = sensor.get("adc_bits")
-    return rows, cols, int(bits) if isinstance(bits, (int, float)) else None
+    rows = _whole(mpath, sensor, "rows", 1, MAX_SIDE_PX, True)
+    cols = _whole(mpath, sensor, "columns", 1, MAX_SIDE_PX, True)
+    return rows, cols, _whole(mpath, sensor, "adc_bits", 1, 16, False)
 
 
 def open_frame_folder(path: str | Path) -> FrameFolder:
@@ -331,3 +346,39 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
                        adc_bits=shape[2] if shape else None)
+
+
+def scenario_number(folder: FrameFolder, key: str, default: float, lo: float, hi: float) -> float:
+    """A number of the manifest's ``scenario_params`` checked against its range.
+
+    Parameters
+    ----------
+    folder : FrameFolder
+        The opened folder.
+    key : str
+        Key in ``scenario_params`` (e.g. ``plate_height_mm``).
+    default : float
+        Value when the key is absent.
+    lo, hi : float
+        The value must be finite and in (lo, hi].
+
+    Returns
+    -------
+    float
+        The value, or ``default``.
+
+    Raises
+    ------
+    FrameError
+        Naming the manifest and the key, for a value that is not a finite
+        number in (lo, hi] (a string, null, an object, NaN …).
+    """
+    if key not in folder.scenario_params:
+        return float(default)
+    value = folder.scenario_params[key]
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) \
+        and lo < value <= hi
+    if not ok:
+        raise FrameError(f"{str(folder.path / 'manifest.json')!r}: scenario_params.{key} = "
+                         f"{value!r:.40} must be a finite number in ({lo:g}, {hi:g}]")
+    return float(value)

@@ -93,15 +93,17 @@ def design_report(rig: Rig) -> dict:
         [mm], ``stage_range_mm`` (stage coordinates of the distance range)
         [mm], ``axis_distance_mm`` (rotary axis from the object hinge) [mm],
         ``axis_column_px`` and ``stage_zero_column_px`` (columns that see the
-        rotary axis and stage coordinate 0) [px], ``focal_length_check_mm``
-        (:func:`focal_length_from_endpoint` at stage 0) [mm].
+        rotary axis and stage coordinate 0; None when that point is the object
+        hinge itself, e.g. ``d0_mm = 0``: it images at infinity) [px],
+        ``focal_length_check_mm`` (:func:`focal_length_from_endpoint` at stage
+        0; None with the stage zero column) [mm].
     """
     g = hinge_geometry(rig)
     s = rig.sensor
     cov = coverage(s.hinge_column, s.axis_row, g.F2_px_mm, g.C_mm, s.columns, s.rows)
     d_near, d_far = cov["distance_range_mm"]
     d_hinge_stage0 = -rig.stage.d0_mm
-    u_stage0 = float(g.column_from_distance(d_hinge_stage0))
+    u_stage0 = _column_or_none(g, d_hinge_stage0)
     return {
         "tilt_deg": g.tilt_deg,
         "tan_beta": g.tan_beta,
@@ -114,10 +116,17 @@ def design_report(rig: Rig) -> dict:
         "sensor_distance_to_lens_mm": _sensor_centre_distance(rig, g),
         "stage_range_mm": [d_near + rig.stage.d0_mm, d_far + rig.stage.d0_mm],
         "axis_distance_mm": rig.stage.axis_mm - rig.stage.d0_mm,
-        "axis_column_px": float(g.column_from_distance(rig.stage.axis_mm - rig.stage.d0_mm)),
+        "axis_column_px": _column_or_none(g, rig.stage.axis_mm - rig.stage.d0_mm),
         "stage_zero_column_px": u_stage0,
-        "focal_length_check_mm": focal_length_from_endpoint(g, u_stage0, d_hinge_stage0),
+        "focal_length_check_mm": (None if u_stage0 is None
+                                  else focal_length_from_endpoint(g, u_stage0, d_hinge_stage0)),
     }
+
+
+def _column_or_none(g: HingeGeometry, distance_mm: float) -> float | None:
+    """Column that sees distance D along the sheet; None at D = 0 (the hinge images at infinity)."""
+    u = float(g.column_from_distance(distance_mm))
+    return u if math.isfinite(u) else None
 
 
 def _sensor_centre_distance(rig: Rig, g: HingeGeometry) -> float:

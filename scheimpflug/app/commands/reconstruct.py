@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 
-from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._common import add_force_option, check_output, number, print_json
 
 _METHODS = ("gaussian3", "cog", "blais-rioux", "edge")
 
@@ -21,14 +21,15 @@ def add_parser(sub):
     p.add_argument("--calibration", required=True, metavar="CAL.json",
                    help="calibration written by 'scheimpflug calibrate --out'")
     axis = p.add_mutually_exclusive_group(required=True)
-    axis.add_argument("--axis-mm", type=float, metavar="A",
+    axis.add_argument("--axis-mm", type=number(-1e6, 1e6, unit="mm"), metavar="A",
                       help="rotary axis position, stage coordinate [mm]")
     axis.add_argument("--axis-from", metavar="DIR", help="locate the axis from a blocker folder")
     p.add_argument("--out", required=True, metavar="CLOUD.ply", help="output point cloud")
+    add_force_option(p)
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
                         "and on speckled stripes, benchmarks/RESULTS.md)")
-    p.add_argument("--min-snr", type=float, default=6.0,
+    p.add_argument("--min-snr", type=number(0, 1e4, lo_open=True), default=6.0,
                    help="detection threshold, peak over background noise [-] (default 6)")
     p.add_argument("--keep-saturated", action="store_true",
                    help="keep rows whose stripe peak is saturated (dropped by default: biased)")
@@ -38,12 +39,28 @@ def add_parser(sub):
     return p
 
 
-def _axis_mm(args, calibration) -> tuple[float, str]:
+def _axis_mm(args, calibration, folder) -> tuple[float, str]:
     if args.axis_mm is not None:
+        _warn_axis_outside(args.axis_mm, calibration, folder)
         return float(args.axis_mm), "option"
     from scheimpflug.axis import locate_axis
 
-    return float(locate_axis(args.axis_from, calibration).axis_mm), f"located from {args.axis_from}"
+    res = locate_axis(args.axis_from, calibration)
+    for note in res.warnings:
+        print(f"warning: --axis-from: {note}", file=sys.stderr)
+    return float(res.axis_mm), f"located from {args.axis_from}"
+
+
+def _warn_axis_outside(axis_mm: float, calibration, folder) -> None:
+    """A rotary axis outside the depth range the calibration covers is almost surely a typo."""
+    import numpy as np
+
+    ends, _ = calibration.stage_from_pixel(np.array([-0.5, folder.columns - 0.5]),
+                                           calibration.hinge_v_px)
+    lo, hi = float(np.nanmin(ends)), float(np.nanmax(ends))
+    if not lo <= axis_mm <= hi:
+        print(f"warning: --axis-mm {axis_mm:g} lies outside the depth range the calibration covers "
+              f"({lo:.2f} … {hi:.2f} mm): the cloud will be far from the part", file=sys.stderr)
 
 
 def _check_folder(folder, calibration) -> None:
@@ -57,6 +74,9 @@ def _check_folder(folder, calibration) -> None:
     if all(cal_shape) and cal_shape != (folder.rows, folder.columns):
         raise CalibrationError(f"calibration was made for {cal_shape[0]} × {cal_shape[1]} frames, "
                                f"the scan has {folder.rows} × {folder.columns}")
+    problem = calibration.problem(folder.columns) if hasattr(calibration, "problem") else None
+    if problem:
+        raise CalibrationError(f"the calibration cannot be applied to {str(folder.path)!r}: {problem}")
 
 
 def _extract(folder, args):
@@ -77,16 +97,20 @@ def _run(args) -> int:
     from scheimpflug.reconstruct import reconstruct_profiles
 
     t0 = time.perf_counter()
+    check_output(args.out, "--out", force=args.force, inputs=[args.calibration],
+                 folders=[args.dir, args.axis_from])
     calibration = Calibration.load(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
-    axis_mm, axis_source = _axis_mm(args, calibration)
+    axis_mm, axis_source = _axis_mm(args, calibration, folder)
     rows, us, peaks, stats = _extract(folder, args)
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in folder.frames], calibration,
                                  axis_mm, intensity=peaks)
     if len(cloud) == 0:
+        saturated = (f"; {stats['saturated_frames']} of them saturated (most pixels at the saturation "
+                     "level): lower the exposure" if stats["saturated_frames"] else "")
         raise FrameError(f"{args.dir}: no stripe found in any of the {len(folder)} frames "
-                         f"({stats['saturated_rows']} saturated rows dropped)")
+                         f"({stats['saturated_rows']} saturated rows dropped{saturated})")
     write_point_cloud(args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
