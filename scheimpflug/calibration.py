@@ -107,12 +107,16 @@ class CalibrationTolerances:
     max_condition : float, default 1e12
         A fit whose normal matrix is worse conditioned than this is nearly
         singular: its standard errors are reported as undefined [-].
-    fit_outlier_mads : float, default 5.0
-        A frame whose residual in the distance fit u = u_h + F²/(s − d0) exceeds
-        this many robust σ (1.4826 × MAD of the residuals) … [-]
-    fit_outlier_floor_px : float, default 0.5
-        … and this floor is an outlier (a wrong stage position): left out and
-        named [px].
+    fit_outlier_ratio : float, default 10.0
+        A frame whose column the distance fit u = u_h + F²/(s − d0) of the
+        other frames misses by more than this many times their robust residual
+        σ … [-]
+    fit_outlier_floor_px : float, default 0.1
+        … and by more than this floor is an outlier (a wrong stage position):
+        left out and named (≥ 6 frames) [px].
+    stage_order_px : float, default 0.5
+        Sorted by stage position, a stripe may step back by at most this much,
+        and frames at one position may differ by at most this much [px].
     """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
@@ -126,8 +130,9 @@ class CalibrationTolerances:
     min_slope_gap: float = 1e-3   # endpoint slopes closer than this are parallel [-]
     recommended_frames: int = 6   # fewer usable frames: warn (3 unknowns in the refined fit) [-]
     max_condition: float = 1e12   # a worse conditioned fit is nearly singular: σ undefined [-]
-    fit_outlier_mads: float = 5.0  # distance-fit residual beyond this many robust σ … [-]
-    fit_outlier_floor_px: float = 0.5  # … and beyond this floor: a wrong stage position [px]
+    fit_outlier_ratio: float = 10.0  # leave-one-out miss beyond this many robust σ of the others …
+    fit_outlier_floor_px: float = 0.1  # … and beyond this floor: a wrong stage position [px]
+    stage_order_px: float = 0.5   # a stripe stepping back (or apart at one s) by more: refused [px]
 
 
 # ---------------------------------------------------------------- result types
@@ -339,7 +344,10 @@ class Calibration:
             raise CalibrationError(f"calibration file {str(p)!r} is unreadable: {exc}") from None
         if not isinstance(d, dict):
             raise CalibrationError(f"calibration file {str(p)!r} must hold a JSON object")
-        cal = cls.from_json_dict(d)
+        try:
+            cal = cls.from_json_dict(d)
+        except CalibrationError as exc:
+            raise CalibrationError(f"calibration file {str(p)!r}: {exc}") from None
         problem = cal.problem()
         if problem:
             raise CalibrationError(f"calibration file {str(p)!r}: {problem}")
@@ -814,7 +822,7 @@ def _check_stage_positions(ms, tol: CalibrationTolerances) -> None:
     u = np.array([m.u_mean_px for m in ms])
     order = np.argsort(s, kind="stable")
     du = np.diff(u[order])
-    floor = tol.fit_outlier_floor_px
+    floor = tol.stage_order_px
     if np.all(du < -floor):
         raise CalibrationError(
             "the stripe moves to smaller columns as the stage moves away from the camera: the frames "
@@ -835,11 +843,16 @@ def _check_stage_positions(ms, tol: CalibrationTolerances) -> None:
 
 
 def _reject_distance_outliers(ms, tol: CalibrationTolerances):
-    """Leave out, one at a time, frames whose distance-fit residual is an outlier.
+    """Leave out, one at a time, frames whose stage position the others contradict.
 
-    The residual test of u = u_h + F²/(s − d0) needs ≥ 5 frames (two degrees of
-    freedom).  At most a quarter of the frames may go: beyond that the model,
-    not a stage position, is what fails, and only a warning is given.
+    Leave-one-out test of u = u_h + F²/(s − d0): each frame's column is
+    predicted by the fit of all the others; a frame whose prediction error
+    exceeds ``fit_outlier_ratio`` times the others' robust residual σ (1.4826 ×
+    MAD, scaled by √(m/(m − 3)) for the three fitted unknowns) and
+    ``fit_outlier_floor_px`` is left out, worst first.  Needs ≥ 6 frames (the
+    others then leave ≥ 2 degrees of freedom).  At most a quarter of the
+    frames may go: beyond that the model, not a stage position, is what fails,
+    and only a warning is given.
 
     Returns
     -------
@@ -850,28 +863,40 @@ def _reject_distance_outliers(ms, tol: CalibrationTolerances):
     notes : list of str
         Warnings.
     """
-    ms, outliers = tuple(ms), []
-    while len(ms) >= 5:
+    ms, outliers, n0 = tuple(ms), [], len(ms)
+    while len(ms) >= 6:
         s = np.array([m.stage_mm for m in ms])
         u = np.array([m.u_mean_px for m in ms])
-        (uh, F2, d0), _ = _distance_fit(s, u, None, tol.max_condition)
-        r = u - (uh + F2 / (s - d0))
-        scale = 1.4826 * float(np.median(np.abs(r)))
-        limit = max(tol.fit_outlier_mads * scale, tol.fit_outlier_floor_px)
-        worst = int(np.argmax(np.abs(r)))
-        if abs(r[worst]) <= limit:
+        err, scale = _leave_one_out(s, u, tol.max_condition)
+        ratio = np.abs(err) / np.maximum(scale, 1e-12)
+        worst = int(np.argmax(np.where(np.abs(err) > tol.fit_outlier_floor_px, ratio, 0.0)))
+        if not (abs(err[worst]) > tol.fit_outlier_floor_px and ratio[worst] > tol.fit_outlier_ratio):
             break
-        if len(outliers) + 1 > (len(ms) + len(outliers)) // 4:
+        if len(outliers) + 1 > n0 // 4:
             return ms, tuple(outliers), [
-                f"the distance fit u = u_h + F²/(s − d0) leaves residuals up to {abs(r[worst]):.3g} px "
-                f"(robust σ {scale:.3g} px) on several frames: the paper's model may not describe this "
-                "rig (lens distortion, sensor roll) or several stage positions are wrong"]
-        outliers.append((ms[worst].name(), f"outlier in the distance fit: residual {r[worst]:+.3g} px "
-                         f"(limit {limit:.3g} px = max({tol.fit_outlier_mads:g} robust σ, "
-                         f"{tol.fit_outlier_floor_px:g} px)): is its stage_mm ({ms[worst].stage_mm:g} mm) "
-                         "wrong?"))
+                f"the distance fit u = u_h + F²/(s − d0) contradicts several frames (up to "
+                f"{abs(err[worst]):.3g} px): the paper's model may not describe this rig (lens "
+                "distortion, sensor roll) or several stage positions are wrong"]
+        outliers.append((ms[worst].name(), f"outlier in the distance fit: the other frames put its stripe "
+                         f"{err[worst]:+.3g} px from where it is ({ratio[worst]:.0f} × their residual σ "
+                         f"{scale[worst]:.2g} px): is its stage_mm ({ms[worst].stage_mm:g} mm) wrong?"))
         ms = ms[:worst] + ms[worst + 1:]
     return ms, tuple(outliers), []
+
+
+def _leave_one_out(s: np.ndarray, u: np.ndarray, max_condition: float):
+    """Per frame: (column − prediction of the others' fit, the others' robust residual σ) [px]."""
+    x0, _ = _distance_fit(s, u, None, max_condition)
+    err, scale = np.empty(len(s)), np.empty(len(s))
+    for i in range(len(s)):
+        k = np.arange(len(s)) != i
+        sol = optimize.least_squares(lambda q: u[k] - (q[0] + q[1] / (s[k] - q[2])), x0,
+                                     x_scale=[100.0, 1e5, 10.0])
+        q = sol.x
+        err[i] = u[i] - (q[0] + q[1] / (s[i] - q[2]))
+        m = int(k.sum())
+        scale[i] = 1.4826 * float(np.median(np.abs(sol.fun))) * math.sqrt(m / (m - 3))
+    return err, scale
 
 
 def _frame_count_notes(n: int, tol: CalibrationTolerances) -> list[str]:

@@ -68,7 +68,10 @@ def _os_error_line(exc: OSError) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:          # --help, or a bad option (one line already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_ERROR
     name = f"scheimpflug {args.command}"
     debug = args.debug or os.environ.get(_DEBUG_ENV, "") not in ("", "0")
     try:
