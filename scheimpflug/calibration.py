@@ -890,7 +890,8 @@ def _leave_one_out(s: np.ndarray, u: np.ndarray, max_condition: float):
     err, scale = np.empty(len(s)), np.empty(len(s))
     for i in range(len(s)):
         k = np.arange(len(s)) != i
-        sol = optimize.least_squares(lambda q: u[k] - (q[0] + q[1] / (s[k] - q[2])), x0,
+        sk, uk = s[k], u[k]
+        sol = optimize.least_squares(lambda q, sk=sk, uk=uk: uk - (q[0] + q[1] / (sk - q[2])), x0,
                                      x_scale=[100.0, 1e5, 10.0])
         q = sol.x
         err[i] = u[i] - (q[0] + q[1] / (s[i] - q[2]))

@@ -17,11 +17,11 @@ import trimesh
 from synth_frames import PlateScene, calibration_folder, plate_frame, rig_dict, write_folder
 from test_hostile_calibration import GEO, STAGES
 from test_reconstruct_cli import AXIS, COLS, ROWS, _cylinder_scan, _write_scan
-from test_reconstruct_cli import C as C_MM
 from test_reconstruct_cli import D0 as D0_MM
 from test_reconstruct_cli import F2 as F2_PX_MM
 from test_reconstruct_cli import U_H as U_H_PX
 from test_reconstruct_cli import V_H as V_H_PX
+from test_reconstruct_cli import C as C_MM
 
 from scheimpflug.app import cli
 from scheimpflug.app.cli import main

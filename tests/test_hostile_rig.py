@@ -13,7 +13,7 @@ from scheimpflug.app.cli import main
 from scheimpflug.app.commands._common import finite_json
 from scheimpflug.errors import RigError
 from scheimpflug.model.design import design_report
-from scheimpflug.model.rig import KEY_RANGES, _TABLES, load_preset, rig_from_dict
+from scheimpflug.model.rig import _TABLES, KEY_RANGES, load_preset, rig_from_dict
 
 
 def _fails(args, capsys, *needles):
