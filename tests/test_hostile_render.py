@@ -199,3 +199,26 @@ def test_two_real_renders_at_once_leave_one_run(tmp_path):
     assert m["complete"] is True and m["seed"] == next(s for s, (c, _) in zip((1, 2), done) if c == 0)
     for i in range(3):
         assert FileLedger(out).mismatch(i, [f"frames/{i:05d}.png", f"truth/{i:05d}.npz"]) is None
+
+
+def test_lock_without_flock_falls_back_to_exclusive_creation(tmp_path, monkeypatch):
+    """File systems without flock(2): the lock file's existence is the lock; a dead owner's is stale."""
+    import fcntl
+    import socket
+
+    def no_flock(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_flock)
+    first = FolderLock(tmp_path)
+    first.acquire()
+    with pytest.raises(Exception, match=rf"being written by pid {os.getpid()}"):
+        FolderLock(tmp_path).acquire()
+    first.release()
+    assert not (tmp_path / LOCK_NAME).exists()
+    (tmp_path / LOCK_NAME).write_text(json.dumps({"pid": 999999, "host": socket.gethostname()}))
+    with FolderLock(tmp_path) as lock:                     # same host, pid gone: stale
+        assert lock.stale_owner["pid"] == 999999
+    (tmp_path / LOCK_NAME).write_text(json.dumps({"pid": 1, "host": "elsewhere"}))
+    with pytest.raises(Exception, match="host 'elsewhere'"):  # another host: cannot tell, refused
+        FolderLock(tmp_path).acquire()

@@ -54,7 +54,8 @@ def test_absurd_rig_values_are_one_line_naming_key_and_range(tmp_path, capsys, t
     assert capsys.readouterr().out == ""
 
 
-@pytest.mark.parametrize("toml", ["[lens]\nf_number = 1e-300\n", "[sensor]\nexposure_ms = 1e300\n"])
+@pytest.mark.parametrize("toml", ["[lens]\nf_number = 1e-300\n", "[sensor]\nexposure_ms = 1e300\n",
+                                  "[sensor]\ncolumns = 10000000\n"])
 def test_render_refuses_them_before_rendering(tmp_path, capsys, toml):
     out = tmp_path / "o"
     _fails(["render", "blocker", "--rig", _rig_file(tmp_path, toml), "--binning", "8", "--out", str(out)],

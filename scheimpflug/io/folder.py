@@ -135,14 +135,17 @@ class FolderLock:
         for _ in range(20):
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             try:
-                if not self._try_flock(fd):
-                    return self._acquire_exclusive(fd)
+                locked = self._try_flock(fd)
             except BaseException:
                 os.close(fd)
                 raise
+            if not locked:
+                os.close(fd)
+                self._acquire_exclusive()
+                return
             if self._same_file(fd):
                 self._claim(fd)
-                return None
+                return
             os.close(fd)          # the previous owner removed the file as we opened it: retry
         raise self._busy(self._read_owner())  # pragma: no cover - 20 lost races in a row
 
@@ -176,9 +179,8 @@ class FolderLock:
         os.pwrite(fd, data, 0)
         self._fd = fd
 
-    def _acquire_exclusive(self, fd: int) -> None:
+    def _acquire_exclusive(self) -> None:
         """No flock here: the lock is the file's exclusive creation; stale if its pid is gone."""
-        os.close(fd)
         self._flock = False
         owner = self._read_owner()
         if owner is not None:

@@ -259,12 +259,22 @@ def _load_manifest(folder: Path) -> dict:
     return data
 
 
+def _finite_number(value: Any) -> bool:
+    """A JSON number that is finite as a float (not a boolean, string, NaN, ±inf or a huge integer)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:          # an integer beyond the float range
+        return False
+
+
 def _number(mpath: Path, i: int, entry: dict, key: str) -> float | None:
     value = entry.get(key)
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise FrameError(f"{str(mpath)!r}: frames[{i}].{key} = {value!r} must be a finite number")
+    if not _finite_number(value):
+        raise FrameError(f"{str(mpath)!r}: frames[{i}].{key} = {value!r:.40} must be a finite number")
     return float(value)
 
 
@@ -285,8 +295,7 @@ def _whole(mpath: Path, sensor: dict, key: str, lo: int, hi: int, required: bool
     value = sensor.get(key)
     if value is None and not required:
         return None
-    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-          and float(value).is_integer() and lo <= value <= hi)
+    ok = _finite_number(value) and float(value).is_integer() and lo <= value <= hi
     if not ok:
         shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:20] + "…"
         raise FrameError(f"{str(mpath)!r}: rig.sensor.{key} = {shown} must be an integer in "
@@ -376,8 +385,7 @@ def scenario_number(folder: FrameFolder, key: str, default: float, lo: float, hi
     if key not in folder.scenario_params:
         return float(default)
     value = folder.scenario_params[key]
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) \
-        and lo < value <= hi
+    ok = _finite_number(value) and lo < value <= hi
     if not ok:
         raise FrameError(f"{str(folder.path / 'manifest.json')!r}: scenario_params.{key} = "
                          f"{value!r:.40} must be a finite number in ({lo:g}, {hi:g}]")

@@ -213,8 +213,9 @@ def _load(path: str | os.PathLike, what: str):
 
     p = Path(path)
     if p.is_dir():
-        raise MeshError(f"{what} {str(p)!r} is a folder, not a file (a frame folder's truth mesh is "
-                        f"{str(p / 'truth' / 'mesh.ply')!r})")
+        truth = p / "truth" / "mesh.ply"
+        hint = f" (did you mean {str(truth)!r}?)" if truth.is_file() else ""
+        raise MeshError(f"{what} {str(p)!r} is a folder, not a file{hint}")
     if not p.is_file():
         raise MeshError(f"{what} {str(p)!r} does not exist")
     elements = _check_ply_header(p) if p.suffix.lower() == ".ply" else None
