@@ -8,6 +8,8 @@ Layout::
     DIR/truth/mesh.ply       the scene in the truth reference frame (object_id per face)
     DIR/truth/mesh_NNNNN.ply calibration only: the plate at frame NNNNN's stage position
     DIR/truth/rig_truth.json closed-form u_h, v_h, F², C, d0, axis of the rig (sim.truth.rig_truth)
+    DIR/checksums.jsonl      size and SHA-256 of each finished frame's PNG and truth file
+    DIR/.scheimpflug.lock    while a run writes the folder: its pid, host, start, program
 
 ``manifest.json`` keys: ``format``, ``complete`` (false while rendering),
 ``rig`` (rig_to_dict), ``scenario``, ``scenario_params``, ``seed``, ``render``
