@@ -319,7 +319,7 @@ def _stripe_shape_notes(file: str, u: np.ndarray, rows: np.ndarray, dev_mm: np.n
 def _check_axis_result(ff: FrameFolder, cal: Calibration, axes: list, t: float) -> list[str]:
     """The axis must lie in the calibrated depth range and the frames must agree."""
     n = ff.columns
-    ends, _ = cal.stage_from_pixel(np.array([-0.5, n - 0.5]), cal.hinge_v_px)
+    ends, _ = cal.stage_from_pixel(np.array([-0.5, n - 0.5]), np.full(2, 0.5 * (ff.rows - 1)))
     lo, hi = float(np.min(ends)) - t, float(np.max(ends)) + t
     axis = float(np.median(axes))
     if not lo <= axis <= hi:

@@ -38,12 +38,17 @@ __all__ = [
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
+    "sheet_from_pixels",
 ]
 
 
 # A Protocol is never instantiated: its (*args, **kwargs) constructor has nothing to document.
 class SheetCalibration(Protocol):  # numpydoc ignore=PR01
-    """What reconstruction needs of a calibration (``scheimpflug.calibration.Calibration`` has it).
+    """The paper form's constants (``scheimpflug.calibration.Calibration`` has them).
+
+    Reconstruction takes any object with a ``stage_from_pixel(u, v)`` method
+    (:class:`scheimpflug.sheet_model.SheetModel`: the paper form or the general
+    model); a bare set of these constants is mapped with paper Eqs. 11–12.
 
     Attributes
     ----------
@@ -62,6 +67,28 @@ class SheetCalibration(Protocol):  # numpydoc ignore=PR01
     F2_px_mm: float
     d0_mm: float
     C_mm: float
+
+
+def sheet_from_pixels(u, v, calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Stage coordinate and height of pixels through any calibration.
+
+    Parameters
+    ----------
+    u, v : array_like float
+        Column and row [px].
+    calibration : SheetModel or SheetCalibration
+        An object with ``stage_from_pixel(u, v)`` (paper form or general model), or the
+        paper constants alone.
+
+    Returns
+    -------
+    stage_mm, h_mm : ndarray float64
+        [mm].
+    """
+    if hasattr(calibration, "stage_from_pixel"):
+        return calibration.stage_from_pixel(u, v)
+    return stage_from_pixel(u, v, calibration.hinge_u_px, calibration.hinge_v_px,
+                            calibration.F2_px_mm, calibration.d0_mm, calibration.C_mm)
 
 
 @dataclass(frozen=True)
@@ -129,8 +156,8 @@ def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
     return np.stack([r * np.cos(th), -r * np.sin(th), h], axis=-1).reshape(-1, 3)
 
 
-def points_from_pixels(u, v, angle_deg, calibration: SheetCalibration, axis_mm: float) -> np.ndarray:
-    """Part-frame points of stripe pixels seen at rotary angles (paper Eqs. 11–12, then the stage).
+def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float) -> np.ndarray:
+    """Part-frame points of stripe pixels seen at rotary angles (the sheet mapping, then the stage).
 
     Parameters
     ----------
@@ -139,8 +166,8 @@ def points_from_pixels(u, v, angle_deg, calibration: SheetCalibration, axis_mm: 
     angle_deg : array_like float
         Rotary stage angle of each pixel's frame [deg]; ``u``, ``v`` and
         ``angle_deg`` broadcast together.
-    calibration : SheetCalibration
-        Hinge, F², d0, C.
+    calibration : SheetModel or SheetCalibration
+        Paper form or general model (:func:`sheet_from_pixels`).
     axis_mm : float
         Stage coordinate of the rotary axis [mm].
 
@@ -154,13 +181,12 @@ def points_from_pixels(u, v, angle_deg, calibration: SheetCalibration, axis_mm: 
     ValueError
         If ``u`` and ``v`` do not broadcast together.
     """
-    s, h = stage_from_pixel(u, v, calibration.hinge_u_px, calibration.hinge_v_px,
-                            calibration.F2_px_mm, calibration.d0_mm, calibration.C_mm)
+    s, h = sheet_from_pixels(u, v, calibration)
     return part_from_sheet(s, h, angle_deg, axis_mm)
 
 
 def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
-                         angles_deg: Iterable[float], calibration: SheetCalibration,
+                         angles_deg: Iterable[float], calibration,
                          axis_mm: float, intensity: Sequence[np.ndarray] | None = None) -> PointCloud:
     """Point cloud of a rotary scan from per-frame stripe samples.
 
@@ -172,8 +198,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
         Stripe columns of each frame [px].
     angles_deg : iterable of float
         Rotary angle of each frame [deg].
-    calibration : SheetCalibration
-        Hinge, F², d0, C (e.g. ``Calibration.load(...)``).
+    calibration : SheetModel or SheetCalibration
+        Paper form or general model (``scheimpflug.sheet_model.load_sheet_model(...)``).
     axis_mm : float
         Stage coordinate of the rotary axis [mm].
     intensity : sequence of (n_i,) float, optional

@@ -29,7 +29,9 @@ from scheimpflug.errors import ScheimpflugError
 
 __all__ = ["COMMANDS", "EXIT_BUG", "EXIT_ERROR", "build_parser", "main"]
 
-COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "demo")
+COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "acceptance", "import",
+            "demo")
+_MODULES = {"import": "import_frames"}   # command name → module (``import`` is a keyword)
 EXIT_ERROR = 2    # bad input, reported on one line
 EXIT_BUG = 70     # an unexpected exception: a bug (sysexits.h EX_SOFTWARE)
 _DEBUG_ENV = "SCHEIMPFLUG_DEBUG"
@@ -53,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"show the Python traceback of an unexpected error (also {_DEBUG_ENV}=1)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"scheimpflug.app.commands.{name}").add_parser(sub)
+        importlib.import_module(f"scheimpflug.app.commands.{_MODULES.get(name, name)}").add_parser(sub)
     return parser
 
 

@@ -177,6 +177,38 @@ class FrameFolder:
             while pending:
                 yield pending.popleft().result()
 
+    def rig_value(self, table: str, key: str) -> float | None:
+        """A positive number of the manifest's rig tables, or None where the manifest has none.
+
+        Parameters
+        ----------
+        table, key : str
+            E.g. ``"lens"``, ``"focal_length_mm"``.
+
+        Returns
+        -------
+        float or None
+            The value; None when the manifest has no rig, no such table or no such key.
+
+        Raises
+        ------
+        FrameError
+            Naming the key, when the table is not an object or the value is not a
+            finite number > 0.
+        """
+        tab = (self.rig or {}).get(table)
+        if tab is None:
+            return None
+        if not isinstance(tab, dict):
+            raise FrameError(f"{str(self.path / 'manifest.json')!r}: rig.{table} must be an object")
+        value = tab.get(key)
+        if value is None:
+            return None
+        if not (_finite_number(value) and value > 0):
+            raise FrameError(f"{str(self.path / 'manifest.json')!r}: rig.{table}.{key} = {value!r:.40} "
+                             "must be a finite number > 0")
+        return float(value)
+
     def saturation_dn(self, frame: np.ndarray) -> float:
         """Saturation level of a frame of this folder.
 
@@ -290,15 +322,16 @@ def _record(mpath: Path, i: int, entry: Any) -> FrameRecord:
                        extra={k: v for k, v in entry.items() if k not in known})
 
 
-def _whole(mpath: Path, sensor: dict, key: str, lo: int, hi: int, required: bool) -> int | None:
-    """rig.sensor[key] as an integer in [lo, hi] (an integral float is fine), or FrameError."""
+def _whole(mpath: Path, sensor: dict, key: str, lo: int, hi: int, required: bool,
+           where: str = "rig.sensor.") -> int | None:
+    """sensor[key] as an integer in [lo, hi] (an integral float is fine), or FrameError."""
     value = sensor.get(key)
     if value is None and not required:
         return None
     ok = _finite_number(value) and float(value).is_integer() and lo <= value <= hi
     if not ok:
         shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:20] + "…"
-        raise FrameError(f"{str(mpath)!r}: rig.sensor.{key} = {shown} must be an integer in "
+        raise FrameError(f"{str(mpath)!r}: {where}{key} = {shown} must be an integer in "
                          f"[{lo}, {hi}]")
     return int(value)
 
@@ -352,9 +385,12 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     params = data.get("scenario_params") or {}
     if not isinstance(params, dict):
         raise FrameError(f"{str(mpath)!r}: 'scenario_params' must be an object")
+    bits = shape[2] if shape else None
+    if bits is None and data.get("adc_bits") is not None:   # real frames imported without a rig
+        bits = _whole(mpath, data, "adc_bits", 1, 16, True, where="")
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
-                       adc_bits=shape[2] if shape else None)
+                       adc_bits=bits)
 
 
 def scenario_number(folder: FrameFolder, key: str, default: float, lo: float, hi: float) -> float:

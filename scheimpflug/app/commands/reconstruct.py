@@ -19,7 +19,8 @@ def add_parser(sub):
                                    "row and intensity.")
     p.add_argument("dir", metavar="DIR", help="rotary scan folder (manifest.json + frames/)")
     p.add_argument("--calibration", required=True, metavar="CAL.json",
-                   help="calibration written by 'scheimpflug calibrate --out'")
+                   help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
+                        "or '--opencv'")
     axis = p.add_mutually_exclusive_group(required=True)
     axis.add_argument("--axis-mm", type=number(-1e6, 1e6, unit="mm"), metavar="A",
                       help="rotary axis position, stage coordinate [mm]")
@@ -56,7 +57,7 @@ def _warn_axis_outside(axis_mm: float, calibration, folder) -> None:
     import numpy as np
 
     ends, _ = calibration.stage_from_pixel(np.array([-0.5, folder.columns - 0.5]),
-                                           calibration.hinge_v_px)
+                                           np.full(2, 0.5 * (folder.rows - 1)))
     lo, hi = float(np.nanmin(ends)), float(np.nanmax(ends))
     if not lo <= axis_mm <= hi:
         print(f"warning: --axis-mm {axis_mm:g} lies outside the depth range the calibration covers "
@@ -90,16 +91,16 @@ def _extract(folder, args):
 
 
 def _run(args) -> int:
-    from scheimpflug.calibration import Calibration
     from scheimpflug.errors import FrameError
     from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
     t0 = time.perf_counter()
     check_output(args.out, "--out", force=args.force, inputs=[args.calibration],
                  folders=[args.dir, args.axis_from])
-    calibration = Calibration.load(args.calibration)
+    calibration = load_calibration(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration, folder)
