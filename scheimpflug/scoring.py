@@ -95,10 +95,43 @@ def _build_bvh(tri_min, tri_max, centroid, leaf_size):
 
 
 @numba.njit(cache=True, inline="always")
+def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
+    """Closest point of segment ab to p, and its parameter t in [0, 1] (0 for a point)."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    dd = dx * dx + dy * dy + dz * dz
+    t = 0.0
+    if dd > 0.0:
+        t = min(max(((px - ax) * dx + (py - ay) * dy + (pz - az) * dz) / dd, 0.0), 1.0)
+    return ax + t * dx, ay + t * dy, az + t * dz, t
+
+
+@numba.njit(cache=True)
+def _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point of a zero-area triangle (a segment or a point): the nearest of its edges."""
+    best, out = np.inf, (ax, ay, az, 0)
+    edges = ((ax, ay, az, bx, by, bz, 3, 0, 1), (bx, by, bz, cx, cy, cz, 4, 1, 2),
+             (cx, cy, cz, ax, ay, az, 5, 2, 0))
+    for e in edges:
+        qx, qy, qz, t = _closest_on_segment(px, py, pz, e[0], e[1], e[2], e[3], e[4], e[5])
+        d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+        if d2 < best:
+            code = e[7] if t <= 0.0 else (e[8] if t >= 1.0 else e[6])
+            best, out = d2, (qx, qy, qz, code)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
 def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Closest point of triangle abc to p and the feature it lies on (Ericson §5.1.5)."""
+    """Closest point of triangle abc to p and the feature it lies on (Ericson §5.1.5).
+
+    A zero-area triangle (collinear or coincident corners) is a segment or a point:
+    the nearest point of its edges (:func:`_closest_on_degenerate`).
+    """
     abx, aby, abz = bx - ax, by - ay, bz - az
     acx, acy, acz = cx - ax, cy - ay, cz - az
+    nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
+    if nx * nx + ny * ny + nz * nz == 0.0:
+        return _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
     apx, apy, apz = px - ax, py - ay, pz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz

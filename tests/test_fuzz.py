@@ -190,6 +190,8 @@ def base_folder(tmp_path_factory):
 MANIFEST_PATHS = [("scenario",), ("scenario_params",), ("scenario_params", "plate_height_mm"),
                   ("scenario_params", "blocker_thickness_mm"), ("rig",), ("rig", "sensor"),
                   ("rig", "sensor", "rows"), ("rig", "sensor", "columns"), ("rig", "sensor", "adc_bits"),
+                  ("rig", "lens"), ("rig", "lens", "focal_length_mm"), ("rig", "sensor", "pixel_pitch_um"),
+                  ("adc_bits",),
                   ("frames",), ("frames", 0), ("frames", 0, "file"), ("frames", 3, "stage_mm"),
                   ("frames", 5, "stage_mm"), ("frames", 2, "angle_deg"), ("frames", 1, "seed"),
                   ("frames", 4, "exposure_ms")]
@@ -276,7 +278,8 @@ def test_fuzz_calibrate_axis_reconstruct_with_random_frame_folders(base_folder, 
     with tempfile.TemporaryDirectory() as tmp:
         folder = _mutated_folder(data, base, Path(tmp) / "f")
         cal_out, cloud = Path(tmp) / "c.json", Path(tmp) / "c.ply"
-        runs = [["calibrate", str(folder), "--json", "--quiet", "--out", str(cal_out)],
+        model = data.draw(st.sampled_from(["auto", "paper", "general"]))
+        runs = [["calibrate", str(folder), "--json", "--quiet", "--out", str(cal_out), "--model", model],
                 ["axis", str(folder), "--calibration", str(cal), "--json"],
                 ["reconstruct", str(folder), "--calibration", str(cal), "--axis-mm", "150", "--quiet",
                  "--json", "--out", str(cloud)]]

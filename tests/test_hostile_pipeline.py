@@ -363,3 +363,19 @@ def test_an_unexpected_exception_is_one_line_asking_for_a_report(monkeypatch, ca
     monkeypatch.setenv("SCHEIMPFLUG_DEBUG", "1")
     with pytest.raises(KeyError):
         main(["design"])
+
+
+def test_degenerate_triangles_score_a_distance_not_nan(tmp_path, capsys):
+    """Found by the fuzz suite: a zero-length edge made the closest point 0/0 (rms null)."""
+    from scheimpflug.scoring import PointToMesh
+
+    tri = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])      # a ≡ b: a segment
+    for faces in ([[0, 1, 2]], [[0, 2, 1]], [[2, 0, 1]]):
+        d = PointToMesh(tri, np.array(faces)).query(np.array([[3.0, 4.0, 0.5], [0.0, 0.0, -2.0]]))
+        np.testing.assert_allclose(np.abs(d.distance_mm), [5.0, 2.0], atol=1e-12)
+    fuzz = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])     # the example found
+    trimesh.Trimesh(fuzz, np.array([[0, 0, 1]]), process=False).export(tmp_path / "m.ply")
+    write_point_cloud(tmp_path / "c.ply", PointCloud(np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int64),
+                                                     np.zeros(1)))
+    assert main(["evaluate", str(tmp_path / "c.ply"), "--mesh", str(tmp_path / "m.ply"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["rms_mm"] == 0.0

@@ -5,7 +5,14 @@ from __future__ import annotations
 import sys
 import warnings
 
-from scheimpflug.app.commands._common import add_force_option, check_output, check_plot, number, print_json
+from scheimpflug.app.commands._common import (
+    add_force_option,
+    check_output,
+    check_plot,
+    finite_json,
+    number,
+    print_json,
+)
 
 
 def add_parser(sub):
@@ -122,7 +129,7 @@ def _run(args) -> int:
               f"pitch (give --rig)", file=sys.stderr)
     d = _result_dict(res)
     if args.out:
-        write_json_atomic(args.out, d)
+        write_json_atomic(args.out, finite_json(d))     # undefined numbers as null
     if args.opencv:
         from scheimpflug.io.opencv import write_opencv
 
