@@ -31,6 +31,7 @@ import numpy as np
 from scheimpflug.errors import MeshError
 
 __all__ = [
+    "MAX_COORDINATE_MM",
     "MeshDistance",
     "PointToMesh",
     "body_labels",
@@ -39,6 +40,10 @@ __all__ = [
     "point_to_mesh",
     "score_points",
 ]
+
+MAX_COORDINATE_MM = 1e12
+"""Largest |coordinate| of a point or a mesh vertex that can be scored [mm] (1000 km: no part is
+larger; squared distances of coordinates beyond ≈ 1e154 overflow float64)."""
 
 _LEAF_SIZE = 4          # triangles per BVH leaf: 4 balances box tests against triangle tests
 _STACK = 128            # traversal stack depth; a median-split tree on 1e9 faces is < 64 deep
@@ -277,6 +282,9 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError("mesh faces must index existing vertices")
     if not np.all(np.isfinite(v)):
         raise MeshError("mesh vertices contain NaN or infinite coordinates")
+    if np.abs(v).max() > MAX_COORDINATE_MM:
+        raise MeshError(f"mesh vertices reach {np.abs(v).max():.3g} mm: beyond ±{MAX_COORDINATE_MM:g} mm "
+                        "nothing can be scored (not a part in mm)")
     return v, f.astype(np.int64)
 
 
@@ -406,7 +414,8 @@ class PointToMesh:
     ------
     MeshError
         If the arrays have the wrong shape, faces index missing vertices or
-        are not integers, or a vertex is not finite.
+        are not integers, or a vertex is not finite or beyond
+        :data:`MAX_COORDINATE_MM`.
 
     Notes
     -----
@@ -444,13 +453,16 @@ class PointToMesh:
         Raises
         ------
         ValueError
-            If ``points`` is not (n, 3) or holds NaN or infinite coordinates.
+            If ``points`` is not (n, 3) or holds NaN or infinite coordinates, or
+            coordinates beyond :data:`MAX_COORDINATE_MM`.
         """
         p = np.ascontiguousarray(points, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must be an (n, 3) array, got shape {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ValueError("points contain NaN or infinite coordinates")
+        if p.size and np.abs(p).max() > MAX_COORDINATE_MM:
+            raise ValueError(f"points reach {np.abs(p).max():.3g} mm, beyond ±{MAX_COORDINATE_MM:g} mm")
         n = len(p)
         d2, face = np.empty(n), np.empty(n, dtype=np.int64)
         code, closest = np.empty(n, dtype=np.int64), np.empty((n, 3))

@@ -238,8 +238,17 @@ def test_evaluate_counts_the_points_it_drops(tmp_path, capsys, cloud_and_mesh):
     assert main(["evaluate", str(tmp_path / "c.ply"), "--mesh", str(mesh), "--json"]) == 0
     cap = capsys.readouterr()
     d = json.loads(cap.out)
-    assert d["n_points"] == 450 and d["n_dropped_nonfinite"] == 50 and d["n_points_read"] == 500
+    assert d["n_points"] == 450 and d["n_dropped"] == 50 and d["n_points_read"] == 500
     assert "50 of 500 points" in cap.err and d["max_mm"] < 1e-4
+    # finite, but beyond ±1e12 mm (their squares overflow near 1e154): dropped and counted too
+    lines = [f"{x!r} {y!r} {z!r}" for x, y, z in np.nan_to_num(xyz[50:], nan=0.0)[:100].tolist()]
+    lines += ["1e154 0 0", "0 -1e13 0", "0 0 20"]
+    (tmp_path / "far.ply").write_text("ply\nformat ascii 1.0\nelement vertex 103\nproperty double x\n"
+                                      "property double y\nproperty double z\nend_header\n"
+                                      + "\n".join(lines) + "\n")
+    assert main(["evaluate", str(tmp_path / "far.ply"), "--mesh", str(mesh), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["n_dropped"] == 2 and d["n_points"] == 101 and d["max_mm"] < 1e-4
 
 
 @pytest.mark.parametrize("body, needle", [

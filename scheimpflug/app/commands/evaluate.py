@@ -52,12 +52,18 @@ def _select(args, cloud):
     xyz = cloud.xyz_mm
     if len(xyz) == 0:
         raise MeshError(f"point cloud {args.cloud!r} is empty")
+    from scheimpflug.scoring import MAX_COORDINATE_MM
+
     finite = np.all(np.isfinite(xyz), axis=1)
     dropped = int((~finite).sum())
-    if dropped:
-        print(f"warning: {dropped} of {len(xyz)} points of {args.cloud!r} have a "
-              "non-finite coordinate (NaN or inf) and are left out", file=sys.stderr)
-        xyz = xyz[finite]
+    with np.errstate(invalid="ignore"):
+        far = finite & np.any(np.abs(xyz) > MAX_COORDINATE_MM, axis=1)
+    if dropped or far.any():
+        print(f"warning: {dropped + int(far.sum())} of {len(xyz)} points of {args.cloud!r} have a "
+              f"non-finite coordinate (NaN or inf: {dropped}) or one beyond ±{MAX_COORDINATE_MM:g} mm "
+              f"({int(far.sum())}) and are left out", file=sys.stderr)
+        xyz = xyz[finite & ~far]
+        dropped += int(far.sum())
     if args.z_range:
         lo, hi = sorted(args.z_range)
         xyz = xyz[(xyz[:, 2] >= lo) & (xyz[:, 2] <= hi)]
@@ -93,7 +99,7 @@ def _run(args) -> int:
     d = res.distance_mm[keep]
     out = {**distance_stats(d, res.signed), "distance_kind": "signed" if res.signed else "unsigned",
            "cloud": str(args.cloud), "mesh": str(args.mesh), "n_faces": int(len(pm.faces)),
-           "n_points_read": len(cloud), "n_dropped_nonfinite": dropped}
+           "n_points_read": len(cloud), "n_dropped": dropped}
     if args.region:
         out["region_filter"] = list(args.region)
     unique = np.unique(labels_all)
