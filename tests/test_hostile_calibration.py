@@ -184,6 +184,8 @@ def test_a_hinge_inside_the_frames_of_an_unknown_size_calibration_is_refused(fol
     (lambda m: m["scenario_params"].update(plate_height_mm="abc"), "scenario_params.plate_height_mm = 'abc'"),
     (lambda m: m["scenario_params"].update(plate_height_mm=None), "plate_height_mm = None"),
     (lambda m: m["scenario_params"].update(plate_height_mm={}), "plate_height_mm = {}"),
+    (lambda m: m["rig"]["sensor"].update(pixel_pitch_um=1.3e157), "pixel_pitch_um = 1.3e+157"),  # fuzz
+    (lambda m: m["rig"].update(lens=[55]), "rig.lens must be an object"),
 ])
 def test_manifest_values_that_are_not_what_they_claim(folder, tmp_path, capsys, edit, needle):
     bad = _copy_with(folder, tmp_path / "m", edit)

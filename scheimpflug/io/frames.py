@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from scheimpflug.errors import FrameError
+from scheimpflug.model.rig import KEY_RANGES, key_in_range
 
 __all__ = ["MAX_SIDE_PX", "FrameFolder", "FrameRecord", "open_frame_folder", "read_frame",
            "scenario_number"]
@@ -194,7 +195,7 @@ class FrameFolder:
         ------
         FrameError
             Naming the key, when the table is not an object or the value is not a
-            finite number > 0.
+            finite number > 0 within the key's range (:data:`scheimpflug.model.rig.KEY_RANGES`).
         """
         tab = (self.rig or {}).get(table)
         if tab is None:
@@ -204,9 +205,10 @@ class FrameFolder:
         value = tab.get(key)
         if value is None:
             return None
-        if not (_finite_number(value) and value > 0):
+        if not (_finite_number(value) and value > 0 and key_in_range(table, key, value)):
+            where = KEY_RANGES.get(table, {}).get(key, "(0, inf)")
             raise FrameError(f"{str(self.path / 'manifest.json')!r}: rig.{table}.{key} = {value!r:.40} "
-                             "must be a finite number > 0")
+                             f"must be a finite number > 0 in {where}")
         return float(value)
 
     def saturation_dn(self, frame: np.ndarray) -> float:

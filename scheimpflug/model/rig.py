@@ -40,6 +40,7 @@ __all__ = [
     "rig_from_dict",
     "rig_to_dict",
     "rig_to_toml",
+    "key_in_range",
     "validate_rig",
 ]
 
@@ -335,6 +336,25 @@ def _parse_range(text: str) -> tuple[float, float, bool, bool]:
 def _in_range(value: float, text: str) -> bool:
     lo, hi, lo_open, hi_open = _parse_range(text)
     return (lo < value if lo_open else lo <= value) and (value < hi if hi_open else value <= hi)
+
+
+def key_in_range(table: str, key: str, value: float) -> bool:
+    """Whether a value lies in a rig key's physical range (:data:`KEY_RANGES`).
+
+    Parameters
+    ----------
+    table, key : str
+        The rig key, e.g. ``"sensor"``, ``"pixel_pitch_um"``.
+    value : float
+        The value (an int of any size is compared exactly).
+
+    Returns
+    -------
+    bool
+        True inside the range; also True for a key without a range.
+    """
+    text = KEY_RANGES.get(table, {}).get(key)
+    return text is None or _in_range(value, text)
 
 
 def _show(value: Any) -> str:
