@@ -165,7 +165,7 @@ class CylinderAxisFit:
 
 def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector, with_rows=False):
     """Stage coordinates [mm] of the stripe in every lit row, the columns [px] (and the rows)."""
-    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
+    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px="auto")
     if len(prof) < _MIN_ROWS:
         sat = saturated_fraction(frame, saturation_dn)
         if sat > 0.5:

@@ -7,6 +7,7 @@ printed by the command line on one line with a non-zero exit status.
 
 __all__ = [
     "CalibrationError",
+    "DatasetError",
     "FrameError",
     "LockError",
     "MeshError",
@@ -22,6 +23,10 @@ class ScheimpflugError(Exception):
 
 class RigError(ScheimpflugError, ValueError):
     """An impossible, inconsistent or malformed rig description."""
+
+
+class DatasetError(ScheimpflugError, ValueError):
+    """A malformed dataset spec, or a dataset folder that is missing, foreign or inconsistent."""
 
 
 class FrameError(ScheimpflugError, ValueError):

@@ -32,9 +32,11 @@ from scheimpflug.model.hinge import stage_from_pixel
 from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
+    "ISOLATION_PX",
     "PointCloud",
     "SheetCalibration",
     "extract_folder",
+    "isolated_rows",
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
@@ -107,6 +109,10 @@ class PointCloud:
         Sensor row v of the stripe sample [px].
     intensity : (n,) ndarray float
         Stripe peak height above background [DN].
+    frame : (n,) ndarray int or None
+        Index of the frame the point came from, in the scan's frame order
+        (−1 or None when unknown).  With ``row`` it places every point on
+        the scan's grid (frame × row), which :mod:`scheimpflug.meshing` meshes.
 
     Raises
     ------
@@ -118,12 +124,14 @@ class PointCloud:
     angle_deg: np.ndarray
     row: np.ndarray
     intensity: np.ndarray
+    frame: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.xyz_mm).shape[0]
         if np.asarray(self.xyz_mm).shape != (n, 3):
             raise ValueError(f"xyz_mm must be (n, 3), got {np.asarray(self.xyz_mm).shape}")
-        for name in ("angle_deg", "row", "intensity"):
+        names = ("angle_deg", "row", "intensity") + (("frame",) if self.frame is not None else ())
+        for name in names:
             if np.asarray(getattr(self, name)).shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {np.asarray(getattr(self, name)).shape}")
 
@@ -209,7 +217,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     -------
     PointCloud
         Points in the part frame; samples with a non-finite u (or u = u_h)
-        are dropped.
+        are dropped.  Every point keeps its frame index and row (its place on
+        the scan's grid).
 
     Raises
     ------
@@ -232,14 +241,50 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     uu, vv = cat(u), cat(rows)
     ii = cat(intensity) if intensity is not None else np.full(uu.size, np.nan)
     aa = np.repeat(angles, sizes)
+    ff = np.repeat(np.arange(len(angles), dtype=np.int64), sizes)
     xyz = points_from_pixels(uu, vv, aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
-                      intensity=ii[ok])
+                      intensity=ii[ok], frame=ff[ok])
+
+
+ISOLATION_PX = 2.0  # a row's stripe needs a neighbour row's within this many columns [px]
+
+
+def isolated_rows(rows: np.ndarray, u: np.ndarray, max_gap_px: float = ISOLATION_PX) -> np.ndarray:
+    """Which stripe samples of one frame have no neighbour in the adjacent rows.
+
+    Parameters
+    ----------
+    rows : (n,) ndarray int
+        Rows of the samples, increasing [px].
+    u : (n,) ndarray float
+        Their columns [px].
+    max_gap_px : float
+        A sample in row r ± 1 within this many columns counts as a neighbour [px].
+
+    Returns
+    -------
+    (n,) ndarray bool
+        True where neither row r − 1 nor row r + 1 holds a sample within
+        ``max_gap_px`` of the sample's column.
+    """
+    rows = np.asarray(rows)
+    u = np.asarray(u, dtype=np.float64)
+    if rows.size == 0:
+        return np.zeros(0, dtype=bool)
+    lone = np.ones(rows.size, dtype=bool)
+    for step in (-1, 1):
+        j = np.searchsorted(rows, rows + step)
+        j = np.clip(j, 0, rows.size - 1)
+        near = (rows[j] == rows + step) & (np.abs(u[j] - u) <= max_gap_px)
+        lone &= ~near
+    return lone
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
-                   keep_saturated: bool = False, progress: ProgressCallback | None = None):
+                   keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                   window_px: int | str = "auto", drop_isolated: bool = False):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -256,6 +301,13 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Keep rows whose stripe is saturated (dropped by default).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
+        widens it beyond 7 px, frame by frame, for stripes wider than σ = 7/3 px.
+    drop_isolated : bool, default False
+        Drop a row's stripe when neither adjacent row has one within
+        :data:`ISOLATION_PX` columns (:func:`isolated_rows`): a surface images to
+        a run of rows, a lone detection is noise or stray light at a part's edge.
 
     Returns
     -------
@@ -264,8 +316,9 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         columns (float64) [px], peak height above background (float64) [DN].
     stats : dict
         Counters ``blank_frames`` (no stripe row), ``saturated_rows``
-        (counted whether kept or not) and ``saturated_frames`` (more than half
-        of the pixels at the saturation level: blown out).
+        (counted whether kept or not), ``isolated_rows`` (dropped or not) and
+        ``saturated_frames`` (more than half of the pixels at the saturation
+        level: blown out).
 
     Raises
     ------
@@ -276,13 +329,17 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
     """
     def one(rec, frame):
         sat = folder.saturation_dn(frame)
-        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=sat), \
+        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=sat, window_px=window_px), \
             saturated_fraction(frame, sat) > 0.5
 
     rows, us, peaks = [], [], []
-    stats = {"blank_frames": 0, "saturated_rows": 0, "saturated_frames": 0}
+    stats = {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0, "saturated_frames": 0}
     for prof, blown in folder.map_frames(one):
-        keep = slice(None) if keep_saturated else ~prof.saturated
+        keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
+        lone = isolated_rows(prof.rows, prof.u)
+        stats["isolated_rows"] += int(lone.sum())
+        if drop_isolated:
+            keep &= ~lone
         stats["saturated_rows"] += int(prof.saturated.sum())
         stats["blank_frames"] += int(len(prof) == 0)
         stats["saturated_frames"] += int(blown)

@@ -36,6 +36,9 @@ DOCUMENTED_MODULES = [
     "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
     "scenes.part", "scenes.generators", "scenes.presets", "scenes.loading", "scenes.meshfile",
     "scenes.scenefile", "scenes.section", "scenes.knurl", "scenes.revolve",
+    "scheimpflug.meshing", "scheimpflug.volumetry", "scheimpflug.io.meshfile", "scheimpflug.poisson",
+    "scheimpflug.dataset", "sim.dataset.spec", "sim.dataset.sample", "sim.dataset.engine",
+    "sim.dataset.make",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
 #: parameter is documented with a type and a description and no unknown one is, a function that

@@ -7,6 +7,7 @@ Point clouds are binary little-endian PLY with one ``vertex`` element::
     property float angle_deg          rotary angle of the frame [deg]
     property int row                  sensor row [px]
     property float intensity          stripe peak above background [DN]
+    property int frame                frame index in the scan (−1: unknown)
 
 which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and whose
 extra properties those tools keep as scalar fields.  The reader accepts any
@@ -14,18 +15,21 @@ PLY whose vertex element has x, y, z (ascii or binary, either byte order);
 missing extras come back as NaN / −1.
 
 Meshes (the twin's ``truth/mesh.ply``: double vertices and an ``object_id``
-per face) are written by :func:`write_mesh_ply`, the one writer whose exact
-header matters.  Every file is read by one path, trimesh's loader
-(:func:`read_point_cloud`, :func:`read_mesh`; PLY, STL, OBJ, …; 18 ms for the
-31 MB, 1.09 M-triangle cylinder mesh), with a header check that turns a
-non-PLY into one clear error; a PLY face property ``object_id`` is returned
-per face, and a multi-object file (an OBJ with several objects) gets one id
-per object.
+per face; a surface model's ``fill`` and ``body`` per face,
+:mod:`scheimpflug.meshing`) are written by :func:`write_mesh_ply`, the one
+writer whose exact header matters.  Every file is read by one path, trimesh's
+loader (:func:`read_point_cloud`, :func:`read_triangle_mesh` and its
+shorthand :func:`read_mesh`; PLY, STL, OBJ, …; 18 ms for the 31 MB,
+1.09 M-triangle cylinder mesh), with a header check that turns a non-PLY into
+one clear error; a PLY's scalar face properties are returned per face, and a
+multi-object file (an OBJ with several objects) gets one ``object_id`` per
+object.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +38,19 @@ from scheimpflug.errors import MeshError
 from scheimpflug.io.atomic import atomic_path
 from scheimpflug.reconstruct import PointCloud
 
-__all__ = ["height_colors", "read_mesh", "read_point_cloud", "write_mesh_ply", "write_point_cloud"]
+__all__ = [
+    "TriangleMesh",
+    "height_colors",
+    "read_mesh",
+    "read_point_cloud",
+    "read_triangle_mesh",
+    "write_mesh_ply",
+    "write_point_cloud",
+]
 
 _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
-                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4")])
+                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4"),
+                         ("frame", "<i4")])
 _PLY_NAME = {"f4": "float", "u1": "uchar", "i4": "int"}
 
 
@@ -81,8 +94,8 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     path : str or os.PathLike
         Destination ``.ply``; written to a temporary name, then renamed.
     cloud : PointCloud
-        Points in the part frame [mm] with angle, row and intensity (stored
-        as float32 / int32).
+        Points in the part frame [mm] with angle, row, intensity and frame
+        index (stored as float32 / int32; frame −1 when unknown).
     comment : str, optional
         Extra header comment (one line: whitespace runs are collapsed, and
         non-ASCII characters escaped as Python's ``backslashreplace`` does, a
@@ -100,6 +113,7 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     rgb = height_colors(cloud.xyz_mm[:, 2])
     data["red"], data["green"], data["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     data["angle_deg"], data["row"], data["intensity"] = cloud.angle_deg, cloud.row, cloud.intensity
+    data["frame"] = cloud.frame if cloud.frame is not None else -1
     lines = ["ply", "format binary_little_endian 1.0",
              "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
     lines += [f"comment {_ascii(comment)}"] if comment else []
@@ -112,15 +126,17 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     return Path(path)
 
 
-def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id,
-                   comments: tuple[str, ...] = ()) -> Path:
-    """Write a triangle mesh with a per-face ``object_id`` as binary PLY, atomically.
+def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id=None,
+                   comments: tuple[str, ...] = (), face_properties: dict | None = None) -> Path:
+    """Write a triangle mesh with per-face properties as binary PLY, atomically.
 
     The layout (the twin's ``truth/mesh.ply``) is ``element vertex`` with
     ``double x, y, z`` and ``element face`` with ``list uchar int
     vertex_indices`` and ``int object_id``: doubles keep the exact geometry
     that was rendered, and the object id says which part each face belongs
-    to.  :func:`read_mesh` reads it back (as does any PLY reader).
+    to.  Further scalar face properties (a surface model's ``uchar fill`` and
+    ``int body``) follow.  :func:`read_triangle_mesh` reads them back (as does
+    any PLY reader).
 
     Parameters
     ----------
@@ -130,11 +146,14 @@ def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id,
         Vertex positions [mm].
     faces : (m, 3) array_like int
         Vertex indices of each triangle.
-    face_object_id : (m,) array_like int
-        Object id of each face.
+    face_object_id : (m,) array_like int or None
+        Object id of each face (None: no ``object_id`` property).
     comments : tuple of str, optional
         Header comment lines (newlines are replaced by spaces, non-ASCII
         characters escaped as Python's ``backslashreplace`` does).
+    face_properties : dict of str to (m,) array_like, optional
+        More scalar face properties, written as ``uchar`` (uint8 arrays),
+        ``int`` (other integers) or ``double``.
 
     Returns
     -------
@@ -148,19 +167,27 @@ def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id,
     """
     v = np.ascontiguousarray(vertices_mm, dtype="<f8")
     f = np.asarray(faces)
-    ids = np.asarray(face_object_id)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or ids.shape != (len(f),):
-        raise ValueError(f"need vertices (nv, 3), faces (m, 3) and object ids (m,), got {v.shape}, "
-                         f"{f.shape} and {ids.shape}")
+    props = {} if face_object_id is None else {"object_id": np.asarray(face_object_id)}
+    props.update({k: np.asarray(a) for k, a in (face_properties or {}).items()})
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"need vertices (nv, 3) and faces (m, 3), got {v.shape} and {f.shape}")
+    bad = [k for k, a in props.items() if a.shape != (len(f),)]
+    if bad:
+        raise ValueError(f"face property {bad[0]!r} must have shape ({len(f)},), got {props[bad[0]].shape}")
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
-    table = np.empty(len(f), dtype=_FACE_DTYPE)
-    table["n"], table["v"], table["id"] = 3, f, ids
+    kinds = {k: ("u1" if a.dtype == np.uint8 else "<i4" if a.dtype.kind in "iub" else "<f8")
+             for k, a in props.items()}
+    table = np.empty(len(f), dtype=np.dtype([("n", "u1"), ("v", "<i4", (3,))] + list(kinds.items())))
+    table["n"], table["v"] = 3, f
+    for k, a in props.items():
+        table[k] = a
+    names = {"u1": "uchar", "<i4": "int", "<f8": "double"}
     lines = ["ply", "format binary_little_endian 1.0"]
     lines += [f"comment {_ascii(c)}" for c in comments]
     lines += [f"element vertex {len(v)}", "property double x", "property double y", "property double z",
-              f"element face {len(f)}", "property list uchar int vertex_indices", "property int object_id",
-              "end_header"]
+              f"element face {len(f)}", "property list uchar int vertex_indices"]
+    lines += [f"property {names[kind]} {k}" for k, kind in kinds.items()] + ["end_header"]
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(lines) + "\n").encode("ascii"))
         fh.write(v.tobytes())
@@ -171,9 +198,6 @@ def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id,
 def _ascii(text) -> str:
     """One header comment line in ASCII (PLY headers are ASCII), non-ASCII backslash-escaped."""
     return " ".join(str(text).split()).encode("ascii", "backslashreplace").decode("ascii")
-
-
-_FACE_DTYPE = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("id", "<i4")])
 
 
 def _check_ply_header(path: Path) -> list[tuple[str, int]]:
@@ -257,8 +281,8 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     -------
     PointCloud
         Points (n, 3) float64 [mm] (part frame for the clouds this toolkit
-        writes); ``angle_deg`` and ``intensity`` NaN and ``row`` −1 where the
-        file lacks them.
+        writes); ``angle_deg`` and ``intensity`` NaN and ``row`` and
+        ``frame`` −1 where the file lacks them.
 
     Raises
     ------
@@ -280,11 +304,79 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
 
     xyz = np.column_stack([get("x", 0), get("y", 0), get("z", 0)])
     return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
-                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan))
+                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan),
+                      frame=get("frame", -1).astype(np.int64))
+
+
+@dataclass(frozen=True)
+class TriangleMesh:
+    """A triangle mesh as read from a file, with its per-face properties.
+
+    Parameters
+    ----------
+    vertices : (nv, 3) ndarray float64
+        Vertex positions, in the file's frame and units [mm].
+    faces : (m, 3) ndarray int64
+        Vertex indices of each triangle, in file order.
+    face_properties : dict of str to (m,) ndarray
+        Scalar face properties of a PLY (``object_id``, a surface model's
+        ``fill`` and ``body``, ...); for a file with several objects (a
+        trimesh Scene), ``object_id`` = the object's index + 1.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_properties: dict
+
+
+def read_triangle_mesh(path: str | os.PathLike) -> TriangleMesh:
+    """Read a triangle mesh and its face properties (coincident vertices welded, faces in file order).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        PLY, STL, OBJ or any format trimesh reads.
+
+    Returns
+    -------
+    TriangleMesh
+        Vertices [mm], faces and the scalar face properties.
+
+    Raises
+    ------
+    MeshError
+        Missing, unreadable or empty file, or a file without triangles.
+    """
+    import trimesh
+
+    loaded, elements = _load(path, "mesh")
+    p = Path(path)
+    props = {}
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        if not geoms:
+            raise MeshError(f"{str(p)!r} holds no triangles (not a mesh)")
+        props["object_id"] = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
+        loaded = trimesh.util.concatenate(geoms)
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError(f"{str(p)!r} holds no triangles (not a mesh: {type(loaded).__name__})")
+    if elements is None:             # STL, OBJ: faces may carry their own vertices; weld them
+        n_faces = len(loaded.faces)
+        loaded.merge_vertices()
+        if len(loaded.faces) != n_faces:
+            raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
+    nv = len(loaded.vertices)
+    if loaded.faces.min() < 0 or loaded.faces.max() >= nv:
+        raise MeshError(f"{str(p)!r}: face indices outside the {nv} vertices (corrupt mesh)")
+    raw = _ply_raw(loaded, "face") or {}
+    props.update({k: a for k, a in raw.items() if k not in ("vertex_indices", "vertex_index")
+                  and a.shape == (len(loaded.faces),)})
+    return TriangleMesh(vertices=np.asarray(loaded.vertices, np.float64),
+                        faces=np.asarray(loaded.faces, np.int64), face_properties=props)
 
 
 def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Read a triangle mesh for scoring (coincident vertices welded, faces kept in file order).
+    """Read a triangle mesh for scoring (:func:`read_triangle_mesh`, object ids only).
 
     Parameters
     ----------
@@ -307,28 +399,6 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarr
     MeshError
         Missing, unreadable or empty file, or a file without triangles.
     """
-    import trimesh
-
-    loaded, elements = _load(path, "mesh")
-    p = Path(path)
-    ids = None
-    if isinstance(loaded, trimesh.Scene):
-        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-        if not geoms:
-            raise MeshError(f"{str(p)!r} holds no triangles (not a mesh)")
-        ids = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
-        loaded = trimesh.util.concatenate(geoms)
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise MeshError(f"{str(p)!r} holds no triangles (not a mesh: {type(loaded).__name__})")
-    if elements is None:             # STL, OBJ: faces may carry their own vertices; weld them
-        n_faces = len(loaded.faces)
-        loaded.merge_vertices()
-        if len(loaded.faces) != n_faces:
-            raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
-    nv = len(loaded.vertices)
-    if loaded.faces.min() < 0 or loaded.faces.max() >= nv:
-        raise MeshError(f"{str(p)!r}: face indices outside the {nv} vertices (corrupt mesh)")
-    faces_raw = _ply_raw(loaded, "face") or {}
-    if "object_id" in faces_raw:
-        ids = faces_raw["object_id"].astype(np.int64)
-    return np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), ids
+    mesh = read_triangle_mesh(path)
+    ids = mesh.face_properties.get("object_id")
+    return mesh.vertices, mesh.faces, None if ids is None else np.asarray(ids).astype(np.int64)

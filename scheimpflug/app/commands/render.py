@@ -58,14 +58,15 @@ def add_parser(sub):
                    help="per-pixel truth maps: every frame, every N-th, or none "
                         "(default: every frame for calibration/blocker, every 30th for rotary)")
     g = p.add_argument_group("calibration")
-    g.add_argument("--steps", type=integer(1, 10**9), help="number of plate positions (default 27)")
+    g.add_argument("--steps", type=integer(1, 10**9),
+                   help="number of plate positions (default: the rig's plan, 27)")
     g.add_argument("--step-mm", type=number(0, 1e5, lo_open=True, unit="mm"),
-                   help="stage step [mm] (default 10; the paper used 20)")
+                   help="stage step [mm] (default: the rig's plan, spanning the positions where both plate "
+                        "edges are in view; see 'scheimpflug design')")
     g.add_argument("--start-mm", type=number(-1e6, 1e6, unit="mm"),
-                   help="first stage position s [mm] (default −10: with 27 × 10 mm, every frame of the "
-                        "paper rig in view)")
+                   help="first stage position s [mm] (default: the rig's plan)")
     g.add_argument("--plate-height-mm", type=number(0, 1e4, lo_open=True, unit="mm"),
-                   help="plate height [mm] (default 89)")
+                   help="plate height [mm] (default: the rig's [stage] calibration_plate_height_mm)")
     g = p.add_argument_group("blocker and rotary")
     g.add_argument("--part", help="rotary: part name or mesh file (default cylinder)")
     g.add_argument("--step-deg", type=number(0, 360, lo_open=True, unit="deg"),
