@@ -78,7 +78,7 @@ def test_d0_zero_works(tmp_path, capsys):
     assert d["stage_range_mm"] == pytest.approx(d["distance_range_mm"])      # s = D when d0 = 0
     assert main(["design", "--rig", rig]) == 0
     text = capsys.readouterr().out
-    assert "n/a" in text and "nan" not in text.lower() and "inf" not in text.replace("info", "")
+    assert "–" in text and "nan" not in text.lower() and "inf" not in text.replace("info", "")
 
 
 def test_json_never_holds_inf_or_nan():
@@ -115,7 +115,12 @@ def test_design_is_finite_at_the_corners_of_the_ranges():
                     "axis_row": -1e7}, "stage": {"d0_mm": 1e6, "axis_mm": -1e6}},
         {"stage": {"d0_mm": 0.0, "axis_mm": 0.0}},
     ]
-    for tables in corners:
+    paper = {"d0_mm": -466.0, "axis_mm": 179.45, "calibration_table_z_mm": -54.0,
+             "calibration_plate_height_mm": 89.0, "rotary_table_z_mm": -70.0}
+    for tables in corners:      # derived keys given: derived, they can leave their ranges (refused)
+        tables.setdefault("sensor", {})["exposure_ms"] = 0.5
+        tables.setdefault("laser", {})["waist_distance_mm"] = 640.0
+        tables["stage"] = {**paper, **tables.get("stage", {})}
         rep = design_report(rig_from_dict(tables))
         flat = json.dumps(finite_json(rep))
         values = [v for v in re.findall(r"-?\d[\d.e+-]*", flat)]
@@ -126,3 +131,11 @@ def test_design_is_finite_at_the_corners_of_the_ranges():
 def test_rig_range_errors_are_rig_errors():
     with pytest.raises(RigError, match=r"\[sensor\] adc_bits = 17: out of range: must be in \[1, 16\]"):
         load_preset("paper").replace(sensor={"adc_bits": 17})
+
+
+def test_a_derived_key_out_of_its_range_is_one_line(tmp_path, capsys):
+    """A 65 m tall sensor (65535 rows of 1 mm) derives a 63 m calibration plate: refused, the key named."""
+    rig = _rig_file(tmp_path, "[lens]\nfocal_length_mm = 5000\n[laser]\nscheimpflug_distance_mm = 1e5\n"
+                              "tan_phi = 19.0\n[sensor]\npixel_pitch_um = 1000\ncolumns = 1\nrows = 65535\n"
+                              "hinge_column = 0.6\naxis_row = -1e7\nexposure_ms = 0.5\n")
+    _fails(["design", "--rig", rig, "--json"], capsys, "out of range", "derived from the other keys")
