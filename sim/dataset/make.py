@@ -20,6 +20,7 @@ resume frame by frame, nothing is made twice.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -42,6 +43,7 @@ from scheimpflug.dataset import (
 )
 from scheimpflug.errors import DatasetError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic, write_text_atomic
+from scheimpflug.io.folder import LOCK_NAME, FolderLock
 
 from ..writer import generator_info
 from .engine import Engine
@@ -158,8 +160,9 @@ def _check_existing(out: Path, identity: dict) -> dict | None:
         return None
     meta = out / META_FILE
     if not meta.is_file():
-        if out.is_dir() and any(out.iterdir()):
-            first = sorted(p.name for p in out.iterdir())[0]
+        others = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME) if out.is_dir() else []
+        if others:
+            first = others[0]
             raise DatasetError(f"output folder {str(out)!r} is not empty and holds no {META_FILE} "
                                f"(found {first!r}); choose a new or empty folder")
         return None
@@ -349,6 +352,28 @@ def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int =
     plans = _plans(spec, storage)
     _check_writable(out)
     identity = _identity(spec, storage)
+    _check_existing(out, identity)                  # before anything is created in ``out``
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+    try:
+        with FolderLock(out, error=DatasetError) as lock:   # one `make` per dataset folder at a time
+            if lock.stale_owner:
+                warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
+                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
+            return _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries,
+                                connect_timeout_s, progress, warn)
+    except BaseException:
+        if created:                     # a failure before anything was written leaves no folder
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
+
+
+def _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries, connect_timeout_s,
+                 progress, warn) -> MakeResult:
     old = _check_existing(out, identity)
     if old is not None and old.get("generator", {}).get("versions") != generator_info()["versions"]:
         warn("the dataset was started with other library versions; frames made now may differ")
