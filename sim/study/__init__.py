@@ -1,0 +1,1 @@
+"""Design studies through the twin: design sweeps, tolerance Monte Carlo, sensitivity, propagation."""
