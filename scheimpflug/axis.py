@@ -156,7 +156,7 @@ class CylinderAxisFit:
 
 def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector):
     """Stage coordinates [mm] of the stripe in every lit row (and the columns [px])."""
-    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
+    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px="auto")
     if len(prof) < _MIN_ROWS:
         raise CalibrationError(f"no stripe ({len(prof)} lit rows < {_MIN_ROWS})")
     s, _ = calibration.stage_from_pixel(prof.u, prof.rows)

@@ -32,9 +32,11 @@ from scheimpflug.model.hinge import stage_from_pixel
 from scheimpflug.stripe import extract_stripes
 
 __all__ = [
+    "ISOLATION_PX",
     "PointCloud",
     "SheetCalibration",
     "extract_folder",
+    "isolated_rows",
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
@@ -246,8 +248,43 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
                       intensity=ii[ok], frame=ff[ok])
 
 
+ISOLATION_PX = 2.0  # a row's stripe needs a neighbour row's within this many columns [px]
+
+
+def isolated_rows(rows: np.ndarray, u: np.ndarray, max_gap_px: float = ISOLATION_PX) -> np.ndarray:
+    """Which stripe samples of one frame have no neighbour in the adjacent rows.
+
+    Parameters
+    ----------
+    rows : (n,) ndarray int
+        Rows of the samples, increasing [px].
+    u : (n,) ndarray float
+        Their columns [px].
+    max_gap_px : float
+        A sample in row r ± 1 within this many columns counts as a neighbour [px].
+
+    Returns
+    -------
+    (n,) ndarray bool
+        True where neither row r − 1 nor row r + 1 holds a sample within
+        ``max_gap_px`` of the sample's column.
+    """
+    rows = np.asarray(rows)
+    u = np.asarray(u, dtype=np.float64)
+    if rows.size == 0:
+        return np.zeros(0, dtype=bool)
+    lone = np.ones(rows.size, dtype=bool)
+    for step in (-1, 1):
+        j = np.searchsorted(rows, rows + step)
+        j = np.clip(j, 0, rows.size - 1)
+        near = (rows[j] == rows + step) & (np.abs(u[j] - u) <= max_gap_px)
+        lone &= ~near
+    return lone
+
+
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
-                   keep_saturated: bool = False, progress: ProgressCallback | None = None):
+                   keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                   window_px: int | str = "auto", drop_isolated: bool = False):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -264,6 +301,13 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Keep rows whose stripe is saturated (dropped by default).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
+        widens it beyond 7 px, frame by frame, for stripes wider than σ = 7/3 px.
+    drop_isolated : bool, default False
+        Drop a row's stripe when neither adjacent row has one within
+        :data:`ISOLATION_PX` columns (:func:`isolated_rows`): a surface images to
+        a run of rows, a lone detection is noise or stray light at a part's edge.
 
     Returns
     -------
@@ -271,8 +315,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         One array per frame, in manifest order: rows (int64) [px], stripe
         columns (float64) [px], peak height above background (float64) [DN].
     stats : dict
-        Counters ``blank_frames`` (no stripe row) and ``saturated_rows``
-        (counted whether kept or not).
+        Counters ``blank_frames`` (no stripe row), ``saturated_rows``
+        (counted whether kept or not) and ``isolated_rows`` (dropped or not).
 
     Raises
     ------
@@ -282,12 +326,17 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         For an unknown ``method`` or a bad ``min_snr``.
     """
     def one(rec, frame):
-        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame))
+        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame),
+                               window_px=window_px)
 
     rows, us, peaks = [], [], []
-    stats = {"blank_frames": 0, "saturated_rows": 0}
+    stats = {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0}
     for prof in folder.map_frames(one):
-        keep = slice(None) if keep_saturated else ~prof.saturated
+        keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
+        lone = isolated_rows(prof.rows, prof.u)
+        stats["isolated_rows"] += int(lone.sum())
+        if drop_isolated:
+            keep &= ~lone
         stats["saturated_rows"] += int(prof.saturated.sum())
         stats["blank_frames"] += int(len(prof) == 0)
         rows.append(prof.rows[keep])

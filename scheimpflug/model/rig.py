@@ -24,8 +24,11 @@ from pathlib import Path
 from typing import Any
 
 from scheimpflug.errors import RigError
+from scheimpflug.model.plan import resolve_defaults
 
 __all__ = [
+    "DERIVED_KEYS",
+    "DERIVED_STAGE_KEYS",
     "Environment",
     "Laser",
     "Lens",
@@ -82,8 +85,10 @@ class Laser:
         x of the laser origin on the sheet, in the meridian plane [mm]; < f.
     waist_um : float, default 150.0
         1/e² half-thickness of the sheet at its waist [µm].
-    waist_distance_mm : float, default 640.0
-        Distance of the waist from the origin along the sheet [mm].
+    waist_distance_mm : float or None, default None
+        Distance of the waist from the origin along the sheet [mm].  Paper
+        640 (assumed: focused near the rotary axis); left out (None), the
+        waist sits at the rotary axis (:mod:`scheimpflug.model.plan`).
     divergence_mrad : float, default 1.5
         Far-field 1/e² half-angle of the thickness [mrad]
         (≥ λ / (π w0), the diffraction limit).
@@ -101,7 +106,7 @@ class Laser:
     power_mw: float = 3.0
     origin_x_mm: float = 0.0
     waist_um: float = 150.0
-    waist_distance_mm: float = 640.0
+    waist_distance_mm: float | None = None
     divergence_mrad: float = 1.5
     fan_angle_deg: float = 40.0
     fan_edge_deg: float = 1.0
@@ -140,8 +145,11 @@ class Sensor:
         ADC depth, 1..16; frames are stored as 16-bit PNG [bit].
     gain_e_per_dn : float, default 0.0
         Conversion gain; 0 = full well maps to full scale [e⁻/DN].
-    exposure_ms : float, default 0.5
-        Exposure time [ms].
+    exposure_ms : float or None, default None
+        Exposure time [ms].  Paper 0.5; left out (None), the exposure at which
+        a white Lambertian surface on the rotary axis, facing the laser, peaks
+        at 1/6 of the full well (closed form,
+        :func:`scheimpflug.model.plan.lambertian_peak_electrons_per_ms`).
     """
 
     pixel_pitch_um: float = 5.86
@@ -160,23 +168,37 @@ class Sensor:
     dark_offset_dn: float = 16.0
     adc_bits: int = 12
     gain_e_per_dn: float = 0.0
-    exposure_ms: float = 0.5
+    exposure_ms: float | None = None
 
 
 @dataclass(frozen=True)
 class Stage:
     """Translation and rotary stages (INTERFACE.md stage conventions; the ``[stage]`` table).
 
+    The five position keys (:data:`DERIVED_STAGE_KEYS`) may be left out of a
+    rig file (None here): a :class:`Rig` then derives them from its working
+    volume by the rule of :mod:`scheimpflug.model.plan` — stage zero at the
+    near end of the view, the tallest plate that shows both edges over the
+    whole depth range, the axis where the largest cylinder as tall as it is
+    wide stays in view at every angle.  A built :class:`Rig` always holds
+    numbers; :attr:`Rig.derived` names the keys that were derived.  The paper
+    preset sets them all (the values below).
+
     Parameters
     ----------
-    d0_mm : float, default -466.0
-        Stage coordinate of the object hinge; a face at stage s is at D = s − d0 [mm].
-    axis_mm : float, default 179.45
-        Rotary axis position in stage coordinates [mm].
-    calibration_table_z_mm : float, default -54.0
-        Height of the translation stage's table (plate bottom) [mm].
-    rotary_table_z_mm : float, default -70.0
-        Height of the rotary stage's table below/above the optical axis [mm].
+    d0_mm : float or None, default None
+        Stage coordinate of the object hinge; a face at stage s is at
+        D = s − d0 [mm].  Paper −466; rule: −⌊D at column 0⌋.
+    axis_mm : float or None, default None
+        Rotary axis position in stage coordinates [mm].  Paper 179.45.
+    calibration_table_z_mm : float or None, default None
+        Height of the translation stage's table (plate bottom) above the
+        meridian plane [mm].  Paper −54.
+    calibration_plate_height_mm : float or None, default None
+        Height of the calibration plate on that table [mm], > 0.  Paper 89.
+    rotary_table_z_mm : float or None, default None
+        Height of the rotary stage's table above the meridian plane
+        (negative: below) [mm].  Paper −70.
     axis_tilt_deg, axis_tilt_azimuth_deg : float, default 0.0
         Tilt of the rotary axis from vertical, in [0, 10), and the direction it
         leans to (0 = toward +propagation) [deg].
@@ -184,13 +206,21 @@ class Stage:
         Radial runout of the rotary axis (once per turn) [µm].
     """
 
-    d0_mm: float = -466.0
-    axis_mm: float = 179.45
-    calibration_table_z_mm: float = -54.0
-    rotary_table_z_mm: float = -70.0
+    d0_mm: float | None = None
+    axis_mm: float | None = None
+    calibration_table_z_mm: float | None = None
+    calibration_plate_height_mm: float | None = None
+    rotary_table_z_mm: float | None = None
     axis_tilt_deg: float = 0.0
     axis_tilt_azimuth_deg: float = 0.0
     runout_um: float = 0.0
+
+
+#: Stage keys that a rig may leave out; :mod:`scheimpflug.model.plan` derives them.
+DERIVED_STAGE_KEYS = ("d0_mm", "axis_mm", "calibration_table_z_mm", "calibration_plate_height_mm",
+                      "rotary_table_z_mm")
+#: Every key a rig may leave out, as ``"table.key"`` (derived in this order).
+DERIVED_KEYS = ("laser.waist_distance_mm", "sensor.exposure_ms", *(f"stage.{k}" for k in DERIVED_STAGE_KEYS))
 
 
 @dataclass(frozen=True)
@@ -211,7 +241,11 @@ class Environment:
 class Rig:
     """A whole instrument: one table of the rig file per field.
 
-    The rig is validated on construction (:func:`validate_rig`).
+    The rig is validated on construction (:func:`validate_rig`); keys left as
+    None (:data:`DERIVED_KEYS`: the stage positions, the laser's waist, the
+    exposure) are then derived from the rig's working volume
+    (:func:`scheimpflug.model.plan.resolve_defaults`), so ``rig.stage.d0_mm``
+    and the others are always numbers, and :attr:`derived` names them.
 
     Parameters
     ----------
@@ -222,9 +256,15 @@ class Rig:
     sensor : Sensor, optional
         The ``[sensor]`` table; default the paper sensor.
     stage : Stage, optional
-        The ``[stage]`` table; default the paper stages.
+        The ``[stage]`` table; default: every position key derived.
     environment : Environment, optional
         The ``[environment]`` table; default the paper's ambient light.
+
+    Attributes
+    ----------
+    derived : tuple of str
+        The keys that were derived rather than given, as ``"table.key"`` (not
+        part of the rig's value: two rigs with the same numbers are equal).
 
     Raises
     ------
@@ -238,15 +278,24 @@ class Rig:
     sensor: Sensor = field(default_factory=Sensor)
     stage: Stage = field(default_factory=Stage)
     environment: Environment = field(default_factory=Environment)
+    derived: tuple[str, ...] = field(default=(), init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         validate_rig(self)
+        laser, sensor, stage, derived = resolve_defaults(self)
+        for name, table in (("laser", laser), ("sensor", sensor), ("stage", stage)):
+            object.__setattr__(self, name, table)
+        object.__setattr__(self, "derived", tuple(k for k in DERIVED_KEYS if k in derived))
 
-    def replace(self, **tables: Mapping[str, Any]) -> Rig:
+    def replace(self, *, rederive: bool = True, **tables: Mapping[str, Any]) -> Rig:
         """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``.
 
         Parameters
         ----------
+        rederive : bool, default True
+            Derive again, for the new rig, the keys that were derived for this
+            one (unless given); False keeps their values.  A key given as None
+            is derived.
         **tables : Mapping[str, Any]
             Per table name (``lens``, ``laser``, ``sensor``, ``stage``,
             ``environment``), the keys to change and their new values.
@@ -261,12 +310,21 @@ class Rig:
         RigError
             For an unknown table or key, or if the changed rig is invalid.
         """
-        data = rig_to_dict(self)
+        data: dict[str, dict[str, Any]] = rig_to_dict(self)
         for table, values in tables.items():
             if table not in data:
                 raise RigError(f"unknown rig table [{table}]")
             data[table].update(values)
-        return rig_from_dict(data)
+        given = {f"{t}.{k}" for t, values in tables.items() for k in values}
+        again = tuple(k for k in self.derived if k not in given)
+        if rederive:
+            for key in again:
+                table, name = key.split(".")
+                data[table][name] = None
+        new = rig_from_dict(data)
+        if not rederive:
+            object.__setattr__(new, "derived", tuple(k for k in DERIVED_KEYS if k in again or k in new.derived))
+        return new
 
 
 _TABLES: dict[str, type] = {
@@ -298,6 +356,10 @@ def _check_fields(table: str, obj: Any) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         kind = hints[f.name]
+        if kind == float | None:
+            if value is None:
+                continue
+            kind = float
         if kind is int:
             _require(isinstance(value, int) and not isinstance(value, bool), table, f.name,
                      value, "must be an integer")
@@ -385,13 +447,17 @@ def _validate_sensor(s: Sensor) -> None:
              s.dark_offset_dn, f"must be in [0, {2 ** s.adc_bits})")
     _require(s.gain_e_per_dn >= 0, "sensor", "gain_e_per_dn", s.gain_e_per_dn,
              "must be >= 0 (0 = full well at full scale)")
-    _require(s.exposure_ms > 0, "sensor", "exposure_ms", s.exposure_ms, "must be > 0")
+    if s.exposure_ms is not None:
+        _require(s.exposure_ms > 0, "sensor", "exposure_ms", s.exposure_ms, "must be > 0")
     _require(abs(s.roll_deg) < 45, "sensor", "roll_deg", s.roll_deg, "must be within ±45°")
     _require(abs(s.tilt_error_deg) < 30, "sensor", "tilt_error_deg", s.tilt_error_deg,
              "must be within ±30°")
 
 
 def _validate_stage(st: Stage) -> None:
+    if st.calibration_plate_height_mm is not None:
+        _require(st.calibration_plate_height_mm > 0, "stage", "calibration_plate_height_mm",
+                 st.calibration_plate_height_mm, "must be > 0")
     _require(0 <= st.axis_tilt_deg < 10, "stage", "axis_tilt_deg", st.axis_tilt_deg,
              "must be in [0, 10)")
     _require(st.runout_um >= 0, "stage", "runout_um", st.runout_um, "must be >= 0")
@@ -400,7 +466,11 @@ def _validate_stage(st: Stage) -> None:
 # ---------------------------------------------------------------- (de)serialisation
 
 
-def _coerce(table: str, key: str, kind: type, value: Any) -> Any:
+def _coerce(table: str, key: str, kind: Any, value: Any) -> Any:
+    if kind == float | None:
+        if value is None:
+            return None
+        kind = float
     if isinstance(value, bool):
         raise RigError(f"[{table}] {key} = {value!r}: must be a number, not a boolean")
     if kind is float and isinstance(value, (int, float)):
@@ -425,7 +495,12 @@ def _table_from_dict(name: str, cls: type, values: Any) -> Any:
 
 
 def rig_from_dict(data: Mapping[str, Any]) -> Rig:
-    """Build a rig from nested tables; missing keys take the paper defaults.
+    """Build a rig from nested tables.
+
+    Missing keys take their defaults: the paper's values, except the keys of
+    :data:`DERIVED_KEYS` (the stage positions, the laser's waist distance, the
+    exposure), which are derived from the rig's working volume
+    (:mod:`scheimpflug.model.plan`); None also means "derive".
 
     Parameters
     ----------
@@ -436,7 +511,7 @@ def rig_from_dict(data: Mapping[str, Any]) -> Rig:
     Returns
     -------
     Rig
-        The validated rig.
+        The validated rig, its stage keys resolved.
 
     Raises
     ------
@@ -464,7 +539,8 @@ def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
     Returns
     -------
     dict of str to dict
-        ``{table: {key: value}}``, every key of every table.
+        ``{table: {key: value}}``, every key of every table; derived stage
+        keys hold the values the rule gave them.
     """
     return {name: dataclasses.asdict(getattr(rig, name)) for name in _TABLES}
 
@@ -480,12 +556,15 @@ def rig_to_toml(rig: Rig) -> str:
     Returns
     -------
     str
-        TOML text, one ``[table]`` per rig table; :func:`load_rig` reads it back.
+        TOML text, one ``[table]`` per rig table; :func:`load_rig` reads it
+        back.  Keys that the rule derived carry the comment ``# derived``.
     """
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
         lines.append(f"[{name}]")
-        lines += [f"{k} = {v!r}" for k, v in table.items()]
+        for k, v in table.items():
+            note = "  # derived (scheimpflug.model.plan)" if f"{name}.{k}" in rig.derived else ""
+            lines.append(f"{k} = {v!r}{note}")
         lines.append("")
     return "\n".join(lines)
 
@@ -501,7 +580,8 @@ def load_rig(path: str | Path) -> Rig:
     Returns
     -------
     Rig
-        The validated rig; keys not in the file take the paper defaults.
+        The validated rig; keys not in the file take their defaults
+        (:func:`rig_from_dict`).
 
     Raises
     ------

@@ -41,6 +41,9 @@ def add_parser(sub):
                    help="detection threshold, peak over background noise [-] (default 6)")
     p.add_argument("--keep-saturated", action="store_true",
                    help="keep rows whose stripe peak is saturated (dropped by default: biased)")
+    p.add_argument("--drop-isolated", action="store_true",
+                   help="drop a row's stripe when neither adjacent row has one within 2 px "
+                        "(lone detections: noise or stray light at a part's edge)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     add_model_options(p)
@@ -76,7 +79,8 @@ def _extract(folder, args):
 
     with Progress(0, label="extract", quiet=args.quiet) as bar:
         return extract_folder(folder, args.method, min_snr=args.min_snr,
-                              keep_saturated=args.keep_saturated, progress=bar)
+                              keep_saturated=args.keep_saturated, progress=bar,
+                              drop_isolated=args.drop_isolated)
 
 
 def _check_args(args) -> bool:

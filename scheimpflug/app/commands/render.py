@@ -47,12 +47,13 @@ def add_parser(sub):
                    help="per-pixel truth maps: every frame, every N-th, or none "
                         "(default: every frame for calibration/blocker, every 30th for rotary)")
     g = p.add_argument_group("calibration")
-    g.add_argument("--steps", type=int, help="number of plate positions (default 27)")
-    g.add_argument("--step-mm", type=float, help="stage step [mm] (default 10; the paper used 20)")
-    g.add_argument("--start-mm", type=float,
-                   help="first stage position s [mm] (default −10: with 27 × 10 mm, every frame of the "
-                        "paper rig in view)")
-    g.add_argument("--plate-height-mm", type=float, help="plate height [mm] (default 89)")
+    g.add_argument("--steps", type=int, help="number of plate positions (default: the rig's plan, 27)")
+    g.add_argument("--step-mm", type=float,
+                   help="stage step [mm] (default: the rig's plan, spanning the positions where both plate "
+                        "edges are in view; see 'scheimpflug design')")
+    g.add_argument("--start-mm", type=float, help="first stage position s [mm] (default: the rig's plan)")
+    g.add_argument("--plate-height-mm", type=float,
+                   help="plate height [mm] (default: the rig's [stage] calibration_plate_height_mm)")
     g = p.add_argument_group("blocker and rotary")
     g.add_argument("--part", help="rotary: part name or mesh file (default cylinder)")
     g.add_argument("--step-deg", type=float, help="rotary: angle step [deg] (default 0.5)")
