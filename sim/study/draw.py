@@ -79,12 +79,13 @@ def _measure(plan: DrawPlan, rig, work: Path, progress) -> tuple[dict, dict]:
     nominal = rig_from_dict(plan.nominal)
     res = run_acceptance(rig, work, model=plan.model, binning=a.binning, quick=a.quick, frames=a.frames,
                          seed=plan.seed, spp=a.spp, exclude_fraction=a.exclude_fraction, kinds=a.kinds,
-                         material=a.material, plan_rig=nominal, progress=progress, warn=lambda msg: None)
-    out = measured_outputs(res, rig, nominal, a.binning)
-    out.update(sheet_field_error(binned_rig(rig, a.binning), res["sheet_model"]))
-    extra = {"positions": res["positions"], "calibration": res["calibration"], "L0_mm": res["L0_mm"],
-             "extraction_rms_mm": res["extraction_rms_mm"]}
+                         material=a.material, plan_rig=nominal, calibration_options=plan.calibration,
+                         progress=progress, warn=lambda msg: None)
+    rig_b = binned_rig(rig, a.binning)
+    out = measured_outputs(res, rig_b, binned_rig(nominal, a.binning), a.binning)
+    out.update(sheet_field_error(rig_b, res["sheet_model"]))
     out["extraction_rms_mm"] = res["extraction_rms_mm"]
+    extra = {"positions": res["positions"], "calibration": res["calibration"], "L0_mm": res["L0_mm"]}
     return out, extra
 
 

@@ -107,7 +107,7 @@ def _number(x):
     return None if x is None or not math.isfinite(float(x)) else float(x)
 
 
-def measured_outputs(result: dict, rig: Rig, nominal: Rig, binning: int) -> dict:
+def measured_outputs(result: dict, rig_b: Rig, nominal_b: Rig, binning: int) -> dict:
     """The flat outputs of one acceptance run (rendered or geometric) of an as-built rig.
 
     Parameters
@@ -115,10 +115,10 @@ def measured_outputs(result: dict, rig: Rig, nominal: Rig, binning: int) -> dict
     result : dict
         :func:`sim.acceptance.run_acceptance` or :meth:`sim.study.geometric.GeometricTwin.evaluate`
         (``calibration.constants`` of the binned sensor; the field error when present).
-    rig : Rig
-        The rig as built (full size).
-    nominal : Rig
-        The design (full size): the closed forms the constants are compared with.
+    rig_b : Rig
+        The rig as built, binned as the run used it (its stage positions: the axis).
+    nominal_b : Rig
+        The design, binned the same way: the closed forms the constants are compared with.
     binning : int
         The binning the run used [-].
 
@@ -126,14 +126,14 @@ def measured_outputs(result: dict, rig: Rig, nominal: Rig, binning: int) -> dict
     -------
     dict
         The keys of :data:`OUTPUTS` (None where not measured) and ``cal.*``, the calibrated
-        constants at full size.
+        constants converted to the full-size sensor.
     """
-    g = hinge_geometry(nominal)
-    design = {"hinge_u_px": g.hinge_column, "hinge_v_px": g.axis_row, "F2_px_mm": g.F2_px_mm,
-              "d0_mm": nominal.stage.d0_mm, "C_mm": g.C_mm}
+    g = hinge_geometry(nominal_b)
+    design = _full_size({"hinge_u_px": g.hinge_column, "hinge_v_px": g.axis_row, "F2_px_mm": g.F2_px_mm,
+                         "d0_mm": nominal_b.stage.d0_mm, "C_mm": g.C_mm}, binning)
     cal = _full_size(result["calibration"]["constants"], binning)
     out = {k: _number(result.get(k)) for k in ("SD_mm", "PF_mm", "PS_mm", "F_mm", "field_rms_mm", "field_max_mm")}
-    out["axis_error_mm"] = _number(result["axis_mm"] - rig.stage.axis_mm)
+    out["axis_error_mm"] = _number(result["axis_mm"] - rig_b.stage.axis_mm)
     out.update({f"cal.{k}": float(v) for k, v in cal.items()})
     out.update({f"err.{k}": float(cal[k] - design[k]) for k in CALIBRATION_KEYS})
     return out

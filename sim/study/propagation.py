@@ -35,12 +35,13 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import ScheimpflugError
+from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.rig import rig_from_dict
 from scheimpflug.sensitivity import linear_shares
 
 from .geometric import GeometricTwin
 from .outputs import OUTPUTS, measured_outputs
-from .spec import StudySpec, _with_value
+from .spec import StudySpec, _with_value, calibration_options
 
 __all__ = ["MAGNITUDE_MULTIPLES", "MULTIPLES", "propagate"]
 
@@ -50,13 +51,13 @@ MULTIPLES = (-2.0, -1.0, 1.0, 2.0)
 MAGNITUDE_MULTIPLES = (0.5, 1.0, 2.0)
 
 
-def _evaluate(twin: GeometricTwin, tables: dict, nominal, binning: int) -> dict:
+def _evaluate(twin: GeometricTwin, tables: dict, nominal_b, binning: int) -> dict:
     rig = rig_from_dict(tables)
     try:
         res = twin.evaluate(rig)
     except (ScheimpflugError, ValueError):
         return dict.fromkeys(OUTPUTS)
-    out = measured_outputs(res, rig, nominal, binning)
+    out = measured_outputs(res, binned_rig(rig, binning), nominal_b, binning)
     out.update({k: res.get(k) for k in ("field_rms_mm", "field_max_mm")})
     return {k: out.get(k) for k in OUTPUTS}
 
@@ -75,7 +76,8 @@ def _derivatives(points: dict, sigma: float, magnitude: bool, name: str) -> tupl
 def _twin(spec: StudySpec, nominal) -> GeometricTwin:
     a = spec.artefacts
     return GeometricTwin(nominal, kinds=a.kinds, binning=a.binning, quick=a.quick, frames=a.frames,
-                         model=spec.model, exclude_fraction=a.exclude_fraction)
+                         model=spec.model, exclude_fraction=a.exclude_fraction,
+                         calibration_options=calibration_options(binned_rig(nominal, a.binning)))
 
 
 def propagate(spec: StudySpec, progress: ProgressCallback | None = None) -> dict:
@@ -112,8 +114,9 @@ def propagate(spec: StudySpec, progress: ProgressCallback | None = None) -> dict
     k = spec.artefacts.binning
     n_eval = 1 + sum(len(MAGNITUDE_MULTIPLES if t.magnitude else MULTIPLES) for t in spec.tolerances)
     report(progress, 0, n_eval)
+    nominal_b = binned_rig(nominal, k)
     res0 = twin.evaluate(nominal)        # raises when the design cannot measure
-    y0 = measured_outputs(res0, nominal, nominal, k)
+    y0 = measured_outputs(res0, nominal_b, nominal_b, k)
     y0.update({n: res0.get(n) for n in ("field_rms_mm", "field_max_mm")})
     y0 = {n: y0.get(n) for n in OUTPUTS}
     done, responses, base = 1, {}, spec.rig_tables
@@ -121,7 +124,7 @@ def propagate(spec: StudySpec, progress: ProgressCallback | None = None) -> dict
         value = _key_value(base, t.key)
         points = {0.0: y0}
         for m in (MAGNITUDE_MULTIPLES if t.magnitude else MULTIPLES):
-            points[m] = _evaluate(twin, _with_value(base, t.key, value + m * t.sigma), nominal, k)
+            points[m] = _evaluate(twin, _with_value(base, t.key, value + m * t.sigma), nominal_b, k)
             done += 1
             report(progress, done, n_eval)
         responses[t.key] = points

@@ -44,7 +44,12 @@ Format (lengths in mm, angles in degrees; examples in ``datasets/examples/study-
     spp = 32                  # optional: laser samples per lit row
     exclude_fraction = 0.003  # the guideline's outlier exclusion (0 = none)
 
-A tolerance applies to a continuous rig key that exists; a key whose value
+In a sweep every design's stage layout, laser waist and exposure (the keys of
+:data:`scheimpflug.model.rig.DERIVED_KEYS`) are derived from its own working
+volume (:mod:`scheimpflug.model.plan`), for its binned sensor, unless
+``[rig.set]`` or ``[sweep]`` gives them; in a tolerance study they are pinned to
+the design's values (the as-built copies share one stage layout and one
+calibration plan).  A tolerance applies to a continuous rig key that exists; a key whose value
 must stay ≥ 0 and is 0 in the rig (``stage.axis_tilt_deg``, ``stage.runout_um``
 …) is drawn as a magnitude ``|x|``.  Every unknown table or key, a tolerance on
 a key the rig does not have (the message names it and the closest keys), a
@@ -75,8 +80,10 @@ from pathlib import Path
 import numpy as np
 
 from scheimpflug.errors import RigError, ScheimpflugError, StudyError
+from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.design import inverse_design
-from scheimpflug.model.rig import PRESETS, rig_from_dict, rig_to_dict
+from scheimpflug.model.plan import calibration_plan
+from scheimpflug.model.rig import DERIVED_KEYS, PRESETS, rig_from_dict, rig_to_dict
 from scheimpflug.sensitivity import METHODS, deviation_from_unit, unit_sample
 
 from ..dataset.spec import sample_seed
@@ -90,6 +97,7 @@ __all__ = [
     "StudySpec",
     "SweepAxis",
     "Tolerance",
+    "calibration_options",
     "load_study_spec",
     "parse_study_spec",
     "plan_draws",
@@ -377,6 +385,9 @@ class DrawPlan:
         Calibration model.
     keep_frames : bool
         Keep the frame folders.
+    calibration : dict or None
+        Calibration scenario options pinned to the design (tolerance study), None = the draw's
+        own calibration plan (sweep).
     """
 
     index: int
@@ -390,6 +401,7 @@ class DrawPlan:
     artefacts: ArtefactSettings
     model: str
     keep_frames: bool
+    calibration: dict | None = None
 
 
 # ------------------------------------------------------------------ parsing
@@ -662,8 +674,45 @@ def _is_magnitude(tables: dict, key: str, base: float, width: float) -> bool:
     return False
 
 
+def _pinned(tables: dict, binning: int) -> dict:
+    """Every key given: derived keys take the values the rule gives the *binned* design.
+
+    A tolerance study measures as-built copies of one design: its stage layout, waist and
+    exposure must not move with the drawn keys.  They are pinned to what the rig-derived
+    defaults give the design's binned sensor (the pixels the pipeline reads; the exposure
+    scaled back to full size), which is what an unpinned binned run would use.
+    """
+    rig = rig_from_dict(tables)
+    full = rig_to_dict(rig)
+    if binning > 1 and rig.derived:
+        rb = rig_to_dict(binned_rig(rig, binning))
+        for key in rig.derived:
+            tbl, _, leaf = key.partition(".")
+            full[tbl][leaf] = rb[tbl][leaf] * (binning ** 2 if key == "sensor.exposure_ms" else 1)
+    return full
+
+
+def calibration_options(rig_b) -> dict:
+    """The calibration scenario of a (binned) design, as scenario options that pin it.
+
+    Parameters
+    ----------
+    rig_b : Rig
+        The design as the draws read it (binned).
+
+    Returns
+    -------
+    dict
+        ``steps``, ``step_mm``, ``start_mm``, ``plate_height_mm`` of
+        :func:`scheimpflug.model.plan.calibration_plan`.
+    """
+    p = calibration_plan(rig_b)
+    return {"steps": int(p.steps), "step_mm": float(p.step_mm), "start_mm": float(p.start_mm),
+            "plate_height_mm": float(p.plate_height_mm)}
+
+
 def _with_tolerances(where: str, spec: StudySpec, table: dict) -> StudySpec:
-    nominal = rig_to_dict(spec.base_rig())           # derived keys pinned: the design is one rig
+    nominal = _pinned(spec.rig_tables, spec.artefacts.binning)     # the design is one rig
     tols = []
     for key, value in table.items():
         base = _rig_key(where, "[tolerance]", key, spec.rig_tables)
@@ -725,7 +774,19 @@ def _parse_placement(where: str, table, swept: list[str]) -> Placement | None:
     return Placement(float(near), float(far), solve)
 
 
+def _derived_per_design(spec: StudySpec, swept) -> dict:
+    """The base tables without the rig-derived keys that neither [rig.set] nor [sweep] gives."""
+    given = set(spec.raw.get("rig", {}).get("set", {})) | set(swept)
+    out = json.loads(json.dumps(spec.rig_tables))
+    for key in DERIVED_KEYS:
+        tbl, _, leaf = key.partition(".")
+        if key not in given:
+            out.get(tbl, {}).pop(leaf, None)
+    return out
+
+
 def _with_sweep(where: str, spec: StudySpec, table: dict, placement) -> StudySpec:
+    spec = _replace(spec, rig_tables=_derived_per_design(spec, table))
     axes = []
     for key, value in table.items():
         base = _rig_key(where, "[sweep]", key, spec.rig_tables)
@@ -788,10 +849,10 @@ def _sweep_plans(spec: StudySpec, where: str) -> list[DrawPlan]:
             rig_from_dict(tables)
             if spec.placement is not None:
                 tables, solved, status = _placed(spec, tables)
-            full = rig_to_dict(rig_from_dict(tables))
-        except RigError as exc:
+            binned_rig(rig_from_dict(tables), spec.artefacts.binning)
+        except (RigError, ValueError) as exc:
             raise _fail(where, f"design {k} ({_describe_values(values)}) is not a possible rig: {exc}") from None
-        plans.append(DrawPlan(k, _seed(spec, k), full, full, {**values, **solved}, {}, (), status,
+        plans.append(DrawPlan(k, _seed(spec, k), tables, tables, {**values, **solved}, {}, (), status,
                               spec.artefacts, spec.model, spec.keep_frames))
     return plans
 
@@ -804,6 +865,7 @@ def _tolerance_plans(spec: StudySpec, where: str) -> list[DrawPlan]:
     q = unit_sample(spec.method, len(spec.tolerances), spec.draws, spec.seed)
     nominal = spec.rig_tables
     known = _all_keys(nominal)
+    cal = calibration_options(binned_rig(rig_from_dict(nominal), spec.artefacts.binning))
     plans = []
     for k, row in enumerate(q):
         tables, values, dev = nominal, {}, {}
@@ -818,7 +880,7 @@ def _tolerance_plans(spec: StudySpec, where: str) -> list[DrawPlan]:
             raise _fail(where, f"draw {k} ({_describe_values(dev)} from the rig's values) is not a possible "
                                f"rig: {exc}; reduce that tolerance") from None
         plans.append(DrawPlan(k, _seed(spec, k), full, nominal, values, dev, tuple(float(v) for v in row), "",
-                              spec.artefacts, spec.model, spec.keep_frames))
+                              spec.artefacts, spec.model, spec.keep_frames, cal))
     return plans
 
 
