@@ -18,7 +18,7 @@ from scheimpflug.errors import ScheimpflugError
 __all__ = ["COMMANDS", "build_parser", "main"]
 
 COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "acceptance", "import",
-            "dataset", "demo")
+            "dataset", "study", "demo")
 _MODULES = {"import": "import_frames"}   # command name → module (``import`` is a keyword)
 
 

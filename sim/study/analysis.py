@@ -29,7 +29,13 @@ import math
 import numpy as np
 
 from scheimpflug.model.design import pareto_front
-from scheimpflug.sensitivity import deviation_from_unit, morris_indices, rank_indices, sobol_indices
+from scheimpflug.sensitivity import (
+    SensitivityIndex,
+    deviation_from_unit,
+    morris_indices,
+    rank_indices,
+    sobol_indices,
+)
 
 from .outputs import OUTPUTS, output_label, unit_of
 from .spec import METRICS, StudySpec
@@ -97,6 +103,9 @@ def _slopes(x: np.ndarray, y: np.ndarray, keys: list[str]) -> dict:
 
 
 def _indices(spec: StudySpec, q: np.ndarray, y: np.ndarray):
+    if len(spec.keys) == 1 and spec.noise == "common" and spec.method == "sobol":
+        # one tolerance, one noise seed: everything that varies between draws is that key's
+        return [SensitivityIndex(spec.keys[0], 1.0, 1.0, 0.0, 0.0)], "a single tolerance with common noise: S1 = ST = 1"
     if not np.all(np.isfinite(y)):
         return None, f"{int((~np.isfinite(y)).sum())} draw(s) without this output: no {spec.method} indices"
     if spec.method == "sobol":
@@ -141,7 +150,8 @@ def analyse_tolerance(spec: StudySpec, records: list[dict], analytic: dict | Non
         if analytic and spec.max_error_mm else {}
     return {"draws": len(recs), "draws_measured": int(sum(r["status"] == "ok" for r in recs)),
             "outputs": outputs, "sensitivity": metric["indices"] or [], "limits": limits,
-            "ranking": _ranking(spec, metric, analytic, limits), "comparison": _comparison(outputs, analytic)}
+            "ranking": _ranking(spec, metric, analytic, limits, len(recs)),
+            "comparison": _comparison(outputs, analytic)}
 
 
 def _comparison(outputs: dict, analytic: dict | None) -> dict:
@@ -160,15 +170,19 @@ def _comparison(outputs: dict, analytic: dict | None) -> dict:
 # ------------------------------------------------------------------ plain language
 
 
-def _share(spec: StudySpec, entry: dict, analytic: dict | None) -> tuple[float | None, str]:
+def _share(spec: StudySpec, entry: dict, analytic: dict | None, n: int) -> tuple[float | None, str]:
     if entry.get("first_order") is not None:
-        return entry["first_order"], f"Sobol first-order index over {spec.draws} planned draws"
+        conf = entry.get("first_order_conf") or 0.0
+        how = f"Sobol first-order index, {n} draws"
+        if conf > 0.1:
+            how += f"; ±{100 * conf:.0f} % at 95 %: more draws would settle it"
+        return entry["first_order"], how
     if analytic and analytic["shares"][spec.metric].get(entry["key"]) is not None:
         return analytic["shares"][spec.metric][entry["key"]], "first-order analytic share"
     return None, ""
 
 
-def _ranking(spec: StudySpec, metric: dict, analytic: dict | None, limits: dict) -> list[str]:
+def _ranking(spec: StudySpec, metric: dict, analytic: dict | None, limits: dict, n: int) -> list[str]:
     tol = {t.key: t for t in spec.tolerances}
     order = metric["indices"] or []
     if not order and analytic:
@@ -178,12 +192,12 @@ def _ranking(spec: StudySpec, metric: dict, analytic: dict | None, limits: dict)
     lines = []
     for entry in order:
         key, t = entry["key"], tol[entry["key"]]
-        share, how = _share(spec, entry, analytic)
+        share, how = _share(spec, entry, analytic, n)
         if share is None and entry.get("mu_star") is not None:
             text = (f"{key} ({t.describe()}) moves the {label} by {entry['mu_star'] * 1e3:.3g} µm on average "
                     f"over its range (Morris μ*)")
         else:
-            pct = "—" if share is None else f"{100 * max(share, 0.0):.0f} %"
+            pct = "—" if share is None else f"{100 * min(max(share, 0.0), 1.0):.0f} %"
             text = f"{key} ({t.describe()}) contributes {pct} of the variance of the {label} ({how})"
         lines.append(text + _limit_text(spec, t, limits.get(key)))
     return lines
