@@ -42,7 +42,8 @@ def plot_sweep(rows: list[dict], keys: list[str], metric: str, path) -> None:
         for name, style in (("SD_mm", "o"), ("PF_mm", "s"), ("PS_mm", "^"), ("F_mm", "d")):
             y = np.abs(_col(rows, name)) * 1e3
             if np.isfinite(y).any():
-                ax.plot(x[ok], y[ok], style, ms=5, alpha=0.8, label=f"|{name[:-3]}|" + (" (metric)" if name == metric else ""))
+                tag = " (metric)" if name == metric else ""
+                ax.plot(x[ok], y[ok], style, ms=5, alpha=0.8, label=f"|{name[:-3]}|{tag}")
         if (~ok).any():
             ax.plot(x[~ok], np.zeros((~ok).sum()), "x", color="k", label="not measured")
         ax.set_ylabel("error [µm]")
@@ -122,7 +123,7 @@ def plot_tornado(analytic: dict, tolerances, metric: str, label: str, path) -> N
     bars = tornado_bars(analytic, tolerances, metric)
     y0 = (analytic["nominal"].get(metric) or 0.0) * 1e3
     fig, ax = plt.subplots(figsize=(8, 1.0 + 0.5 * max(1, len(bars))))
-    for i, (key, lo, hi) in enumerate(reversed(bars)):
+    for i, (_key, lo, hi) in enumerate(reversed(bars)):
         ax.barh(i, lo * 1e3 - y0, left=y0, color="tab:blue", alpha=0.8)
         ax.barh(i, hi * 1e3 - y0, left=y0, color="tab:orange", alpha=0.8)
     ax.set_yticks(range(len(bars)), [b[0] for b in reversed(bars)], fontsize=8)

@@ -109,7 +109,8 @@ def _sweep(result, out: Path) -> list[str]:
         lines += ["![accuracy, range and resolution against the swept keys](sweep.png)", "",
                   f"![Pareto front: depth range against |{spec.metric}|](pareto.png)", "",
                   f"Pareto front (draws): {', '.join(map(str, s['pareto'])) or '–'}", ""]
-    lines += ["Files: `draws.parquet` and `draws.csv` (one row per design), `summary.json`, `draws/NNNNNN/draw.json`.", ""]
+    lines += ["Files: `draws.parquet` and `draws.csv` (one row per design), `summary.json`, "
+              "`draws/NNNNNN/draw.json`.", ""]
     return lines
 
 
@@ -177,7 +178,7 @@ def _distribution_table(s, an) -> list[str]:
             continue
         d = o["distribution"]
         scale, unit = (1e3, "µm") if o["unit"] == "mm" else (1.0, o["unit"])
-        v = lambda x: _f(None if x is None else x * scale)  # noqa: E731
+        v = lambda x, scale=scale: _f(None if x is None else x * scale)  # noqa: E731
         first = an["std_linear"].get(name) if an else None
         rows.append([o["label"], v(d.get("mean")), v(d.get("std")), v(first) if name in _SIGNED else "(not linear)",
                      v(d.get("p5")), v(d.get("p95")), unit])
