@@ -45,6 +45,7 @@ __all__ = ["Z95", "analyse_sweep", "analyse_tolerance", "best_designs", "table_r
 #: Two-sided 95 % quantile of the normal distribution: the "95 % of builds" bound is |mean| + Z95·σ [-].
 Z95 = 1.959963984540054
 _QUADRATURE = 401       # quantile points of a tolerance's distribution in the limits' moments [-]
+_RANGE_SLACK_MM = 1e-3  # a design placed to cover near…far exactly covers it (rounding) [mm]
 
 
 def _value(x) -> float:
@@ -317,9 +318,9 @@ def best_designs(rows: list[dict], metric: str, near_mm: float | None = None, fa
         err = r.get(metric, math.nan)
         if r["status"] != "ok" or (measured and not math.isfinite(err)):
             continue
-        if near_mm is not None and r["near_mm"] > near_mm:
+        if near_mm is not None and r["near_mm"] > near_mm + _RANGE_SLACK_MM:
             continue
-        if far_mm is not None and r["far_mm"] < far_mm:
+        if far_mm is not None and r["far_mm"] < far_mm - _RANGE_SLACK_MM:
             continue
         if measured and max_error_mm is not None and abs(err) > max_error_mm:
             continue

@@ -724,7 +724,9 @@ def _with_tolerances(where: str, spec: StudySpec, table: dict) -> StudySpec:
         unit_sample(spec.method, len(tols), spec.draws, spec.seed)
     except ValueError as exc:
         raise _fail(where, f"study.{exc}") from None
-    return _replace(spec, tolerances=tuple(tols), rig_tables=nominal)
+    spec = _replace(spec, tolerances=tuple(tols), rig_tables=nominal)
+    plan_draws(spec, where=where)       # every drawn rig valid, or one error naming the draw
+    return spec
 
 
 def _replace(spec: StudySpec, **changes) -> StudySpec:
