@@ -7,7 +7,8 @@ artefacts as rotary scans, the quality parameters; plus the closed-form design
 numbers and the calibration's field error (:func:`sim.study.geometric.sheet_field_error`).
 
 Files: the draw works in ``draws/.NNNNNN.partial/`` (frame folders resume frame
-by frame) and writes ``draw.json`` there; the folder is then renamed to
+by frame) and writes ``draw.json`` there (and, for a sweep, ``design.toml``: the
+design's rig file, to start a tolerance study from); the folder is then renamed to
 ``draws/NNNNNN/`` (the frame folders removed unless ``keep_frames``).  A draw
 whose final folder holds ``draw.json`` is done and is never run again.
 
@@ -27,9 +28,9 @@ from pathlib import Path
 
 from scheimpflug.callbacks import ProgressCallback
 from scheimpflug.errors import RenderError, ScheimpflugError, StudyError
-from scheimpflug.io.atomic import write_json_atomic
+from scheimpflug.io.atomic import write_json_atomic, write_text_atomic
 from scheimpflug.model.binning import binned_rig
-from scheimpflug.model.rig import rig_from_dict
+from scheimpflug.model.rig import rig_from_dict, rig_to_toml
 
 from ..acceptance import run_acceptance
 from ..dataset.sample import configure_threads
@@ -37,9 +38,11 @@ from .geometric import sheet_field_error
 from .outputs import design_numbers, measured_outputs
 from .spec import DrawPlan
 
-__all__ = ["DRAW_FILE", "PROGRESS_UNITS", "draw_folder", "run_draw"]
+__all__ = ["DESIGN_FILE", "DRAW_FILE", "PROGRESS_UNITS", "draw_folder", "run_draw"]
 
 DRAW_FILE = "draw.json"
+#: The design's full-size rig file in a sweep's draw folder (derived keys written as numbers).
+DESIGN_FILE = "design.toml"
 #: Progress units of one draw (its scans are reported as a fraction of these) [-].
 PROGRESS_UNITS = 10
 
@@ -134,6 +137,8 @@ def run_draw(plan: DrawPlan, root: str | os.PathLike, progress: ProgressCallback
     record = {"draw": plan.index, "status": "ok", "reason": "", "seed": plan.seed, "values": plan.values,
               "deviations": plan.deviations, "unit": list(plan.unit), "design": design_numbers(rig),
               "outputs": None, "detail": None}
+    if not plan.deviations:          # a sweep's design: its rig file, for the tolerance study that follows
+        write_text_atomic(partial / DESIGN_FILE, rig_to_toml(rig))
     if plan.status:
         record.update(status="not-placed", reason=plan.status)
     elif plan.artefacts.kinds:

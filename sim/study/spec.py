@@ -19,7 +19,9 @@ Format (lengths in mm, angles in degrees; examples in ``datasets/examples/study-
 
     [rig]
     preset = "paper"          # or file = "RIG.toml" (relative to the spec file)
-    [rig.set]                 # fixed changes of the rig: the realism the study turns on
+    derive = false            # tolerance: true = derive the stage layout, waist and exposure of the
+                              #   design (set below) instead of taking the preset's (sweeps always do)
+    [rig.set]                 # fixed changes of the rig: the design, the realism the study turns on
     "laser.speckle_contrast" = 1.0
 
     [tolerance]               # rig key = half-width of a uniform deviation around the rig's value,
@@ -47,9 +49,10 @@ Format (lengths in mm, angles in degrees; examples in ``datasets/examples/study-
 In a sweep every design's stage layout, laser waist and exposure (the keys of
 :data:`scheimpflug.model.rig.DERIVED_KEYS`) are derived from its own working
 volume (:mod:`scheimpflug.model.plan`), for its binned sensor, unless
-``[rig.set]`` or ``[sweep]`` gives them; in a tolerance study they are pinned to
-the design's values (the as-built copies share one stage layout and one
-calibration plan).  A tolerance applies to a continuous rig key that exists; a key whose value
+``[rig.set]`` or ``[sweep]`` gives them; in a tolerance study they are the
+rig's (derived for the design when ``[rig] derive = true`` or when the rig file
+leaves them out) and pinned: the as-built copies share one stage layout and
+one calibration plan.  A tolerance applies to a continuous rig key that exists; a key whose value
 must stay ≥ 0 and is 0 in the rig (``stage.axis_tilt_deg``, ``stage.runout_um``
 …) is drawn as a magnitude ``|x|``.  Every unknown table or key, a tolerance on
 a key the rig does not have (the message names it and the closest keys), a
@@ -555,7 +558,9 @@ def _preset_tables(name: str) -> dict:
 
 
 def _parse_rig(where: str, folder: Path, table: dict) -> tuple[dict, str]:
-    _known(where, "[rig]", table, {"preset", "file", "set"})
+    _known(where, "[rig]", table, {"preset", "file", "set", "derive"})
+    if not isinstance(table.get("derive", False), bool):
+        raise _fail(where, f"rig.derive = {table['derive']!r}: must be true or false")
     if "preset" in table and "file" in table:
         raise _fail(where, "[rig]: give either preset or file, not both")
     if "file" in table:
@@ -712,6 +717,8 @@ def calibration_options(rig_b) -> dict:
 
 
 def _with_tolerances(where: str, spec: StudySpec, table: dict) -> StudySpec:
+    if spec.raw.get("rig", {}).get("derive", False):
+        spec = _replace(spec, rig_tables=_derived_per_design(spec, ()))
     nominal = _pinned(spec.rig_tables, spec.artefacts.binning)     # the design is one rig
     tols = []
     for key, value in table.items():
@@ -777,7 +784,10 @@ def _parse_placement(where: str, table, swept: list[str]) -> Placement | None:
 
 
 def _derived_per_design(spec: StudySpec, swept) -> dict:
-    """The base tables without the rig-derived keys that neither [rig.set] nor [sweep] gives."""
+    """The base tables without the rig-derived keys that neither [rig.set] nor [sweep] gives.
+
+    Sweeps always derive them; a tolerance study when ``[rig] derive = true``.
+    """
     given = set(spec.raw.get("rig", {}).get("set", {})) | set(swept)
     out = json.loads(json.dumps(spec.rig_tables))
     for key in DERIVED_KEYS:
