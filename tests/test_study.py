@@ -287,3 +287,19 @@ def test_two_workers_and_a_killed_run_give_the_numbers_of_one(tmp_path):
     assert res.returncode == 0, res.stderr
     assert _numbers(out) == _numbers(tmp_path / "two")
     assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.tmp*"))
+
+
+def test_latin_hypercube_sweep_fills_every_stratum_once(tmp_path):
+    from sim.study import plan_draws
+
+    text = ('[study]\nseed = 5\nsampling = "lhs"\ndesigns = 5\n[rig]\npreset = "paper"\n[sweep]\n'
+            '"laser.tan_phi" = { range = [0.1, 0.3] }\n"lens.f_number" = { range = [4.0, 11.0] }\n'
+            '[artefacts]\nkinds = []\n')
+    plans = plan_draws(_spec(tmp_path, text, "sweep"))
+    assert len(plans) == 5
+    for key, (lo, hi) in (("laser.tan_phi", (0.1, 0.3)), ("lens.f_number", (4.0, 11.0))):
+        strata = sorted(int((p.values[key] - lo) / (hi - lo) * 5) for p in plans)
+        assert strata == [0, 1, 2, 3, 4]
+        assert all(p.rig[key.split(".")[0]][key.split(".")[1]] == p.values[key] for p in plans)
+    with pytest.raises(StudyError, match="study.designs is required"):
+        _spec(tmp_path, text.replace("designs = 5\n", ""), "sweep")
