@@ -250,6 +250,8 @@ preset = "paper"
 kinds = ["ball-bar"]
 binning = 4
 frames = 5
+part = "cylinder"
+part_step_deg = 45.0
 """
 
 
@@ -266,6 +268,7 @@ def test_two_workers_and_a_killed_run_give_the_numbers_of_one(tmp_path):
     spec = load_study_spec(tmp_path / "s.toml", "sweep")
     two = run_study(spec, tmp_path / "two", workers=2)
     assert two.complete and len(_numbers(tmp_path / "two")) == 3
+    assert all(0 < n["part_rms_mm"] < 0.2 for n in _numbers(tmp_path / "two"))      # the user part, scored
     out = tmp_path / "killed"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     cmd = [sys.executable, "-m", "scheimpflug", "study", "sweep", str(tmp_path / "s.toml"), "--out", str(out),

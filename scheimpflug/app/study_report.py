@@ -94,13 +94,16 @@ def _sweep(result, out: Path) -> list[str]:
     else:
         lines += ["No measured design meets the constraints.", ""]
     lines += ["## All designs", ""]
+    errs = [("SD_mm", "SD [µm]"), ("PF_mm", "PF [µm]"), ("PS_mm", "PS [µm]"), ("F_mm", "F [µm]")]
+    if spec.artefacts.part:
+        errs.append(("part_rms_mm", "part RMS [µm]"))
     head = ["draw", *keys, "near [mm]", "far [mm]", "depth [mm]", "dist. res. [µm/px]", "height res. [µm/px]",
-            "SD [µm]", "PF [µm]", "PS [µm]", "F [µm]", "status"]
+            *[h for _, h in errs], "status"]
     body = [[str(r["draw"]), *[_f(r.get(f"rig.{k}")) for k in keys], _f(r["near_mm"], "{:.1f}"),
              _f(r["far_mm"], "{:.1f}"), _f(r["depth_range_mm"], "{:.1f}"),
              _um(r["distance_resolution_center_mm"]), _um(r["height_resolution_center_mm"]),
-             _um(r.get("SD_mm")), _um(r.get("PF_mm")), _um(r.get("PS_mm")), _um(r.get("F_mm")),
-             r["status"] + (f": {r['reason']}" if r["reason"] else "")] for r in rows]
+             *[_um(r.get(k)) for k, _ in errs], r["status"] + (f": {r['reason']}" if r["reason"] else "")]
+            for r in rows]
     lines += _table(head, body) + [""]
     lines += ["Range: along the sheet from the laser (Scheimpflug line); resolutions at the centre column "
               "(closed forms of the full-size sensor). Errors: VDI/VDE 2634-2 quality parameters measured in "

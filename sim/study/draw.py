@@ -89,7 +89,32 @@ def _measure(plan: DrawPlan, rig, work: Path, progress) -> tuple[dict, dict]:
     out.update(sheet_field_error(rig_b, res["sheet_model"]))
     out["extraction_rms_mm"] = res["extraction_rms_mm"]
     extra = {"positions": res["positions"], "calibration": res["calibration"], "L0_mm": res["L0_mm"]}
+    if a.part:
+        extra["part"] = _scan_part(plan, rig_b, work / "part", res["sheet_model"], res["axis_mm"])
+        out["part_rms_mm"] = extra["part"]["rms_mm"]
     return out, extra
+
+
+def _scan_part(plan: DrawPlan, rig_b, work: Path, calibration, axis_mm: float) -> dict:
+    """The user part as a rotary scan, reconstructed with the draw's calibration, scored against its mesh."""
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.ply import read_triangle_mesh
+    from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
+    from scheimpflug.scoring import score_points
+
+    from ..writer import render_folder
+
+    a = plan.artefacts
+    render_folder(rig_b, "rotary", work, seed=plan.seed, spp=a.spp, warn=lambda msg: None, truth_pixels_every=0,
+                  part=a.part, step_deg=a.part_step_deg)
+    ff = open_frame_folder(work)
+    rows, us, peaks, _ = extract_folder(ff, "cog")
+    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], calibration, axis_mm, intensity=peaks)
+    if len(cloud.xyz_mm) == 0:
+        raise StudyError(f"the part {a.part!r} gave no points: it is not in view of this rig")
+    mesh = read_triangle_mesh(work / "truth" / "mesh.ply")
+    st = score_points(cloud.xyz_mm, mesh.vertices, mesh.faces)
+    return {k: st[k] for k in ("n_points", "rms_mm", "mean_abs_mm", "p95_mm", "max_mm")}
 
 
 def run_draw(plan: DrawPlan, root: str | os.PathLike, progress: ProgressCallback | None = None,

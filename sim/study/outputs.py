@@ -31,6 +31,7 @@ OUTPUTS = {
     "field_max_mm": "calibration field error (max)", "axis_error_mm": "rotary-axis error",
     "err.hinge_u_px": "error of the hinge column u_h", "err.hinge_v_px": "error of the hinge row v_h",
     "err.F2_px_mm": "error of F²", "err.d0_mm": "error of d0", "err.C_mm": "error of C",
+    "part_rms_mm": "user part: RMS distance from its mesh",
 }
 _UNITS = (("_deg", "°"), ("_um", "µm"), ("_mm", "mm"), ("_px_mm", "px·mm"), ("_px", "px"), ("_urad", "µrad"),
           ("_mrad", "mrad"), ("_ppm", "ppm"), ("_percent", "%"), ("_nm", "nm"), ("_mw", "mW"), ("_ms", "ms"),

@@ -45,6 +45,8 @@ Format (lengths in mm, angles in degrees; examples in ``datasets/examples/study-
     material = "cardboard"    # the artefacts' surface: cardboard (diffuse) | metal | knurled-metal | tape
     spp = 32                  # optional: laser samples per lit row
     exclude_fraction = 0.003  # the guideline's outlier exclusion (0 = none)
+    part = "bracket.stl"      # optional: a user part (preset name or mesh/scene file) scanned on the
+    part_step_deg = 6.0       #   rotary stage too and scored against its mesh (part_rms_mm)
 
 In a sweep every design's stage layout, laser waist and exposure (the keys of
 :data:`scheimpflug.model.rig.DERIVED_KEYS`) are derived from its own working
@@ -110,12 +112,14 @@ __all__ = [
 ARTEFACT_KINDS = {"sphere": "sphere", "ball-bar": "ball_bar", "plane": "plane"}
 #: Errors a study can rank and constrain, with their plain names.
 METRICS = {"SD_mm": "sphere-spacing error", "PF_mm": "probing error (form)",
-           "PS_mm": "probing error (size)", "F_mm": "flatness error"}
+           "PS_mm": "probing error (size)", "F_mm": "flatness error",
+           "part_rms_mm": "RMS distance of the user part's points from its mesh"}
 _MATERIALS = ("cardboard", "knurled-metal", "metal", "tape")
 _TOP = {"study", "rig", "tolerance", "sweep", "placement", "artefacts"}
 _STUDY_KEYS = {"seed", "draws", "method", "sampling", "designs", "model", "metric", "max_error_mm", "noise",
                "keep_frames", "name", "description"}
-_ARTEFACT_KEYS = {"kinds", "binning", "positions", "frames", "material", "spp", "exclude_fraction"}
+_ARTEFACT_KEYS = {"kinds", "binning", "positions", "frames", "material", "spp", "exclude_fraction", "part",
+                  "part_step_deg"}
 _SOLVE = ("tan_phi", "scheimpflug_distance_mm")
 
 
@@ -242,6 +246,10 @@ class ArtefactSettings:
         Laser samples per lit row (None = the renderer's default).
     exclude_fraction : float
         Outlier fraction excluded per measurement [-].
+    part : str or None
+        A user part scanned too (preset name or resolved file path), None = none.
+    part_step_deg : float
+        Its rotary step [deg].
     """
 
     kinds: tuple = ("sphere", "ball_bar", "plane")
@@ -251,6 +259,8 @@ class ArtefactSettings:
     material: str = "cardboard"
     spp: int | None = None
     exclude_fraction: float = 0.003
+    part: str | None = None
+    part_step_deg: float = 6.0
 
 
 @dataclass(frozen=True)
@@ -337,17 +347,17 @@ class StudySpec:
         return hashlib.sha256(json.dumps(self.raw, sort_keys=True).encode()).hexdigest()
 
     def input_files(self) -> list[Path]:
-        """Files the spec refers to (the rig file), resolved, existing only.
+        """Files the spec refers to (the rig file, the user part), resolved, existing only.
 
         Returns
         -------
         list of Path
-            The rig file, if any.
+            The rig file and the part's file, if any.
         """
-        if not self.rig_source.startswith("file:"):
-            return []
-        p = _resolve(self.folder, self.rig_source[5:])
-        return [p] if p.is_file() else []
+        names = [self.rig_source[5:]] if self.rig_source.startswith("file:") else []
+        if self.artefacts.part and Path(self.artefacts.part).suffix:
+            names.append(self.artefacts.part)
+        return [p for p in (_resolve(self.folder, n) for n in names) if p.is_file()]
 
     def base_rig(self):
         """The study's base rig (the nominal design of a tolerance study).
@@ -495,7 +505,7 @@ def parse_study_spec(raw: dict, kind: str, folder: str | os.PathLike = ".", wher
     folder = Path(folder)
     tables, source = _parse_rig(where, folder, raw.get("rig", {}))
     common = _parse_study_table(where, st, kind)
-    artefacts = _parse_artefacts(where, raw.get("artefacts", {}))
+    artefacts = _parse_artefacts(where, raw.get("artefacts", {}), folder)
     spec = StudySpec(raw=json.loads(json.dumps(raw)), folder=folder, kind=kind,
                      name=str(st.get("name", default_name)), description=str(st.get("description", "")),
                      rig_tables=tables, rig_source=source, artefacts=artefacts, **common)
@@ -623,7 +633,27 @@ def _with_value(tables: dict, key: str, value) -> dict:
     return out
 
 
-def _parse_artefacts(where: str, table: dict) -> ArtefactSettings:
+def _parse_part(where: str, table: dict, folder: Path) -> tuple[str | None, float]:
+    from scenes import PART_NAMES
+
+    part, step = table.get("part"), table.get("part_step_deg", 6.0)
+    if not (_num(step) and 0 < step <= 90):
+        raise _fail(where, f"artefacts.part_step_deg = {step!r}: must be in (0, 90]")
+    if part is None:
+        return None, float(step)
+    if not isinstance(part, str) or not part:
+        raise _fail(where, f"artefacts.part = {part!r}: a preset name or a mesh / scene file")
+    if Path(part).suffix:
+        path = _resolve(folder, part)
+        if not path.is_file():
+            raise _fail(where, f"artefacts.part = {part!r}: no such file ({str(path)!r})")
+        return str(path), float(step)
+    if part not in PART_NAMES:
+        raise _fail(where, f"artefacts.part = {part!r}: unknown part (known: {', '.join(PART_NAMES)})")
+    return part, float(step)
+
+
+def _parse_artefacts(where: str, table: dict, folder: Path) -> ArtefactSettings:
     _known(where, "[artefacts]", table, _ARTEFACT_KEYS)
     kinds = table.get("kinds", ["sphere", "plane", "ball-bar"])
     if not isinstance(kinds, list) or len(set(map(str, kinds))) != len(kinds):
@@ -644,7 +674,7 @@ def _parse_artefacts(where: str, table: dict) -> ArtefactSettings:
         frames=None if frames is None else _integer(where, "artefacts.frames", frames, 3),
         material=_choice(where, "artefacts.material", table.get("material", "cardboard"), _MATERIALS),
         spp=None if spp is None else _integer(where, "artefacts.spp", spp, 1),
-        exclude_fraction=float(excl))
+        exclude_fraction=float(excl), **dict(zip(("part", "part_step_deg"), _parse_part(where, table, folder))))
 
 
 # ------------------------------------------------------------------ tolerances
