@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-EXAMPLES = ROOT / "datasets" / "examples"
+EXAMPLES = ROOT / "studies" / "examples"
 
 
 def _run(args, argv):
@@ -33,11 +33,11 @@ def main():
     args = ap.parse_args()
     root = Path(args.out or tempfile.mkdtemp())
     load0 = os.getloadavg()
-    s1, t1 = _run(args, ["study", "sweep", str(EXAMPLES / "study_sweep_300_600.toml"), "--out", str(root / "sweep"),
+    s1, t1 = _run(args, ["study", "sweep", str(EXAMPLES / "sweep_300_600.toml"), "--out", str(root / "sweep"),
                          "--workers", str(args.workers), "--near-mm", "300", "--far-mm", "600",
                          "--max-error-mm", "0.1", "--quiet"])
     sweep = json.loads((root / "sweep" / "summary.json").read_text())
-    s2, t2 = _run(args, ["study", "tolerance", str(EXAMPLES / "study_tolerance_300_600.toml"),
+    s2, t2 = _run(args, ["study", "tolerance", str(EXAMPLES / "tolerance_300_600.toml"),
                          "--out", str(root / "tolerance"), "--workers", str(args.workers), "--quiet"])
     tol = json.loads((root / "tolerance" / "summary.json").read_text())
     load1 = os.getloadavg()

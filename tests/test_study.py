@@ -306,3 +306,12 @@ def test_latin_hypercube_sweep_fills_every_stratum_once(tmp_path):
         assert all(p.rig[key.split(".")[0]][key.split(".")[1]] == p.values[key] for p in plans)
     with pytest.raises(StudyError, match="study.designs is required"):
         _spec(tmp_path, text.replace("designs = 5\n", ""), "sweep")
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "studies" / "examples").glob("*.toml")), ids=lambda p: p.stem)
+def test_example_study_specs_parse_and_plan(path):
+    from sim.study import load_study_spec, plan_draws
+
+    kind = "sweep" if path.stem.startswith("sweep") else "tolerance"
+    plans = plan_draws(load_study_spec(path, kind))
+    assert plans and all(p.artefacts.material == "metal" for p in plans)

@@ -1,6 +1,6 @@
 """Study specs (TOML): a design sweep or a tolerance Monte Carlo, checked before anything runs.
 
-Format (lengths in mm, angles in degrees; examples in ``datasets/examples/study-*.toml``)::
+Format (lengths in mm, angles in degrees; examples in ``studies/examples/``)::
 
     [study]
     seed = 1                  # base seed: draw k's values and seeds derive from (seed, k) only
@@ -747,6 +747,8 @@ def calibration_options(rig_b) -> dict:
 
 
 def _with_tolerances(where: str, spec: StudySpec, table: dict) -> StudySpec:
+    if not spec.artefacts.kinds:
+        raise _fail(where, "artefacts.kinds = []: a tolerance study measures at least one artefact kind")
     if spec.raw.get("rig", {}).get("derive", False):
         spec = _replace(spec, rig_tables=_derived_per_design(spec, ()))
     nominal = _pinned(spec.rig_tables, spec.artefacts.binning)     # the design is one rig
