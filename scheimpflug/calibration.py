@@ -82,9 +82,9 @@ from scipy import optimize
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
-from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.io.frames import FrameFolder, open_frame_folder, scenario_number
 from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
-from scheimpflug.stripe import extract_stripes
+from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
     "Calibration",
@@ -123,6 +123,20 @@ class CalibrationTolerances:
         Fewer usable frames cannot fix a line and a hinge [-].
     min_slope_gap : float, default 1e-3
         Endpoint slopes closer than this are parallel [-].
+    recommended_frames : int, default 6
+        Fewer usable frames give a warning: the refined fit has three unknowns
+        (u_h, F², d0), so with 3 frames it is exactly determined (no σ) and with
+        4–5 its σ rests on one or two degrees of freedom [-].
+    fit_outlier_ratio : float, default 10.0
+        A frame whose column the distance fit u = u_h + F²/(s − d0) of the
+        other frames misses by more than this many times their robust residual
+        σ … [-]
+    fit_outlier_floor_px : float, default 0.1
+        … and by more than this floor is an outlier (a wrong stage position):
+        left out and named (≥ 6 frames) [px].
+    stage_order_px : float, default 0.5
+        Sorted by stage position, a stripe may step back by at most this much,
+        and frames at one position may differ by at most this much [px].
     """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
@@ -134,6 +148,15 @@ class CalibrationTolerances:
     background_gap_rows: int = 6  # background rows start this far outside the edge [rows]
     min_frames: int = 3           # fewer usable frames cannot fix a line and a hinge [-]
     min_slope_gap: float = 1e-3   # endpoint slopes closer than this are parallel [-]
+    recommended_frames: int = 6   # fewer usable frames: warn (3 unknowns in the refined fit) [-]
+    fit_outlier_ratio: float = 10.0  # leave-one-out miss beyond this many robust σ of the others …
+    fit_outlier_floor_px: float = 0.1  # … and beyond this floor: a wrong stage position [px]
+    stage_order_px: float = 0.5   # a stripe stepping back (or apart at one s) by more: refused [px]
+
+
+_MAX_CONDITION = 1e12
+"""A fit whose column-scaled normal matrix is worse conditioned than this is nearly singular:
+its standard errors are undefined (NaN, null in JSON) [-]."""
 
 
 # ---------------------------------------------------------------- result types
@@ -324,23 +347,23 @@ class Calibration:
             A required field is missing or not a number.
         """
         try:
-            r2 = d.get("endpoint_fit_r2", [math.nan, math.nan])
-            return cls(hinge_u_px=float(d["hinge_px"][0]), hinge_v_px=float(d["hinge_px"][1]),
-                       F2_px_mm=float(d["F2_px_mm"]), F2_sigma_px_mm=_float(d, "F2_sigma_px_mm"),
-                       d0_mm=float(d["d0_mm"]), C_mm=float(d["C_mm"]), C_sigma_mm=_float(d, "C_sigma_mm"),
+            r2 = d.get("endpoint_fit_r2") or [None, None]
+            return cls(hinge_u_px=_num(d["hinge_px"][0]), hinge_v_px=_num(d["hinge_px"][1]),
+                       F2_px_mm=_num(d["F2_px_mm"]), F2_sigma_px_mm=_float(d, "F2_sigma_px_mm"),
+                       d0_mm=_num(d["d0_mm"]), C_mm=_num(d["C_mm"]), C_sigma_mm=_float(d, "C_sigma_mm"),
                        endpoint_fit_r2=(_float(r2, 0), _float(r2, 1)),
-                       method=str(d.get("method", "paper")), columns=int(d.get("columns", 0)),
-                       rows=int(d.get("rows", 0)),
-                       plate_height_mm=float(d.get("plate_height_mm", 89.0)),
-                       n_frames=int(d.get("n_frames", 0)),
+                       method=str(d.get("method", "paper")), columns=_whole(d.get("columns", 0)),
+                       rows=_whole(d.get("rows", 0)),
+                       plate_height_mm=_num(d.get("plate_height_mm", 89.0)),
+                       n_frames=_whole(d.get("n_frames", 0)),
                        hinge_u_sigma_px=_float(d, "hinge_u_sigma_px"),
                        hinge_v_sigma_px=_float(d, "hinge_v_sigma_px"),
                        F2_stderr_px_mm=_float(d, "F2_stderr_px_mm"), d0_sigma_mm=_float(d, "d0_sigma_mm"),
                        C_stderr_mm=_float(d, "C_stderr_mm"),
-                       n_frames_both_edges=int(d.get("n_frames_both_edges", 0)),
+                       n_frames_both_edges=_whole(d.get("n_frames_both_edges", 0)),
                        warnings=tuple(str(w) for w in d.get("warnings", ())),
                        estimates={k: d[k] for k in ("paper", "refined") if k in d})
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise CalibrationError(f"calibration data lacks or garbles a field: {exc!r}") from None
 
     @classmethod
@@ -361,7 +384,8 @@ class Calibration:
         ------
         CalibrationError
             If the file is missing, unreadable or not a JSON object, lacks or
-            garbles a field, or does not have F² < 0, C > 0 and a finite d0.
+            garbles a field, or describes an impossible calibration
+            (:meth:`problem`).
         """
         p = Path(path)
         try:
@@ -372,10 +396,57 @@ class Calibration:
             raise CalibrationError(f"calibration file {str(p)!r} is unreadable: {exc}") from None
         if not isinstance(d, dict):
             raise CalibrationError(f"calibration file {str(p)!r} must hold a JSON object")
-        cal = cls.from_json_dict(d)
-        if not (cal.F2_px_mm < 0 and cal.C_mm > 0 and math.isfinite(cal.d0_mm)):
-            raise CalibrationError(f"calibration file {str(p)!r}: need F2_px_mm < 0 and C_mm > 0")
+        try:
+            cal = cls.from_json_dict(d)
+        except CalibrationError as exc:
+            raise CalibrationError(f"calibration file {str(p)!r}: {exc}") from None
+        problem = cal.problem()
+        if problem:
+            raise CalibrationError(f"calibration file {str(p)!r}: {problem}")
         return cal
+
+    def problem(self, columns: int | None = None) -> str | None:
+        """What makes this calibration impossible, or None (the checks of a loaded file).
+
+        Parameters
+        ----------
+        columns : int, optional
+            Columns of the frames it will be applied to [px]; default the
+            calibration's own (0: unknown, the hinge check is skipped).
+
+        Returns
+        -------
+        str or None
+            The first problem, naming the field: a non-finite constant, a σ
+            that is negative or infinite, F² ≥ 0, C ≤ 0, a value beyond any
+            rig (|u_h|, |v_h| > 1e7 px, |d0| > 1e6 mm), the image hinge not
+            beyond the last column (the sensor would contain the hinge), a
+            plate height not > 0; None if none.
+        """
+        names = ("hinge_u_px", "hinge_v_px", "F2_px_mm", "d0_mm", "C_mm")
+        for name, value in zip(names, self.constants()):
+            if not math.isfinite(value):
+                return f"{name} = {value} must be finite"
+        for name in ("F2_sigma_px_mm", "C_sigma_mm", *_STDERR_KEYS):
+            value = getattr(self, name)
+            if not (math.isnan(value) or 0 <= value < math.inf):
+                return f"{name} = {value} must be >= 0 (or null: undefined)"
+        if not self.F2_px_mm < 0:
+            return f"F2_px_mm = {self.F2_px_mm:.6g} must be < 0 (columns increase toward the hinge)"
+        if not self.C_mm > 0:
+            return f"C_mm = {self.C_mm:.6g} must be > 0"
+        if max(abs(self.hinge_u_px), abs(self.hinge_v_px)) > 1e7 or abs(self.d0_mm) > 1e6:
+            return "hinge_px beyond ±1e7 px or d0_mm beyond ±1e6 mm: not a rig's calibration"
+        n = self.columns if columns is None else columns
+        if n and not self.hinge_u_px > n - 0.5:
+            return (f"image hinge u_h = {self.hinge_u_px:.6g} px lies inside the {n}-column sensor: it "
+                    f"must lie beyond the last column (> {n - 0.5}); a hinge on the sensor images "
+                    "points at infinity")
+        if not (math.isfinite(self.plate_height_mm) and self.plate_height_mm > 0):
+            return f"plate_height_mm = {self.plate_height_mm} must be > 0"
+        return None
+
+
 
 
 def _json_float(x: float):
@@ -383,12 +454,31 @@ def _json_float(x: float):
 
 
 def _float(d, key) -> float:
-    """``d[key]`` as a float; NaN when absent or null."""
+    """``d[key]`` as a float; NaN when absent or null; a boolean or a string is refused."""
     try:
         value = d[key]
-    except (KeyError, IndexError):
+    except (KeyError, IndexError, TypeError):
         return math.nan
-    return math.nan if value is None else float(value)
+    return _num(value)
+
+
+def _num(x) -> float:
+    """A JSON number as float; null = undefined = NaN; booleans and strings are refused."""
+    if x is None:
+        return math.nan
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"{x!r:.40} is not a number")
+    return float(x)
+
+
+def _whole(x) -> int:
+    """A JSON count as int in [0, 65535] (an integral float is fine)."""
+    v = _num(x)
+    if not (v.is_integer() and 0 <= v <= 65535):
+        raise ValueError(f"{x!r:.40} is not a count in [0, 65535]")
+    return int(v)
+
+
 
 
 @dataclass(frozen=True)
@@ -412,6 +502,8 @@ class PlateMeasurement:
         Rows of the inlier stripe points [px].
     u : (n,) ndarray float64
         Columns of the inlier stripe points [px].
+    file : str, default ""
+        The frame's file (for messages); empty when unknown.
     """
 
     stage_mm: float
@@ -422,6 +514,17 @@ class PlateMeasurement:
     bottom_px: tuple[float, float] | None
     rows: np.ndarray = field(repr=False)
     u: np.ndarray = field(repr=False)
+    file: str = ""
+
+    def name(self) -> str:
+        """The frame's file, or its stage position when the file is unknown.
+
+        Returns
+        -------
+        str
+            ``file`` or ``"stage s mm"``.
+        """
+        return self.file or f"stage {self.stage_mm:g} mm"
 
 
 @dataclass(frozen=True)
@@ -442,6 +545,10 @@ class CalibrationResult:
         (m, b) of the paper's endpoint fits v = m u + b.
     partial : tuple of (str, str), default ()
         (file, "top" or "bottom": the edge not seen) of frames used with one edge.
+    warnings : tuple of str, default ()
+        What the user should know about the frames (too few of them, the
+        estimate preferred because the other's σ is undefined), one line each;
+        the estimates' own accuracy warnings are in ``Calibration.warnings``.
     """
 
     best: Calibration
@@ -452,6 +559,7 @@ class CalibrationResult:
     top_line: tuple[float, float]
     bottom_line: tuple[float, float]
     partial: tuple[tuple[str, str], ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 # ---------------------------------------------------------------- one frame
@@ -550,7 +658,7 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
     """
     prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px=window_px)
     if len(prof) < tol.min_rows:
-        raise CalibrationError(f"no stripe ({len(prof)} lit rows < {tol.min_rows})")
+        raise CalibrationError(_no_stripe(frame, len(prof), tol.min_rows, saturation_dn))
     v = prof.rows.astype(np.float64)
     keep, line = _robust_line(v, prof.u, tol)
     if keep.sum() < tol.min_rows:
@@ -565,6 +673,18 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
     return PlateMeasurement(stage_mm=float(stage_mm), u_mean_px=float(prof.u[keep].mean()),
                             n_rows=int(keep.sum()), line=line, top_px=ends[0], bottom_px=ends[1],
                             rows=rows_in, u=prof.u[keep])
+
+
+# ---------------------------------------------------------------- the fits
+
+
+def _no_stripe(frame: np.ndarray, n_rows: int, min_rows: int, saturation_dn: float | None) -> str:
+    """Why a frame gave too few stripe rows: saturated, or no stripe."""
+    sat = saturated_fraction(frame, saturation_dn)
+    if sat > 0.5:
+        return (f"frame saturated ({100 * sat:.0f} % of the pixels at the saturation level): no stripe "
+                "can be found; lower the exposure or the laser power")
+    return f"no stripe ({n_rows} lit rows < {min_rows})"
 
 
 # ---------------------------------------------------------------- the fits
@@ -718,8 +838,15 @@ def _paper_estimate(d: _Data, tol: CalibrationTolerances, sigma_u: float | None)
 
 
 def _scaled_covariance(J: np.ndarray, rss: float, dof: int) -> np.ndarray | None:
-    """σ²·(JᵀJ)⁻¹ with σ² = rss/dof; None if dof ≤ 0 or JᵀJ is singular."""
+    """σ²·(JᵀJ)⁻¹ with σ² = rss/dof; None if dof ≤ 0 or JᵀJ is singular or nearly so.
+
+    Nearly singular: the column-scaled Jacobian's condition number squared
+    exceeds :data:`_MAX_CONDITION` (its standard errors would be noise).
+    """
     if dof <= 0:
+        return None
+    scale = np.linalg.norm(J, axis=0)
+    if not np.all(scale > 0) or np.linalg.cond(J / scale) ** 2 > _MAX_CONDITION:
         return None
     try:
         return np.linalg.inv(J.T @ J) * rss / dof
@@ -795,8 +922,10 @@ def _refined_estimate(d: _Data, r2, guess_d0):
     grad_C = d.H / (at - ab) ** 2 * np.array([0.0, -1.0, 1.0])
     F2_i = (d.u - uh) * (d.s - d0)
     C_i = _per_frame_C(d.H, uh, vh, d.top[d.both], d.bot[d.both])
+    # exactly determined (3 frames, 3 unknowns): every F2_i equals F² by construction
+    sig_F2 = _std(F2_i) if len(d.s) > 3 else math.nan
     return dict(hinge_u_px=float(uh), hinge_v_px=float(vh), F2_px_mm=float(F2),
-                F2_sigma_px_mm=_std(F2_i), d0_mm=float(d0), C_mm=float(d.H / (at - ab)),
+                F2_sigma_px_mm=sig_F2, d0_mm=float(d0), C_mm=float(d.H / (at - ab)),
                 C_sigma_mm=_std(C_i), endpoint_fit_r2=r2, hinge_u_sigma_px=float(sd[0]),
                 hinge_v_sigma_px=_sqrt_or_nan(None if cov_e is None else cov_e[0, 0]),
                 F2_stderr_px_mm=float(sd[1]), d0_sigma_mm=float(sd[2]),
@@ -861,14 +990,20 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     ValueError
         Unknown ``method``.
     CalibrationError
-        Non-positive plate height, too few frames or edges, a plate that did
-        not move, parallel endpoint lines, a non-Scheimpflug distance relation.
+        Non-positive or non-finite plate height, too few frames or edges, a
+        plate that did not move, stage positions that contradict the frames
+        (two frames at one position with different stripes, a swapped pair,
+        frames flipped left–right), parallel endpoint lines, a non-Scheimpflug
+        distance relation.  A single frame whose stage position the others
+        contradict (≥ 6 frames) is left out and named in ``skipped``.
     """
     if method not in ("best", "paper", "refined"):
         raise ValueError(f"unknown calibration method {method!r} (paper, refined, best)")
-    if not plate_height_mm > 0:
-        raise CalibrationError(f"plate height must be > 0 mm, got {plate_height_mm}")
+    if not (math.isfinite(plate_height_mm) and plate_height_mm > 0):
+        raise CalibrationError(f"plate height must be a finite number > 0 mm, got {plate_height_mm}")
     ms = tuple(measurements)
+    _check_stage_positions(ms, tol)
+    ms, outliers, notes = _reject_distance_outliers(ms, tol)
     d = _measurement_data(ms, plate_height_mm, tol)
     pap0 = _paper_values(d, tol)
     ref, sigma_u = _refined_estimate(d, pap0["endpoint_fit_r2"], pap0["d0_mm"])
@@ -879,13 +1014,123 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     acc = accuracy or CalibrationAccuracy()
     paper, refined = (_with_warnings(Calibration(**e, method=name, estimates=estimates, **common), acc)
                       for e, name in ((pap, "paper"), (ref, "refined")))
-    if method == "best":
-        sp, sr = paper.hinge_u_sigma_px, refined.hinge_u_sigma_px
-        best = paper if (math.isfinite(sp) and not (sr <= sp)) else refined
-    else:
-        best = paper if method == "paper" else refined
+    best, why = _choose(paper, refined, method)
+    notes += _frame_count_notes(len(ms), tol) + why
     return CalibrationResult(best=best, paper=paper, refined=refined, measurements=ms,
-                             skipped=tuple(skipped), top_line=lt, bottom_line=lb)
+                             skipped=tuple(skipped) + outliers, top_line=lt, bottom_line=lb,
+                             warnings=tuple(notes))
+
+
+def _check_stage_positions(ms, tol: CalibrationTolerances) -> None:
+    """Refuse stage positions that contradict the frames (a typo in the manifest, flipped frames).
+
+    Columns grow toward the hinge as the plate moves away (u = u_h + F²/(s − d0),
+    F² < 0): sorted by stage position, the stripe columns must increase.  Equal
+    positions must show the stripe at the same column.
+    """
+    s = np.array([m.stage_mm for m in ms])
+    u = np.array([m.u_mean_px for m in ms])
+    order = np.argsort(s, kind="stable")
+    du = np.diff(u[order])
+    floor = tol.stage_order_px
+    if len(du) >= 2 and np.all(du < -floor):
+        raise CalibrationError(
+            "the stripe moves to smaller columns as the stage moves away from the camera: the frames "
+            "look flipped left–right (columns must increase toward the image hinge, the far end of "
+            "the range); flip the frames horizontally (or check the stage_mm sign)")
+    for k in range(len(du)):
+        a, b = ms[order[k]], ms[order[k + 1]]
+        if s[order[k + 1]] == s[order[k]] and abs(du[k]) > floor:
+            raise CalibrationError(
+                f"{a.name()} and {b.name()} have the same stage position s = {a.stage_mm:g} mm but "
+                f"their stripes lie {abs(du[k]):.3g} px apart: is a stage_mm in the manifest wrong?")
+        if du[k] < -floor:
+            raise CalibrationError(
+                f"stage positions and stripe columns disagree: {a.name()} (s = {a.stage_mm:g} mm, "
+                f"u = {a.u_mean_px:.2f} px) and {b.name()} (s = {b.stage_mm:g} mm, "
+                f"u = {b.u_mean_px:.2f} px); the stripe must move toward the hinge as s grows: "
+                "is a stage_mm in the manifest wrong or swapped?")
+
+
+def _reject_distance_outliers(ms, tol: CalibrationTolerances):
+    """Leave out, one at a time, frames whose stage position the others contradict.
+
+    Leave-one-out test of u = u_h + F²/(s − d0): each frame's column is
+    predicted by the fit of all the others; a frame whose prediction error
+    exceeds ``fit_outlier_ratio`` times the others' robust residual σ (1.4826 ×
+    MAD, scaled by √(m/(m − 3)) for the three fitted unknowns) and
+    ``fit_outlier_floor_px`` is left out, worst first.  Needs ≥ 6 frames (the
+    others then leave ≥ 2 degrees of freedom).  At most a quarter of the
+    frames may go: beyond that the model, not a stage position, is what fails,
+    and only a warning is given.
+
+    Returns
+    -------
+    ms : tuple of PlateMeasurement
+        The frames kept.
+    outliers : tuple of (str, str)
+        (frame, reason) of the frames left out.
+    notes : list of str
+        Warnings.
+    """
+    ms, outliers, n0 = tuple(ms), [], len(ms)
+    while len(ms) >= 6:
+        s = np.array([m.stage_mm for m in ms])
+        u = np.array([m.u_mean_px for m in ms])
+        err, scale = _leave_one_out(s, u)
+        ratio = np.abs(err) / np.maximum(scale, 1e-12)
+        worst = int(np.argmax(np.where(np.abs(err) > tol.fit_outlier_floor_px, ratio, 0.0)))
+        if not (abs(err[worst]) > tol.fit_outlier_floor_px and ratio[worst] > tol.fit_outlier_ratio):
+            break
+        if len(outliers) + 1 > n0 // 4:
+            return ms, tuple(outliers), [
+                f"the distance fit u = u_h + F²/(s − d0) contradicts several frames (up to "
+                f"{abs(err[worst]):.3g} px): the paper's model may not describe this rig (lens "
+                "distortion, sensor roll) or several stage positions are wrong"]
+        outliers.append((ms[worst].name(), f"outlier in the distance fit: the other frames put its stripe "
+                         f"{err[worst]:+.3g} px from where it is ({ratio[worst]:.0f} × their residual σ "
+                         f"{scale[worst]:.2g} px): is its stage_mm ({ms[worst].stage_mm:g} mm) wrong?"))
+        ms = ms[:worst] + ms[worst + 1:]
+    return ms, tuple(outliers), []
+
+
+def _leave_one_out(s: np.ndarray, u: np.ndarray):
+    """Per frame: (column − prediction of the others' fit, the others' robust residual σ) [px]."""
+    x0, _, _ = _distance_fit(s, u, None)
+    err, scale = np.empty(len(s)), np.empty(len(s))
+    for i in range(len(s)):
+        k = np.arange(len(s)) != i
+        sk, uk = s[k], u[k]
+        sol = optimize.least_squares(lambda q, sk=sk, uk=uk: uk - (q[0] + q[1] / (sk - q[2])), x0,
+                                     x_scale=[100.0, 1e5, 10.0])
+        q = sol.x
+        err[i] = u[i] - (q[0] + q[1] / (s[i] - q[2]))
+        m = int(k.sum())
+        scale[i] = 1.4826 * float(np.median(np.abs(sol.fun))) * math.sqrt(m / (m - 3))
+    return err, scale
+
+
+def _frame_count_notes(n: int, tol: CalibrationTolerances) -> list[str]:
+    if n >= tol.recommended_frames:
+        return []
+    return [f"only {n} usable calibration frames (recommended: at least {tol.recommended_frames}): "
+            "the refined fit has 3 unknowns (u_h, F², d0), so its standard errors are "
+            + ("undefined" if n <= 3 else f"poorly determined ({n - 3} degree(s) of freedom)")]
+
+
+def _choose(paper: Calibration, refined: Calibration, method: str) -> tuple[Calibration, list[str]]:
+    """The estimate for ``method``; "best" prefers a defined σ(u_h), then the smaller one."""
+    if method != "best":
+        return (paper if method == "paper" else refined), []
+    sp, sr = paper.hinge_u_sigma_px, refined.hinge_u_sigma_px
+    if math.isfinite(sr) and (not math.isfinite(sp) or sr <= sp):
+        return refined, []
+    if math.isfinite(sp):
+        why = [] if math.isfinite(sr) else [
+            "the refined fit's σ(u_h) is undefined (exactly determined or nearly singular): "
+            "using the paper's over-determined estimate"]
+        return paper, why
+    return refined, ["no estimate has a defined σ(u_h): using the refined one"]
 
 
 def _with_warnings(cal: Calibration, accuracy: CalibrationAccuracy) -> Calibration:
@@ -1024,7 +1269,7 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:
-        plate_height_mm = float(ff.scenario_params.get("plate_height_mm", 89.0))
+        plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]
     if missing:
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; "
@@ -1035,8 +1280,9 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
         rec = ff.frames[i]
         frame = ff.read(i)
         try:
-            m = measure_plate_frame(frame, rec.stage_mm, detector=detector,
-                                    saturation_dn=ff.saturation_dn(frame), tol=tol)
+            m = dataclasses.replace(measure_plate_frame(frame, rec.stage_mm, detector=detector,
+                                                        saturation_dn=ff.saturation_dn(frame), tol=tol),
+                                    file=rec.file)
         except CalibrationError as exc:
             skipped.append((rec.file, str(exc)))
             warnings.warn(f"{rec.file}: skipped: {exc}", stacklevel=2)

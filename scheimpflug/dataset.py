@@ -60,6 +60,7 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import DatasetError
+from scheimpflug.io.folder import LOCK_NAME
 
 __all__ = [
     "DATASET_FORMAT",
@@ -534,7 +535,7 @@ class VerifyReport:
 
 
 #: files of a dataset folder that no ledger lists (they describe the ledger or are rewritten)
-_UNLISTED = {META_FILE, INDEX_FILE, FILES_FILE, CARD_FILE}
+_UNLISTED = {META_FILE, INDEX_FILE, FILES_FILE, CARD_FILE, LOCK_NAME}
 
 
 def verify_dataset(path: str | os.PathLike, progress: ProgressCallback | None = None,

@@ -9,6 +9,7 @@ __all__ = [
     "CalibrationError",
     "DatasetError",
     "FrameError",
+    "LockError",
     "MeshError",
     "RenderError",
     "RigError",
@@ -39,6 +40,10 @@ class FrameError(ScheimpflugError, ValueError):
 
 class CalibrationError(ScheimpflugError, ValueError):
     """A calibration set that cannot determine the calibration (too few frames, degenerate)."""
+
+
+class LockError(ScheimpflugError, RuntimeError):
+    """A folder is being written by another process (its lock file names the owner)."""
 
 
 class MeshError(ScheimpflugError, ValueError):

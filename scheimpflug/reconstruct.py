@@ -29,7 +29,7 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.model.hinge import stage_from_pixel
-from scheimpflug.stripe import extract_stripes
+from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
     "ISOLATION_PX",
@@ -316,7 +316,9 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         columns (float64) [px], peak height above background (float64) [DN].
     stats : dict
         Counters ``blank_frames`` (no stripe row), ``saturated_rows``
-        (counted whether kept or not) and ``isolated_rows`` (dropped or not).
+        (counted whether kept or not), ``isolated_rows`` (dropped or not) and
+        ``saturated_frames`` (more than half of the pixels at the saturation
+        level: blown out).
 
     Raises
     ------
@@ -326,12 +328,13 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         For an unknown ``method`` or a bad ``min_snr``.
     """
     def one(rec, frame):
-        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame),
-                               window_px=window_px)
+        sat = folder.saturation_dn(frame)
+        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=sat, window_px=window_px), \
+            saturated_fraction(frame, sat) > 0.5
 
     rows, us, peaks = [], [], []
-    stats = {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0}
-    for prof in folder.map_frames(one):
+    stats = {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0, "saturated_frames": 0}
+    for prof, blown in folder.map_frames(one):
         keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
         lone = isolated_rows(prof.rows, prof.u)
         stats["isolated_rows"] += int(lone.sum())
@@ -339,6 +342,7 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
             keep &= ~lone
         stats["saturated_rows"] += int(prof.saturated.sum())
         stats["blank_frames"] += int(len(prof) == 0)
+        stats["saturated_frames"] += int(blown)
         rows.append(prof.rows[keep])
         us.append(prof.u[keep])
         peaks.append(prof.peak[keep])

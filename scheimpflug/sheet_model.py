@@ -95,7 +95,7 @@ from scheimpflug.calibration import (
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
-from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.io.frames import FrameFolder, open_frame_folder, scenario_number
 from scheimpflug.model.hinge import stage_from_pixel
 from scheimpflug.tilted_camera import CAMERA_FROM_RIG, TiltedCamera, camera_from_sensor_pose
 
@@ -897,9 +897,8 @@ def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: Calibratio
 
 def _rig_optics(ff: FrameFolder, focal_length_mm, pixel_pitch_um) -> tuple[float, float, bool]:
     """F [mm] and p [µm]: the arguments, else the manifest's rig, else the paper's (assumed)."""
-    rig = ff.rig or {}
-    f = focal_length_mm or (rig.get("lens") or {}).get("focal_length_mm")
-    p = pixel_pitch_um or (rig.get("sensor") or {}).get("pixel_pitch_um")
+    f = focal_length_mm or ff.rig_value("lens", "focal_length_mm")
+    p = pixel_pitch_um or ff.rig_value("sensor", "pixel_pitch_um")
     assumed = f is None or p is None
     return float(f or DEFAULT_FOCAL_LENGTH_MM), float(p or DEFAULT_PIXEL_PITCH_UM), assumed
 
@@ -911,8 +910,8 @@ def _measure_all(ff: FrameFolder, detector: str, tol: CalibrationTolerances, pro
         report(progress, i, len(ff))
         rec, frame = ff.frames[i], ff.read(i)
         try:
-            m = measure_plate_frame(frame, rec.stage_mm, detector=detector,
-                                    saturation_dn=ff.saturation_dn(frame), tol=tol)
+            m = replace(measure_plate_frame(frame, rec.stage_mm, detector=detector,
+                                            saturation_dn=ff.saturation_dn(frame), tol=tol), file=rec.file)
         except CalibrationError as exc:
             skipped.append((rec.file, str(exc)))
             continue
@@ -977,7 +976,7 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     tol = tol or CalibrationTolerances()
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:
-        plate_height_mm = float(ff.scenario_params.get("plate_height_mm", 89.0))
+        plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]
     if missing:
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; {missing[0]!r} has none")
@@ -989,6 +988,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
                                        skipped=tuple(skipped), accuracy=accuracy)
     paper = replace(paper, partial=tuple(partial))
     f, p, _ = _rig_optics(ff, focal_length_mm, pixel_pitch_um)
+    left_out = {name for name, _ in paper.skipped}        # e.g. a frame at a wrong stage position
+    ms = [m for m in ms if m.file not in left_out]
     try:
         pfit, gfit, general, sel = fit_sheet_models(ms, paper, focal_length_mm=f, pixel_pitch_um=p,
                                                     fit_k2=fit_k2, fit_centre=fit_centre,

@@ -85,6 +85,7 @@ __all__ = [
     "extract_stripes",
     "extract_stripes_batch",
     "measured_stripe_sigma_px",
+    "saturated_fraction",
     "stripe_window_px",
 ]
 
@@ -589,6 +590,29 @@ def _profile_from_table(out: np.ndarray, method: str) -> StripeProfile:
                          peak=t[:, 3].copy(), saturated=t[:, 4] > 0.5,
                          background=t[:, 5].copy(), n_peaks=t[:, 6].astype(np.int8),
                          method=method)
+
+
+def saturated_fraction(frame, saturation_dn: float | None = None) -> float:
+    """Fraction of a frame's pixels at or above the saturation level.
+
+    Parameters
+    ----------
+    frame : (rows, columns) array_like
+        One camera frame [DN].
+    saturation_dn : float, optional
+        Saturation level [DN]; default the dtype's maximum (255, 65535; none
+        for floats, which then give 0).
+
+    Returns
+    -------
+    float
+        In [0, 1]; near 1 for a frame blown out by too long an exposure.
+    """
+    arr = np.asarray(frame)
+    sat = _default_saturation(arr.dtype) if saturation_dn is None else float(saturation_dn)
+    if arr.size == 0 or not math.isfinite(sat):
+        return 0.0
+    return float(np.count_nonzero(arr >= sat)) / arr.size
 
 
 def extract_stripes_batch(frames: Iterable, method: str = "gaussian3",

@@ -12,6 +12,8 @@ import json
 import os
 from pathlib import Path
 
+from scheimpflug.io.folder import LOCK_NAME
+
 __all__ = ["check_identity", "check_writable", "first_difference"]
 
 
@@ -89,16 +91,17 @@ def check_identity(out: str | os.PathLike, meta_file: str, identity: dict, what:
     Raises
     ------
     Exception
-        ``error``: a non-empty folder without the metadata file, an unreadable metadata file,
-        or another job.
+        ``error``: a folder without the metadata file that holds anything but a lock file
+        (:class:`scheimpflug.io.folder.FolderLock`), an unreadable metadata file, or another job.
     """
     out = Path(out)
     if not out.exists():
         return None
     meta = out / meta_file
     if not meta.is_file():
-        if out.is_dir() and any(out.iterdir()):
-            first = sorted(p.name for p in out.iterdir())[0]
+        others = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME) if out.is_dir() else []
+        if others:
+            first = others[0]
             raise error(f"output folder {str(out)!r} is not empty and holds no {meta_file} "
                         f"(found {first!r}); choose a new or empty folder")
         return None

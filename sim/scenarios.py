@@ -58,6 +58,7 @@ __all__ = [
     "blocker_scenario",
     "build_scenario",
     "calibration_scenario",
+    "frame_count",
     "frame_seed",
     "load_assembly",
     "rotary_scenario",
@@ -415,6 +416,48 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
                          "analytic": p.analytic} for p in assembly.parts]}
     return Scenario("rotary", params, assembly, specs, stage_from_part(rig, 0.0),
                     truth_pixels_every, tuple(axis_warnings(rig)))
+
+
+def frame_count(name: str, **options) -> int:
+    """How many frames a scenario will have, from its options alone (nothing is built).
+
+    Lets a caller size a job before building it (a billion frames would take
+    long to build, let alone render).
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCENARIOS`.
+    **options
+        Options of the scenario's builder (``steps``, ``frames``, ``step_deg`` …);
+        the others take the builder's defaults.
+
+    Returns
+    -------
+    int
+        The number of frames (a non-numeric option counts as its default; the
+        builder refuses it later).
+
+    Raises
+    ------
+    ScheimpflugError
+        For an unknown scenario name.
+    """
+    import inspect
+
+    table = {"blocker": blocker_scenario, "calibration": calibration_scenario,
+             "rotary": rotary_scenario}
+    if name not in table:
+        raise ScheimpflugError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
+    opts = {k: p.default for k, p in inspect.signature(table[name]).parameters.items()}
+    opts.update({k: v for k, v in options.items() if v is not None})
+    if name == "calibration":
+        return max(1, int(opts["steps"] or CALIBRATION_STEPS))
+    if name == "blocker":
+        return max(1, int(opts["frames"]))
+    step = float(opts["step_deg"])
+    n = max(1, int(round(360.0 / step))) if math.isfinite(step) and step > 0 else 1
+    return min(n, int(opts["frames"])) if opts.get("frames") else n
 
 
 def build_scenario(name: str, rig: Rig, seed: int = 0, **options) -> Scenario:

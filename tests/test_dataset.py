@@ -380,3 +380,18 @@ def test_example_specs_parse_and_plan(path):
     for p in plans:
         if p.part.endswith((".toml", ".stl", ".ply", ".obj")):
             assert Path(p.options["part"]).is_file(), p.options["part"]
+
+
+def test_a_second_make_into_the_same_folder_is_refused(tmp_path):
+    """One writer per dataset folder (issue 12's lock, reused): a held lock refuses a second make."""
+    from scheimpflug.io.folder import FolderLock
+    from sim.dataset.make import make_dataset
+    from sim.dataset.spec import load_spec
+
+    spec_file = _write(tmp_path / "spec.toml", SPEC)
+    out = tmp_path / "ds"
+    out.mkdir()
+    with FolderLock(out):
+        with pytest.raises(DatasetError, match="being written by"):
+            make_dataset(load_spec(spec_file), out)
+    assert sorted(p.name for p in out.iterdir()) == []

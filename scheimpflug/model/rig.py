@@ -30,7 +30,9 @@ __all__ = [
     "DERIVED_KEYS",
     "DERIVED_STAGE_KEYS",
     "Environment",
+    "KEY_RANGES",
     "Laser",
+    "MAX_TILT_DEG",
     "Lens",
     "PRESETS",
     "Rig",
@@ -41,6 +43,7 @@ __all__ = [
     "rig_from_dict",
     "rig_to_dict",
     "rig_to_toml",
+    "key_in_range",
     "validate_rig",
 ]
 
@@ -52,12 +55,13 @@ class Lens:
     Parameters
     ----------
     focal_length_mm : float, default 55.0
-        Focal length f [mm], > 0.
+        Focal length f [mm], in [0.5, 5000].
     f_number : float, default 5.6
-        N, aperture diameter = f / N [-], > 0.
+        N, aperture diameter = f / N [-], in [0.5, 256].
     k1, k2 : float, default 0.0
         Radial distortion of the chief-ray angle,
-        tan θ_d = tan θ (1 + k1 t² + k2 t⁴) with t = tan θ [-]; 0 for an ideal lens.
+        tan θ_d = tan θ (1 + k1 t² + k2 t⁴) with t = tan θ [-]; 0 for an ideal lens;
+        each in [-10, 10].
     """
 
     focal_length_mm: float = 55.0
@@ -73,31 +77,33 @@ class Laser:
     Parameters
     ----------
     scheimpflug_distance_mm : float, default 150.0
-        d, lens centre to the Scheimpflug line [mm], > 0.
+        d, lens centre to the Scheimpflug line [mm], in (0, 1e5].
     tan_phi : float, default 0.2075
-        tan φ, sheet angle to the optical axis [-]; d − f·tan φ must be > 0
-        (paper Eq. 5).
+        tan φ, sheet angle to the optical axis [-], in [-100, 100]; d − f·tan φ
+        must be > 0 and the sensor tilt β = atan(f/(d − f·tan φ)) at most
+        :data:`MAX_TILT_DEG` (paper Eq. 5).
     wavelength_nm : float, default 450.0
-        Laser wavelength [nm].
+        Laser wavelength [nm], in [0.1, 1e5] (below ≈ 200 nm only for test beams that must stay thin).
     power_mw : float, default 3.0
-        Optical power in the whole fan [mW].
+        Optical power in the whole fan [mW], in [0, 1e6].
     origin_x_mm : float, default 0.0
-        x of the laser origin on the sheet, in the meridian plane [mm]; < f.
+        x of the laser origin on the sheet, in the meridian plane [mm], in
+        [-1e5, 1e5] and < f.
     waist_um : float, default 150.0
-        1/e² half-thickness of the sheet at its waist [µm].
+        1/e² half-thickness of the sheet at its waist [µm], in (0, 1e5].
     waist_distance_mm : float or None, default None
-        Distance of the waist from the origin along the sheet [mm].  Paper
-        640 (assumed: focused near the rotary axis); left out (None), the
+        Distance of the waist from the origin along the sheet [mm], in [-1e6, 1e6].
+        Paper 640 (assumed: focused near the rotary axis); left out (None), the
         waist sits at the rotary axis (:mod:`scheimpflug.model.plan`).
     divergence_mrad : float, default 1.5
-        Far-field 1/e² half-angle of the thickness [mrad]
-        (≥ λ / (π w0), the diffraction limit).
+        Far-field 1/e² half-angle of the thickness [mrad], in [0, 1000] and
+        ≥ λ / (π w0), the diffraction limit.
     fan_angle_deg : float, default 40.0
         Full opening of the fan in the sheet [deg], in (0, 180).
     fan_edge_deg : float, default 1.0
-        Width of the soft fan edge (Gaussian roll-off) [deg].
+        Width of the soft fan edge (Gaussian roll-off) [deg], in [0, 90].
     speckle_contrast : float, default 0.0
-        Multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
+        Multiplicative speckle contrast, 0 = off, 1 = fully developed [-], in [0, 1].
     """
 
     scheimpflug_distance_mm: float = 150.0
@@ -120,35 +126,38 @@ class Sensor:
     Parameters
     ----------
     pixel_pitch_um : float, default 5.86
-        Pixel pitch p [µm].
+        Pixel pitch p [µm], in [0.1, 1000].
     columns, rows : int, default 1216, 1936
-        N_u × N_v [px]; columns run along the tilt (distance) direction and
-        increase toward the image hinge; rows run along height, increasing downward.
+        N_u × N_v [px], each in [1, 65535]; columns run along the tilt (distance)
+        direction and increase toward the image hinge; rows run along height,
+        increasing downward.
     hinge_column : float, default 3196.0
-        u_h, column of the image hinge [px]; must lie beyond the last column.
+        u_h, column of the image hinge [px], in [-1e7, 1e7]; must lie beyond the
+        last column.
     axis_row : float, default 771.0
-        v_h, row of the meridian plane [px].
+        v_h, row of the meridian plane [px], in [-1e7, 1e7].
     roll_deg, tilt_error_deg : float, default 0.0
         Misalignment of the sensor about its normal and about its row axis
-        (changes β), through the sensor centre [deg]; within ±45° and ±30°.
+        (changes β), through the sensor centre [deg]; in (-45, 45) and (-30, 30).
     offset_u_px, offset_v_px, offset_normal_um : float, default 0.0
-        Sensor displacement along columns, rows and the normal [px, px, µm].
+        Sensor displacement along columns, rows and the normal [px, px, µm],
+        each in [-1e5, 1e5].
     quantum_efficiency : float, default 0.75
         Electrons per photon at the laser wavelength [-], in (0, 1].
     full_well_e : float, default 32000.0
-        Saturation charge [e⁻].
+        Saturation charge [e⁻], in (0, 1e8].
     read_noise_e : float, default 6.0
-        RMS read noise [e⁻].
+        RMS read noise [e⁻], in [0, 1e6].
     dark_offset_dn : float, default 16.0
-        Black level added by the ADC [DN].
+        Black level added by the ADC [DN], in [0, 65535] and below 2**adc_bits.
     adc_bits : int, default 12
-        ADC depth, 1..16; frames are stored as 16-bit PNG [bit].
+        ADC depth [bit], in [1, 16]; frames are stored as 16-bit PNG.
     gain_e_per_dn : float, default 0.0
-        Conversion gain; 0 = full well maps to full scale [e⁻/DN].
+        Conversion gain; 0 = full well maps to full scale [e⁻/DN], in [0, 1e8].
     exposure_ms : float or None, default None
-        Exposure time [ms].  Paper 0.5; left out (None), the exposure at which
-        a white Lambertian surface on the rotary axis, facing the laser, peaks
-        at 1/6 of the full well (closed form,
+        Exposure time [ms], in (0, 1e6].  Paper 0.5; left out (None), the exposure
+        at which a white Lambertian surface on the rotary axis, facing the laser,
+        peaks at 1/6 of the full well (closed form,
         :func:`scheimpflug.model.plan.lambertian_peak_electrons_per_ms`).
     """
 
@@ -188,22 +197,23 @@ class Stage:
     ----------
     d0_mm : float or None, default None
         Stage coordinate of the object hinge; a face at stage s is at
-        D = s − d0 [mm].  Paper −466; rule: −⌊D at column 0⌋.
+        D = s − d0 [mm], in [-1e6, 1e6] (0 is fine: the stage zero at the hinge).
+        Paper −466; rule: −⌊D at column 0⌋.
     axis_mm : float or None, default None
-        Rotary axis position in stage coordinates [mm].  Paper 179.45.
+        Rotary axis position in stage coordinates [mm], in [-1e6, 1e6].  Paper 179.45.
     calibration_table_z_mm : float or None, default None
         Height of the translation stage's table (plate bottom) above the
-        meridian plane [mm].  Paper −54.
+        meridian plane [mm], in [-1e5, 1e5].  Paper −54.
     calibration_plate_height_mm : float or None, default None
-        Height of the calibration plate on that table [mm], > 0.  Paper 89.
+        Height of the calibration plate on that table [mm], in (0, 1e4].  Paper 89.
     rotary_table_z_mm : float or None, default None
         Height of the rotary stage's table above the meridian plane
-        (negative: below) [mm].  Paper −70.
+        (negative: below) [mm], in [-1e5, 1e5].  Paper −70.
     axis_tilt_deg, axis_tilt_azimuth_deg : float, default 0.0
         Tilt of the rotary axis from vertical, in [0, 10), and the direction it
-        leans to (0 = toward +propagation) [deg].
+        leans to (0 = toward +propagation), in [-360, 360] [deg].
     runout_um : float, default 0.0
-        Radial runout of the rotary axis (once per turn) [µm].
+        Radial runout of the rotary axis (once per turn) [µm], in [0, 1e5].
     """
 
     d0_mm: float | None = None
@@ -231,7 +241,7 @@ class Environment:
     ----------
     ambient_irradiance_w_m2 : float, default 0.02
         Diffuse ambient irradiance on the scene within the camera's spectral
-        band [W/m²], >= 0.
+        band [W/m²], in [0, 1e5].
     """
 
     ambient_irradiance_w_m2: float = 0.02
@@ -286,6 +296,11 @@ class Rig:
         for name, table in (("laser", laser), ("sensor", sensor), ("stage", stage)):
             object.__setattr__(self, name, table)
         object.__setattr__(self, "derived", tuple(k for k in DERIVED_KEYS if k in derived))
+        if derived:
+            try:                     # derived values must lie in their ranges too
+                validate_rig(self)
+            except RigError as exc:
+                raise RigError(f"{exc} (derived from the other keys: set it in the rig file)") from None
 
     def replace(self, *, rederive: bool = True, **tables: Mapping[str, Any]) -> Rig:
         """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``.
@@ -338,21 +353,89 @@ _TABLES: dict[str, type] = {
 PRESETS = ("paper",)
 """Names of the built-in rigs (:func:`load_preset`)."""
 
+KEY_RANGES: dict[str, dict[str, str]] = {
+    "lens": {"focal_length_mm": "[0.5, 5000]", "f_number": "[0.5, 256]", "k1": "[-10, 10]",
+             "k2": "[-10, 10]"},
+    "laser": {"scheimpflug_distance_mm": "(0, 1e5]", "tan_phi": "[-100, 100]",
+              "wavelength_nm": "[0.1, 1e5]", "power_mw": "[0, 1e6]", "origin_x_mm": "[-1e5, 1e5]",
+              "waist_um": "(0, 1e5]", "waist_distance_mm": "[-1e6, 1e6]",
+              "divergence_mrad": "[0, 1000]", "fan_angle_deg": "(0, 180)", "fan_edge_deg": "[0, 90]",
+              "speckle_contrast": "[0, 1]"},
+    "sensor": {"pixel_pitch_um": "[0.1, 1000]", "columns": "[1, 65535]", "rows": "[1, 65535]",
+               "hinge_column": "[-1e7, 1e7]", "axis_row": "[-1e7, 1e7]", "roll_deg": "(-45, 45)",
+               "tilt_error_deg": "(-30, 30)", "offset_u_px": "[-1e5, 1e5]",
+               "offset_v_px": "[-1e5, 1e5]", "offset_normal_um": "[-1e5, 1e5]",
+               "quantum_efficiency": "(0, 1]", "full_well_e": "(0, 1e8]", "read_noise_e": "[0, 1e6]",
+               "dark_offset_dn": "[0, 65535]", "adc_bits": "[1, 16]", "gain_e_per_dn": "[0, 1e8]",
+               "exposure_ms": "(0, 1e6]"},
+    "stage": {"d0_mm": "[-1e6, 1e6]", "axis_mm": "[-1e6, 1e6]",
+              "calibration_table_z_mm": "[-1e5, 1e5]", "calibration_plate_height_mm": "(0, 1e4]",
+              "rotary_table_z_mm": "[-1e5, 1e5]",
+              "axis_tilt_deg": "[0, 10)", "axis_tilt_azimuth_deg": "[-360, 360]",
+              "runout_um": "[0, 1e5]"},
+    "environment": {"ambient_irradiance_w_m2": "[0, 1e5]"},
+}
+"""The physical range of every rig key, ``{table: {key: "[lo, hi]"}}`` (``(`` / ``)`` = open end).
+
+One table for all keys, documented beside each key (the dataclass docstrings
+and ``presets/paper.toml``).  The ranges are wide — every real profiler lies far
+inside them — and narrow enough that no computation of the model over- or
+underflows for values inside them; :func:`validate_rig` refuses a value outside
+its range with a :class:`RigError` naming the key and the range.  Relations
+between keys (``d − f·tan φ > 0``, the sensor tilt, the hinge beyond the last
+column, the diffraction limit, the dark offset below full scale) are checked
+besides.
+"""
+
+MAX_TILT_DEG = 85.0
+"""Largest sensor tilt β = atan(f / (d − f·tan φ)) a rig may have [deg] (paper Eq. 5)."""
+
+
+def _parse_range(text: str) -> tuple[float, float, bool, bool]:
+    lo, hi = (float(x) for x in text[1:-1].split(","))
+    return lo, hi, text[0] == "(", text[-1] == ")"
+
+
+def _in_range(value: float, text: str) -> bool:
+    lo, hi, lo_open, hi_open = _parse_range(text)
+    return (lo < value if lo_open else lo <= value) and (value < hi if hi_open else value <= hi)
+
+
+def key_in_range(table: str, key: str, value: float) -> bool:
+    """Whether a value lies in a rig key's physical range (:data:`KEY_RANGES`).
+
+    Parameters
+    ----------
+    table, key : str
+        The rig key, e.g. ``"sensor"``, ``"pixel_pitch_um"``.
+    value : float
+        The value (an int of any size is compared exactly).
+
+    Returns
+    -------
+    bool
+        True inside the range; also True for a key without a range.
+    """
+    text = KEY_RANGES.get(table, {}).get(key)
+    return text is None or _in_range(value, text)
+
+
+def _show(value: Any) -> str:
+    """A value for an error message: its repr, cut to 40 characters."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}…({len(text)} characters)"
+
 # ---------------------------------------------------------------- validation
-
-
-def _finite(table: str, key: str, value: float) -> None:
-    if not math.isfinite(value):
-        raise RigError(f"[{table}] {key} = {value!r}: must be a finite number")
 
 
 def _require(cond: bool, table: str, key: str, value: Any, reason: str) -> None:
     if not cond:
-        raise RigError(f"[{table}] {key} = {value!r}: {reason}")
+        raise RigError(f"[{table}] {key} = {_show(value)}: {reason}")
 
 
 def _check_fields(table: str, obj: Any) -> None:
     hints = typing.get_type_hints(type(obj))
+    ranges = KEY_RANGES.get(table, {})
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         kind = hints[f.name]
@@ -366,7 +449,11 @@ def _check_fields(table: str, obj: Any) -> None:
         elif kind is float:
             _require(isinstance(value, (int, float)) and not isinstance(value, bool), table,
                      f.name, value, "must be a number")
-            _finite(table, f.name, float(value))
+            _require(not isinstance(value, float) or math.isfinite(value), table, f.name, value,
+                     "must be a finite number")
+        if f.name in ranges:       # int vs float comparisons are exact: no overflow for huge ints
+            _require(_in_range(value, ranges[f.name]), table, f.name, value,
+                     f"out of range: must be in {ranges[f.name]}")
 
 
 def validate_rig(rig: Rig) -> None:
@@ -412,6 +499,11 @@ def _validate_laser(laser: Laser, lens: Lens) -> None:
     _require(d - f * t > 0, "laser", "tan_phi", t,
              f"d − f·tan φ = {d - f * t:.6g} mm must be > 0: the sheet must cross the front "
              "focal plane on the laser's side of the axis (paper Eq. 5)")
+    tilt = math.degrees(math.atan2(f, d - f * t))
+    _require(tilt <= MAX_TILT_DEG, "laser", "tan_phi", t,
+             f"the sensor tilt β = atan(f/(d − f·tan φ)) = {tilt:.4g}° must be at most "
+             f"{MAX_TILT_DEG:g}° (paper Eq. 5): d − f·tan φ = {d - f * t:.4g} mm is too small for "
+             f"f = {f:g} mm and d = {d:g} mm")
     _require(laser.wavelength_nm > 0, "laser", "wavelength_nm", laser.wavelength_nm, "must be > 0")
     _require(laser.power_mw >= 0, "laser", "power_mw", laser.power_mw, "must be >= 0")
     _require(laser.origin_x_mm < f, "laser", "origin_x_mm", laser.origin_x_mm,
@@ -474,13 +566,17 @@ def _coerce(table: str, key: str, kind: Any, value: Any) -> Any:
     if isinstance(value, bool):
         raise RigError(f"[{table}] {key} = {value!r}: must be a number, not a boolean")
     if kind is float and isinstance(value, (int, float)):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:
+            raise RigError(f"[{table}] {key} = {_show(value)}: out of range: must be in "
+                           f"{KEY_RANGES.get(table, {}).get(key, 'the float range')}") from None
     if kind is int and isinstance(value, int):
         return value
     if kind is int and isinstance(value, float) and value.is_integer():
         return int(value)
     want = "an integer" if kind is int else "a number"
-    raise RigError(f"[{table}] {key} = {value!r}: must be {want}")
+    raise RigError(f"[{table}] {key} = {_show(value)}: must be {want}")
 
 
 def _table_from_dict(name: str, cls: type, values: Any) -> Any:

@@ -20,6 +20,7 @@ resume frame by frame, nothing is made twice.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import sys
@@ -41,6 +42,7 @@ from scheimpflug.dataset import (
 )
 from scheimpflug.errors import DatasetError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic, write_text_atomic
+from scheimpflug.io.folder import FolderLock
 
 from ..jobfolder import check_identity, check_writable
 from ..writer import generator_info
@@ -315,6 +317,28 @@ def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int =
     plans = _plans(spec, storage)
     _check_writable(out)
     identity = _identity(spec, storage)
+    _check_existing(out, identity)                  # before anything is created in ``out``
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+    try:
+        with FolderLock(out, error=DatasetError) as lock:   # one `make` per dataset folder at a time
+            if lock.stale_owner:
+                warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
+                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
+            return _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries,
+                                connect_timeout_s, progress, warn)
+    except BaseException:
+        if created:                     # a failure before anything was written leaves no folder
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
+
+
+def _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries, connect_timeout_s,
+                 progress, warn) -> MakeResult:
     old = _check_existing(out, identity)
     if old is not None and old.get("generator", {}).get("versions") != generator_info()["versions"]:
         warn("the dataset was started with other library versions; frames made now may differ")

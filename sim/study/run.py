@@ -17,6 +17,7 @@ output folder have been checked):
 6. the table ``draws.parquet`` and ``draws.csv`` (one row per draw), the analysis
    (:mod:`sim.study.analysis`) in ``summary.json``, and ``study.json`` complete.
 
+One run at a time writes a study folder (``.scheimpflug.lock``, the datasets' lock).
 Rerunning the same command resumes: complete draws are kept, a draw killed
 mid-way continues frame by frame, nothing is run twice; the numbers do not
 depend on the number of workers.
@@ -24,6 +25,7 @@ depend on the number of workers.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
@@ -36,6 +38,7 @@ from scheimpflug.callbacks import ProgressCallback
 from scheimpflug.dataset import file_sha256
 from scheimpflug.errors import StudyError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
+from scheimpflug.io.folder import FolderLock
 
 from ..dataset.engine import Engine
 from ..jobfolder import check_identity, check_writable
@@ -170,7 +173,8 @@ def run_study(spec: StudySpec, out, *, workers: int = 1, scheduler: str | None =
     ------
     StudyError
         An impossible design or draw, an unwritable output folder, a folder holding another
-        study, a damaged draw folder.
+        study or being written by another run (:class:`scheimpflug.io.folder.FolderLock`), a
+        damaged draw folder.
     EngineError
         A cluster that cannot start or a scheduler that cannot be reached.
     """
@@ -179,14 +183,33 @@ def run_study(spec: StudySpec, out, *, workers: int = 1, scheduler: str | None =
     plans = plan_draws(spec)
     check_writable(out, StudyError)
     identity = _identity(spec)
+    check_identity(out, META_FILE, identity, _WHAT, StudyError, "study")      # before anything is created
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StudyError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+    try:
+        with FolderLock(out, error=StudyError) as lock:        # one run per study folder at a time
+            if lock.stale_owner:
+                warn(f"took over the lock left in {str(out)!r} by a run that is no longer running "
+                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
+            return _run_locked(spec, out, plans, identity, workers, scheduler, retries, connect_timeout_s,
+                               (near_mm, far_mm, max_error_mm), progress, warn)
+    except BaseException:
+        if created:                     # a failure before anything was written leaves no folder
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
+
+
+def _run_locked(spec, out, plans, identity, workers, scheduler, retries, connect_timeout_s, constraints,
+                progress, warn) -> StudyResult:
     check_identity(out, META_FILE, identity, _WHAT, StudyError, "study")
     t0 = time.perf_counter()
     result = StudyResult(out, spec)
     with Engine(workers=workers, scheduler=scheduler, timeout_s=connect_timeout_s, progress=progress) as engine:
-        try:
-            (out / "draws").mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise StudyError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+        (out / "draws").mkdir(parents=True, exist_ok=True)
         _remove_temporaries(out)
         info = {**identity, "complete": False, "name": spec.name, "generator": generator_info(),
                 "planned": len(plans), "engine": {"workers": engine.workers, "scheduler": engine.scheduler}}
@@ -194,8 +217,7 @@ def run_study(spec: StudySpec, out, *, workers: int = 1, scheduler: str | None =
         records = _load_records(out, plans)
         _run(engine, plans, out, records, result, retries, warn)
     analytic = _analytic(spec, out, progress, len(plans)) if spec.kind == "tolerance" else None
-    _finish(spec, out, info, plans, records, result, analytic, (near_mm, far_mm, max_error_mm),
-            time.perf_counter() - t0)
+    _finish(spec, out, info, plans, records, result, analytic, constraints, time.perf_counter() - t0)
     return result
 
 

@@ -6,7 +6,14 @@ import math
 import sys
 import warnings
 
-from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._common import (
+    add_force_option,
+    check_output,
+    check_plot,
+    finite_json,
+    number,
+    print_json,
+)
 
 
 def add_parser(sub):
@@ -18,7 +25,7 @@ def add_parser(sub):
                                    "sensor roll or lens distortion; with the standard errors of "
                                    "the paper form's constants.")
     p.add_argument("dir", metavar="DIR", help="frame folder (manifest.json + frames/)")
-    p.add_argument("--plate-height-mm", type=float, default=None,
+    p.add_argument("--plate-height-mm", type=number(0, 1e4, lo_open=True, unit="mm"), default=None,
                    help="plate height [mm] (default: manifest scenario_params or 89)")
     p.add_argument("--out", metavar="CAL.json", help="write the calibration here")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
@@ -46,6 +53,7 @@ def add_parser(sub):
                    help="F² and C, relative (default 5e-4 = 0.05 %%)")
     g.add_argument("--accuracy-d0-resolution", type=float, default=0.1,
                    help="d0, in units of the distance resolution at the centre column (default 0.1)")
+    add_force_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=_run)
     return p
@@ -93,8 +101,7 @@ def _optics(args, folder):
 
         rig = load_rig(args.rig)
         return rig.lens.focal_length_mm, rig.sensor.pixel_pitch_um, False
-    r = folder.rig or {}
-    f, p = (r.get("lens") or {}).get("focal_length_mm"), (r.get("sensor") or {}).get("pixel_pitch_um")
+    f, p = folder.rig_value("lens", "focal_length_mm"), folder.rig_value("sensor", "pixel_pitch_um")
     if f is None or p is None:
         return DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM, True
     return float(f), float(p), False
@@ -118,6 +125,9 @@ def _run(args) -> int:
 
     acc = CalibrationAccuracy(hinge_px=args.accuracy_hinge_px, relative=args.accuracy_relative,
                               d0_resolution=args.accuracy_d0_resolution)
+    check_output(args.out, "--out", force=args.force, inputs=[args.rig], folders=[args.dir])
+    check_output(args.opencv, "--opencv", force=args.force, inputs=[args.rig, args.out], folders=[args.dir])
+    check_plot(args.plot, force=args.force, inputs=[args.rig, args.out, args.opencv], folders=[args.dir])
     folder = open_frame_folder(args.dir)
     f_mm, p_um, assumed = _optics(args, folder)
     with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
@@ -131,14 +141,15 @@ def _run(args) -> int:
         names = ", ".join(f"{f} (no {edge} edge)" for f, edge in res.paper.partial)
         print(f"note: {len(res.paper.partial)} frame(s) show one plate edge only; they give the distance "
               f"relation and that edge: {names}", file=sys.stderr)
-    for w in res.paper.best.warnings:
+    for w in res.paper.warnings + res.paper.best.warnings:
         print(f"warning: {w}", file=sys.stderr)
     if assumed and (args.opencv or res.chosen is res.general):
         print(f"warning: no rig: the camera intrinsics assume f = {f_mm:g} mm and a {p_um:g} µm pixel "
               f"pitch (give --rig)", file=sys.stderr)
     d = _result_dict(res)
+    d["warnings"] = list(res.paper.warnings) + list(d.get("warnings", []))
     if args.out:
-        write_json_atomic(args.out, d)
+        write_json_atomic(args.out, finite_json(d))     # undefined numbers as null
     if args.opencv:
         from scheimpflug.io.opencv import write_opencv
 

@@ -6,7 +6,15 @@ import argparse
 import math
 import sys
 
-from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.app.commands._common import (
+    add_force_option,
+    add_rig_options,
+    check_output,
+    check_plot,
+    number,
+    print_json,
+    rig_from_args,
+)
 from scheimpflug.errors import RigError
 from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.rig import Rig, rig_to_toml
@@ -45,17 +53,23 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--plot", metavar="FILE.png", help="draw the meridian-plane layout and resolution curves")
     inv = p.add_argument_group("inverse design (distances along the sheet from the Scheimpflug line / laser)")
-    inv.add_argument("--near-mm", type=float, help="wanted near end of the working range [mm]")
-    inv.add_argument("--far-mm", type=float, help="wanted far end of the working range [mm]")
+    length = number(0, 1e6, lo_open=True, unit="mm")
+    inv.add_argument("--near-mm", type=length, help="wanted near end of the working range [mm]")
+    inv.add_argument("--far-mm", type=length, help="wanted far end of the working range [mm]")
     pick = inv.add_mutually_exclusive_group()
-    pick.add_argument("--tan-phi", type=float, help="keep this sheet angle, solve the baseline d")
-    pick.add_argument("--baseline-mm", type=float, help="keep this baseline d, solve the sheet angle")
+    pick.add_argument("--tan-phi", type=number(-100, 100),
+                      help="keep this sheet angle, solve the baseline d")
+    pick.add_argument("--baseline-mm", type=number(0, 1e5, lo_open=True, unit="mm"),
+                      help="keep this baseline d, solve the sheet angle")
     inv.add_argument("--write-rig", metavar="RIG.toml", help="write the designed rig file")
+    add_force_option(p)
     p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.write_rig, "--write-rig", force=args.force, inputs=[args.rig])
+    check_plot(args.plot, force=args.force, inputs=[args.rig, args.write_rig])
     rig = rig_from_args(args)
     source = args.rig or f"preset '{args.preset or 'paper'}'"
     if args.near_mm is not None or args.far_mm is not None:
