@@ -315,3 +315,16 @@ def test_example_study_specs_parse_and_plan(path):
     kind = "sweep" if path.stem.startswith("sweep") else "tolerance"
     plans = plan_draws(load_study_spec(path, kind))
     assert plans and all(p.artefacts.material == "metal" for p in plans)
+
+
+def test_a_study_folder_being_written_is_refused(tmp_path):
+    from scheimpflug.io.folder import FolderLock
+    from sim.study import load_study_spec, run_study
+
+    (tmp_path / "s.toml").write_text('[rig]\npreset = "paper"\n[sweep]\n"laser.tan_phi" = [0.2]\n'
+                                     '[artefacts]\nkinds = []\n')
+    spec = load_study_spec(tmp_path / "s.toml", "sweep")
+    (tmp_path / "out").mkdir()
+    with FolderLock(tmp_path / "out"), pytest.raises(StudyError, match=f"pid {os.getpid()}"):
+        run_study(spec, tmp_path / "out")
+    assert run_study(spec, tmp_path / "out").complete            # the lock released: the study runs
