@@ -14,6 +14,7 @@ __all__ = [
     "RenderError",
     "RigError",
     "ScheimpflugError",
+    "StudyError",
 ]
 
 
@@ -27,6 +28,10 @@ class RigError(ScheimpflugError, ValueError):
 
 class DatasetError(ScheimpflugError, ValueError):
     """A malformed dataset spec, or a dataset folder that is missing, foreign or inconsistent."""
+
+
+class StudyError(ScheimpflugError, ValueError):
+    """A malformed study spec (unknown key, tolerance on a key the rig lacks, impossible design) or study folder."""
 
 
 class FrameError(ScheimpflugError, ValueError):

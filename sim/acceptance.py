@@ -63,9 +63,11 @@ _MATERIAL = "cardboard"
 __all__ = [
     "ArtefactPosition",
     "acceptance_plan",
+    "calibration_constants",
     "measuring_volume",
     "position_scenario",
     "run_acceptance",
+    "score_position",
 ]
 
 
@@ -217,7 +219,8 @@ def _plane_positions(vol: dict, L: float, H: float, n_frames: int, quick: bool) 
     return out
 
 
-def acceptance_plan(rig: Rig, quick: bool = False, frames: int | None = None) -> tuple[dict, list]:
+def acceptance_plan(rig: Rig, quick: bool = False, frames: int | None = None,
+                    kinds=None) -> tuple[dict, list]:
     """The measuring volume and every artefact position of the test (module docstring).
 
     Parameters
@@ -228,6 +231,8 @@ def acceptance_plan(rig: Rig, quick: bool = False, frames: int | None = None) ->
         A reduced plan for tests (2 spheres, 1 ball bar, 1 plane).
     frames : int, optional
         Frames per sphere crossing / per plane scan (default 9 quick, 21 full).
+    kinds : iterable of str, optional
+        Keep only these kinds (``sphere``, ``ball_bar``, ``plane``); default all.
 
     Returns
     -------
@@ -244,28 +249,31 @@ def acceptance_plan(rig: Rig, quick: bool = False, frames: int | None = None) ->
     vol.update(sphere_diameter_mm=D, bar_distance_mm=Lb, plane_length_mm=Lp, plane_height_mm=Hp)
     pos = (_sphere_positions(vol, D, n, quick) + _bar_positions(vol, D, Lb, n, quick)
            + _plane_positions(vol, Lp, Hp, n, quick))
+    if kinds is not None:
+        pos = [p for p in pos if p.kind in set(kinds)]
     return vol, pos
 
 
-def _assembly(position: ArtefactPosition):
+def _assembly(position: ArtefactPosition, material: str = _MATERIAL):
     from scenes.generators import ball_bar, plate, sphere
     from scenes.part import Assembly
 
     nom = position.nominal
     if position.kind == "sphere":
-        part = sphere(nom["diameter_mm"], stand_height_mm=position.part_from_own[2, 3], material=_MATERIAL)
+        part = sphere(nom["diameter_mm"], stand_height_mm=position.part_from_own[2, 3], material=material)
         part = part.transformed(_move(*position.part_from_own[:2, 3], 0.0))
     elif position.kind == "ball_bar":
         part = ball_bar(nom["diameter_mm"], nom["distance_mm"], stand_height_mm=0.0,
-                        post_diameter_mm=0.3 * nom["diameter_mm"], material=_MATERIAL)
+                        post_diameter_mm=0.3 * nom["diameter_mm"], material=material)
         part = part.transformed(position.part_from_own)
     else:
         part = plate(width_mm=nom["length_mm"], height_mm=nom["height_mm"],
-                     material=_MATERIAL).transformed(position.part_from_own)
+                     material=material).transformed(position.part_from_own)
     return Assembly(position.name, (part,))
 
 
-def position_scenario(rig: Rig, position: ArtefactPosition, seed: int = 0) -> Scenario:
+def position_scenario(rig: Rig, position: ArtefactPosition, seed: int = 0,
+                      material: str = _MATERIAL) -> Scenario:
     """The rotary-scan scenario of one artefact position (truth: stripe only, no pixel maps).
 
     Parameters
@@ -276,13 +284,15 @@ def position_scenario(rig: Rig, position: ArtefactPosition, seed: int = 0) -> Sc
         Artefact, pose and angles.
     seed : int
         Run seed.
+    material : str
+        Material tag of the artefact (default diffuse cardboard, as the guideline asks).
 
     Returns
     -------
     Scenario
         Renderable with :func:`sim.writer.render_scenario`.
     """
-    asm = _assembly(position)
+    asm = _assembly(position, material)
     params = {"part": position.name, "kind": position.kind, "nominal": position.nominal,
               "part_from_own": np.asarray(position.part_from_own).tolist(),
               "angles_deg": list(position.angles_deg)}
@@ -345,11 +355,32 @@ def _extraction_errors(ff, rows, us, truth_constants) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def _scan(rig, position, out: Path, cal, axis_mm, seed, spp, warn, exclude_fraction, truth_constants):
-    _render(rig, position_scenario(rig, position, seed), out, seed, spp, warn)
-    ff = open_frame_folder(out)
-    rows, us, peaks, _ = extract_folder(ff, "cog")
-    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm, intensity=peaks)
+def score_position(rig: Rig, position: ArtefactPosition, cloud, exclude_fraction: float) -> tuple[dict, object]:
+    """Segment a position's reconstructed cloud with the nominal pose and evaluate it.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (its stage frame defines the cloud's frame).
+    position : ArtefactPosition
+        The artefact and its nominal pose.
+    cloud : scheimpflug.reconstruct.PointCloud
+        The reconstructed rotary scan (stage frame at θ = 0).
+    exclude_fraction : float
+        Outlier fraction excluded [-].
+
+    Returns
+    -------
+    result : dict
+        ``name``, ``kind`` and the quality parameters of the position.
+    points : ndarray or list of ndarray
+        The artefact's points in the part frame (two sets for a ball bar) [mm].
+
+    Raises
+    ------
+    ScheimpflugError
+        When fewer than 20 points fall on the artefact (it is not in view of this rig).
+    """
     ref_from_part = stage_from_part(rig, 0.0)          # the cloud's frame: the stage frame at θ = 0
     pts = _segment(position, (cloud.xyz_mm - ref_from_part[:3, 3]) @ ref_from_part[:3, :3])
     sizes = [len(p) for p in pts] if isinstance(pts, list) else [len(pts)]
@@ -357,20 +388,46 @@ def _scan(rig, position, out: Path, cal, axis_mm, seed, spp, warn, exclude_fract
         from scheimpflug.errors import ScheimpflugError
         raise ScheimpflugError(f"acceptance: {position.name} gave only {min(sizes)} points on the artefact "
                                f"(is it in view of this rig?)")
-    res = {"name": position.name, "kind": position.kind, "n_frames": len(ff),
-           **_evaluate(position, pts, exclude_fraction)}
+    return {"name": position.name, "kind": position.kind, **_evaluate(position, pts, exclude_fraction)}, pts
+
+
+def _scan(rig, position, out: Path, cal, axis_mm, seed, spp, warn, exclude_fraction, truth_constants,
+          material):
+    _render(rig, position_scenario(rig, position, seed, material), out, seed, spp, warn)
+    ff = open_frame_folder(out)
+    rows, us, peaks, _ = extract_folder(ff, "cog")
+    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm, intensity=peaks)
+    res, pts = score_position(rig, position, cloud, exclude_fraction)
+    res["n_frames"] = len(ff)
     return res, pts, _extraction_errors(ff, rows, us, truth_constants)
 
 
-def _calibrate(rig, out: Path, model: str, seed, spp, warn):
+def _calibrate(rig, out: Path, model: str, seed, spp, warn, calibration_options):
     from .writer import render_folder
 
-    render_folder(rig, "calibration", out / "calibration", seed=seed, spp=spp, warn=warn, truth_pixels_every=0)
+    render_folder(rig, "calibration", out / "calibration", seed=seed, spp=spp, warn=warn, truth_pixels_every=0,
+                  **(calibration_options or {}))
     res = calibrate_sheet_folder(out / "calibration", model=model,
                                  focal_length_mm=rig.lens.focal_length_mm,
                                  pixel_pitch_um=rig.sensor.pixel_pitch_um)
     render_folder(rig, "blocker", out / "blocker", seed=seed, spp=spp, warn=warn, truth_pixels_every=0)
     return res, locate_axis(out / "blocker", res.chosen).axis_mm
+
+
+def calibration_constants(calibration) -> dict:
+    """The paper-form constants of a calibration, JSON-ready.
+
+    Parameters
+    ----------
+    calibration : scheimpflug.calibration.Calibration
+        A paper-form calibration (for the general model: its ``paper`` start).
+
+    Returns
+    -------
+    dict
+        ``hinge_u_px``, ``hinge_v_px`` [px], ``F2_px_mm`` [px·mm], ``d0_mm``, ``C_mm`` [mm].
+    """
+    return {k: float(getattr(calibration, k)) for k in ("hinge_u_px", "hinge_v_px", "F2_px_mm", "d0_mm", "C_mm")}
 
 
 def _range_excluding(e: np.ndarray, fraction: float) -> float:
@@ -382,7 +439,8 @@ def _range_excluding(e: np.ndarray, fraction: float) -> float:
 
 def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quick: bool = False,
                    frames: int | None = None, seed: int = 0, spp: int | None = None,
-                   exclude_fraction: float = vdi.EXCLUDE_FRACTION,
+                   exclude_fraction: float = vdi.EXCLUDE_FRACTION, kinds=None, material: str = _MATERIAL,
+                   plan_rig: Rig | None = None, calibration_options: dict | None = None,
                    progress: ProgressCallback | None = None,
                    warn: Callable[[str], None] | None = None) -> dict:
     """Render, reconstruct and evaluate the whole acceptance test (module docstring).
@@ -407,6 +465,16 @@ def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quic
         Laser samples per sensor row.
     exclude_fraction : float
         Outlier fraction excluded per measurement (0.003 = the guideline's; 0 = none) [-].
+    kinds : iterable of str, optional
+        Scan only these kinds (``sphere``, ``ball_bar``, ``plane``); default all.
+    material : str
+        The artefacts' material tag (default diffuse cardboard, as the guideline asks).
+    plan_rig : Rig, optional
+        The rig whose closed forms place the artefacts (a design whose as-built copy is
+        measured); default ``rig``.  Full size: it is binned like ``rig``.
+    calibration_options : dict, optional
+        Options of the calibration scenario (``steps``, ``step_mm``, ``start_mm``,
+        ``plate_height_mm``); default the scenario's.
     progress : ProgressCallback, optional
         ``progress(done, total)`` per scan.
     warn : callable, optional
@@ -419,30 +487,33 @@ def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quic
         detail), ``volume``, ``calibration`` (model, selection), ``axis_mm``, ``extraction_range_mm``
         and ``extraction_rms_mm`` (the stripe-extraction error mapped to the sheet against the exact
         stripe centres: its range, with the same exclusion as PF and F, and its RMS),
-        ``exclude_fraction``, ``points`` (per position, for plots; not JSON).
+        ``exclude_fraction``, ``points`` (per position, for plots; not JSON) and ``sheet_model``
+        (the chosen calibration object; not JSON).  ``calibration`` also holds ``constants``,
+        the paper-form constants (:func:`calibration_constants`).
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
     rig_b = binned_rig(rig, binning)
-    vol, plan = acceptance_plan(rig_b, quick, frames)
+    vol, plan = acceptance_plan(binned_rig(plan_rig or rig, binning), quick, frames, kinds)
     report(progress, 0, len(plan) + 1)
-    cal_res, axis_mm = _calibrate(rig_b, out, model, seed, spp, warn)
+    cal_res, axis_mm = _calibrate(rig_b, out, model, seed, spp, warn, calibration_options)
     g = hinge_geometry(rig_b)
     truth = {"hinge_u_px": g.hinge_column, "hinge_v_px": g.axis_row, "F2_px_mm": g.F2_px_mm, "C_mm": g.C_mm}
     rows, points, errs = {"sphere": [], "ball_bar": [], "plane": []}, {}, []
     for k, pos in enumerate(plan):
         report(progress, k + 1, len(plan) + 1)
         res, pts, e = _scan(rig_b, pos, out / pos.name, cal_res.chosen, axis_mm, seed, spp, warn,
-                            exclude_fraction, truth)
+                            exclude_fraction, truth, material)
         rows[pos.kind].append(res)
         points[pos.name] = pts
         errs.append(e)
     report(progress, len(plan) + 1, len(plan) + 1)
-    e = np.concatenate(errs)
+    e = np.concatenate(errs) if errs else np.zeros(0)
     table = vdi.summarize(rows["sphere"], rows["ball_bar"], rows["plane"], vol["L0_mm"])
     chosen = "general" if cal_res.chosen is cal_res.general else "paper"
     return {**table, "volume": vol, "positions": rows, "axis_mm": float(axis_mm), "binning": binning,
-            "calibration": {"model": chosen, "selection": cal_res.selection.to_json_dict()},
+            "calibration": {"model": chosen, "selection": cal_res.selection.to_json_dict(),
+                            "constants": calibration_constants(cal_res.paper.best)},
             "extraction_range_mm": _range_excluding(e, exclude_fraction) if e.size else None,
             "extraction_rms_mm": float(np.sqrt(np.mean(e ** 2))) if e.size else None,
-            "exclude_fraction": exclude_fraction, "points": points}
+            "exclude_fraction": exclude_fraction, "points": points, "sheet_model": cal_res.chosen}

@@ -26,6 +26,7 @@ __all__ = [
     "design_report",
     "focal_length_from_endpoint",
     "inverse_design",
+    "pareto_front",
     "resolution_maps",
 ]
 
@@ -321,3 +322,39 @@ def _solve_tan_phi(f: float, p: float, columns: int, near: float, far: float, d:
     hint = ("; baselines that work: " + ", ".join(hints)) if hints else ""
     raise RigError(f"inverse design: no sheet angle with |tan φ| ≤ 3 covers {near}–{far} mm "
                    f"with d = {d} mm (the baseline fixes the magnification){hint}")
+
+
+def pareto_front(benefit, cost) -> np.ndarray:
+    """The designs no other design beats on both counts (more benefit for no more cost).
+
+    Parameters
+    ----------
+    benefit : (n,) array_like float
+        What is wanted large (e.g. the depth range [mm]); NaN = not a candidate.
+    cost : (n,) array_like float
+        What is wanted small (e.g. the measured error [mm]); NaN = not a candidate.
+
+    Returns
+    -------
+    (k,) ndarray int64
+        Indices of the non-dominated designs, by increasing cost (ties: larger benefit
+        first).  Design i is dominated when some j has benefit_j ≥ benefit_i and
+        cost_j ≤ cost_i with at least one strict.
+
+    Raises
+    ------
+    ValueError
+        If the two arrays differ in shape or are not one-dimensional.
+    """
+    b = np.asarray(benefit, dtype=np.float64)
+    c = np.asarray(cost, dtype=np.float64)
+    if b.ndim != 1 or b.shape != c.shape:
+        raise ValueError(f"benefit {b.shape} and cost {c.shape} must be equal-length 1-D arrays")
+    ok = np.flatnonzero(np.isfinite(b) & np.isfinite(c))
+    order = ok[np.lexsort((-b[ok], c[ok]))]
+    front, best = [], -np.inf
+    for i in order:
+        if b[i] > best:
+            front.append(i)
+            best = b[i]
+    return np.asarray(front, dtype=np.int64)

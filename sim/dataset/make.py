@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import shutil
 import sys
 import time
@@ -43,8 +42,9 @@ from scheimpflug.dataset import (
 )
 from scheimpflug.errors import DatasetError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic, write_text_atomic
-from scheimpflug.io.folder import LOCK_NAME, FolderLock
+from scheimpflug.io.folder import FolderLock
 
+from ..jobfolder import check_identity, check_writable
 from ..writer import generator_info
 from .engine import Engine
 from .sample import SAMPLE_FILE, ZarrLayout, make_sample, sample_folder
@@ -123,12 +123,7 @@ def _plans(spec: DatasetSpec, storage: str) -> list[SamplePlan]:
 
 
 def _check_writable(out: Path) -> None:
-    probe = out
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        what = "is not a folder" if not probe.is_dir() else "is not writable"
-        raise DatasetError(f"output folder {str(out)!r} is not writable: {str(probe)!r} {what}")
+    check_writable(out, DatasetError)
 
 
 def _inputs(spec: DatasetSpec) -> dict:
@@ -146,44 +141,14 @@ def _identity(spec: DatasetSpec, storage: str) -> dict:
     return {"format": DATASET_FORMAT, "spec": spec.raw, "storage": storage, "inputs": _inputs(spec)}
 
 
-def _first_difference(old, new, prefix: str = "") -> str:
-    if isinstance(old, dict) and isinstance(new, dict):
-        for key in sorted(set(old) | set(new), key=str):
-            if json.dumps(old.get(key), sort_keys=True) != json.dumps(new.get(key), sort_keys=True):
-                return _first_difference(old.get(key), new.get(key), f"{prefix}{key}.")
-    return prefix.rstrip(".")
+_WHAT = {"spec": "a different spec", "storage": "another --format",
+         "inputs": "other input files (a rig, mesh or scene file changed)",
+         "format": "another version of this program"}
 
 
 def _check_existing(out: Path, identity: dict) -> dict | None:
     """The existing ``dataset.json`` of the same spec, None for an empty/new folder; else raise."""
-    if not out.exists():
-        return None
-    meta = out / META_FILE
-    if not meta.is_file():
-        others = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME) if out.is_dir() else []
-        if others:
-            first = others[0]
-            raise DatasetError(f"output folder {str(out)!r} is not empty and holds no {META_FILE} "
-                               f"(found {first!r}); choose a new or empty folder")
-        return None
-    try:
-        old = json.loads(meta.read_text("utf-8"))
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{str(meta)!r} cannot be read ({exc}); remove the folder or choose "
-                           "another --out") from None
-    for key in _IDENTITY:
-        before, now = old.get(key), identity[key]
-        if key == "inputs" and isinstance(before, dict):    # a file missing before may appear now
-            before = {k: v for k, v in before.items() if k in now}
-            now = {k: v for k, v in now.items() if k in before}
-        if json.dumps(before, sort_keys=True) != json.dumps(now, sort_keys=True):
-            where = _first_difference({key: before}, {key: now})
-            what = {"spec": "a different spec", "storage": "another --format",
-                    "inputs": "other input files (a rig, mesh or scene file changed)",
-                    "format": "another version of this program"}[key]
-            raise DatasetError(f"output folder {str(out)!r} holds a dataset made with {what} "
-                               f"({where!r} differs); choose another --out or delete the folder")
-    return old
+    return check_identity(out, META_FILE, {k: identity[k] for k in _IDENTITY}, _WHAT, DatasetError, "dataset")
 
 
 # ------------------------------------------------------------------ the store

@@ -73,7 +73,7 @@ def _run(args) -> int:
                              frames=args.frames, seed=args.seed, exclude_fraction=0.0 if args.no_exclusion
                              else 0.003, progress=bar, warn=lambda m: None)
     plot_acceptance(res, out / "acceptance.png")
-    data = {k: v for k, v in res.items() if k != "points"}
+    data = {k: v for k, v in res.items() if k not in ("points", "sheet_model")}
     data = json.loads(json.dumps(data, default=float))
     write_json_atomic(out / "acceptance.json", data)
     print(_table(res), file=sys.stderr if args.json else sys.stdout)
