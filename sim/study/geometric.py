@@ -141,7 +141,8 @@ class GeometricTwin:
         out = []
         for frame in scenario.frames:
             scene.set_pose(frame.rig_from_part)
-            out.append(truth.frame(frame.rig_from_part, frame.ref_from_part, SceneCaster(scene))[0])
+            out.append(truth.frame(frame.rig_from_part, frame.ref_from_part, SceneCaster(scene),
+                                   frame.rig_from_laser)[0])
         return out, mesh
 
     # ---------------------------------------------------------------- calibration
