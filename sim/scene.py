@@ -99,9 +99,12 @@ class SimScene:
     parts : sequence of scenes.Part, or of (trimesh.Trimesh, material, object_id)
         Meshes in the part frame [mm] with their material tag and object id (≥ 1).
     materials : MaterialSettings, optional
-        Albedos/roughnesses of the material tags.
+        Albedos/roughnesses/media of the material tags.
     variant : str, optional
         Mitsuba variant; default :func:`sim.variant.select_variant`.
+    subsurface : bool
+        Translucent tags get their dielectric boundary and interior medium
+        (:mod:`sim.materials`, rig key ``[twin] subsurface``) instead of an opaque surface.
 
     Notes
     -----
@@ -109,7 +112,7 @@ class SimScene:
     """
 
     def __init__(self, parts: Sequence[Any], materials: MaterialSettings | None = None,
-                 variant: str | None = None) -> None:
+                 variant: str | None = None, subsurface: bool = False) -> None:
         if len(parts) == 0:
             raise MeshError("a scene needs at least one part")
         self.variant = variant or select_variant()
@@ -120,11 +123,16 @@ class SimScene:
         self._mi = mi
         self.specs = [_as_spec(p, i) for i, p in enumerate(parts)]
         self.materials = materials or MaterialSettings()
+        self.subsurface = bool(subsurface)
+        #: per part: its interior medium (subsurface on, translucent tag) or None
+        self.media = [self.materials.medium(sp.material) if self.subsurface else None
+                      for sp in self.specs]
         shapes = {f"s{i}": self._mesh(f"s{i}", s) for i, s in enumerate(self.specs)}
         self.scene = mi.load_dict({"type": "scene", **shapes})
         self.params = mi.traverse(self.scene)
         self._keys = [f"s{i}.vertex_positions" for i in range(len(self.specs))]
         self._id_table = self._object_id_table()
+        self._part_table = self._part_index_table()
         self.rig_from_part = [np.eye(4)] * len(self.specs)
         self.scene_from_rig = np.eye(4)  # (4, 4) float64: rig → Mitsuba scene coordinates
         self._vertices_in_part_frame = True
@@ -133,7 +141,7 @@ class SimScene:
     def _mesh(self, name: str, spec: _PartSpec):
         mi = self._mi
         props = mi.Properties()
-        props["bsdf"] = mi.load_dict(bsdf_dict(spec.material, self.materials))
+        props["bsdf"] = mi.load_dict(bsdf_dict(spec.material, self.materials, self.subsurface))
         mesh = mi.Mesh(name, len(spec.vertices), len(spec.faces), has_vertex_normals=False,
                        has_vertex_texcoords=False, props=props)
         p = mi.traverse(mesh)
@@ -144,6 +152,14 @@ class SimScene:
 
     def _object_id_table(self) -> np.ndarray:
         """Lookup: Dr.Jit registry id of a shape → object id (0 for none)."""
+        return self._registry_table([spec.object_id for spec in self.specs])
+
+    def _part_index_table(self) -> np.ndarray:
+        """Lookup: Dr.Jit registry id of a shape → part index + 1 (0 for none)."""
+        return self._registry_table(list(range(1, len(self.specs) + 1)))
+
+    def _registry_table(self, values: list[int]) -> np.ndarray:
+        """Lookup array: Dr.Jit registry id of part i's shape → values[i] (0 elsewhere)."""
         if not is_jit_variant(self.variant):
             return np.zeros(1, np.int32)
         import drjit as dr
@@ -152,9 +168,29 @@ class SimScene:
         by_name = {s.id(): i for i, s in enumerate(self.scene.shapes())}
         order = [by_name[f"s{i}"] for i in range(len(self.specs))]
         table = np.zeros(int(reg.max()) + 1, np.int32)
-        for i, spec in enumerate(self.specs):
-            table[reg[order[i]]] = spec.object_id
+        for i, value in enumerate(values):
+            table[reg[order[i]]] = value
         return table
+
+    def part_index_dr(self, si):
+        """Part index + 1 (0 = no hit) of Mitsuba SurfaceInteraction hits, as ``mi.UInt32``.
+
+        Parameters
+        ----------
+        si : mitsuba.SurfaceInteraction3f
+            Hits of this scene.
+
+        Returns
+        -------
+        mitsuba.UInt32
+        """
+        import drjit as dr
+
+        mi = self._mi
+        reg = dr.reinterpret_array(mi.UInt32, si.shape)
+        table = mi.UInt32(self._part_table.astype(np.uint32))
+        idx = dr.minimum(reg, len(self._part_table) - 1)
+        return dr.select(si.is_valid(), dr.gather(mi.UInt32, table, idx), 0)
 
     # ------------------------------------------------------------ pose
     def set_pose(self, rig_from_part) -> None:

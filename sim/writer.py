@@ -125,7 +125,7 @@ class MitsubaTwin:
         self.spp_field = next(n for n in _SPP_FIELDS if n in field_names)
         if spp is not None:
             settings = dataclasses.replace(settings, **{self.spp_field: int(spp)})
-        self.scene = SimScene(assembly.parts)
+        self.scene = SimScene(assembly.parts, subsurface=rig.twin.subsurface)
         self.renderer = Renderer(rig, self.scene, settings)
         self.settings = settings
         self.variant = self.scene.variant

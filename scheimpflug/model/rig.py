@@ -33,6 +33,7 @@ __all__ = [
     "Rig",
     "Sensor",
     "Stage",
+    "Twin",
     "load_preset",
     "load_rig",
     "rig_from_dict",
@@ -161,6 +162,32 @@ class Environment:
     ambient_irradiance_w_m2: float = 0.02
 
 
+SPECKLE_MODELS = ("surface", "sensor")
+
+
+@dataclass(frozen=True)
+class Twin:
+    """How the digital twin renders this instrument (ignored by the measurement pipeline).
+
+    The defaults are the ideal twin: first-surface light only, opaque materials.
+
+    bounces : light-path depth of the laser pass: 1 = the first surface the sheet meets
+        only; N > 1 also follows the light N − 1 more times from surface to surface
+        (inter-reflections) [-].
+    subsurface : translucent materials (cardboard, paper, tape, plastic, marble) carry
+        a scattering interior below a rough dielectric boundary and the light random-walks
+        inside (true), or are opaque Lambertian surfaces (false) [-].
+    speckle_model : ``"surface"`` — speckle formed by coherent imaging of scatterers
+        attached to the lit surface (moves with the part); ``"sensor"`` — a random
+        pattern fixed to the sensor.  Its strength is ``[laser] speckle_contrast``
+        (0 = no speckle) [-].
+    """
+
+    bounces: int = 1
+    subsurface: bool = False
+    speckle_model: str = "surface"
+
+
 @dataclass(frozen=True)
 class Rig:
     """A whole instrument: one table of the rig file per field."""
@@ -170,6 +197,7 @@ class Rig:
     sensor: Sensor = field(default_factory=Sensor)
     stage: Stage = field(default_factory=Stage)
     environment: Environment = field(default_factory=Environment)
+    twin: Twin = field(default_factory=Twin)
 
     def __post_init__(self) -> None:
         validate_rig(self)
@@ -190,6 +218,7 @@ _TABLES: dict[str, type] = {
     "sensor": Sensor,
     "stage": Stage,
     "environment": Environment,
+    "twin": Twin,
 }
 
 PRESETS = ("paper",)
@@ -212,7 +241,11 @@ def _check_fields(table: str, obj: Any) -> None:
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         kind = hints[f.name]
-        if kind is int:
+        if kind is bool:
+            _require(isinstance(value, bool), table, f.name, value, "must be true or false")
+        elif kind is str:
+            _require(isinstance(value, str), table, f.name, value, "must be a string")
+        elif kind is int:
             _require(isinstance(value, int) and not isinstance(value, bool), table, f.name,
                      value, "must be an integer")
         elif kind is float:
@@ -235,6 +268,14 @@ def validate_rig(rig: Rig) -> None:
     _require(rig.environment.ambient_irradiance_w_m2 >= 0, "environment",
              "ambient_irradiance_w_m2", rig.environment.ambient_irradiance_w_m2,
              "must be >= 0")
+    _validate_twin(rig.twin)
+
+
+def _validate_twin(t: Twin) -> None:
+    _require(1 <= t.bounces <= 64, "twin", "bounces", t.bounces,
+             "must be 1 (first surface only) … 64")
+    _require(t.speckle_model in SPECKLE_MODELS, "twin", "speckle_model", t.speckle_model,
+             f"must be one of {', '.join(repr(m) for m in SPECKLE_MODELS)}")
 
 
 def _validate_lens(lens: Lens) -> None:
@@ -301,6 +342,14 @@ def _validate_stage(st: Stage) -> None:
 
 
 def _coerce(table: str, key: str, kind: type, value: Any) -> Any:
+    if kind is bool:
+        if isinstance(value, bool):
+            return value
+        raise RigError(f"[{table}] {key} = {value!r}: must be true or false")
+    if kind is str:
+        if isinstance(value, str):
+            return value
+        raise RigError(f"[{table}] {key} = {value!r}: must be a string")
     if isinstance(value, bool):
         raise RigError(f"[{table}] {key} = {value!r}: must be a number, not a boolean")
     if kind is float and isinstance(value, (int, float)):
@@ -345,9 +394,17 @@ def rig_to_toml(rig: Rig) -> str:
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
         lines.append(f"[{name}]")
-        lines += [f"{k} = {v!r}" for k, v in table.items()]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
         lines.append("")
     return "\n".join(lines)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return repr(value)
 
 
 def load_rig(path: str | Path) -> Rig:

@@ -1,0 +1,367 @@
+"""Multi-bounce light transport of the laser pass: paths beyond the first surface.
+
+The renderer (:mod:`sim.render`) traces the laser's rays to their first hit and
+splats each hit through the thin lens.  This module continues those paths
+(rig key ``[twin] bounces`` = N > 1) and adds the light that goes *into*
+translucent materials (``[twin] subsurface``):
+
+Per path vertex at depth k = 1 … N (k = 1: the first hit):
+
+1. *Camera connection* (k ≥ 2; k = 1 is the renderer's): a new aperture sample
+   A, the BSDF evaluated toward A (Mitsuba ``BSDF.eval`` in importance mode:
+   f·cos θ), a shadow ray, and the splat
+   ``Φ = β · f cos θ · Ω_ap`` at the image of the vertex (β the power the path
+   carries).
+2. *Translucent surface* (subsurface on): the boundary's BSDF is sampled; light
+   it transmits random-walks inside (:func:`sim.subsurface.random_walk`), its
+   next-event splats go to a fixed-point image, and light leaving the material
+   continues outside as the path's next segment.
+3. *Continuation* (k < N): ``BSDF.sample`` (importance mode) gives the next
+   direction and the throughput weight f·cos θ/pdf; from depth ``rr_depth`` on,
+   Russian roulette keeps a path with probability q = min(β/β₀, 0.95) and
+   divides its power by q (unbiased).  Paths are compacted between depths.
+
+This is Mitsuba's own particle tracer (``ptracer``) restricted to the laser:
+the tests compare the two on a scene both can render.  Randomness is
+stateless per (frame key, path, depth, dimension) (Mitsuba's TEA hash) or a
+PCG32 stream per path inside a walk, so results do not depend on thread count
+or on compaction.  Shading normals are the geometric ones (meshes carry no
+vertex normals), so no adjoint shading-normal correction is needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .lens import LensConnection
+from .subsurface import FIXED_POINT_SCALE, WalkMedium, hg_eval, random_walk
+
+__all__ = [
+    "LightTransport",
+    "SplatBatch",
+    "TransportResult",
+]
+
+
+@dataclass
+class SplatBatch:
+    """Splats of one path depth (numpy).
+
+    depth : path depth k of the vertices (1 = first surface).
+    uv : (2, n) float32 pixel coordinates [px].
+    value : (n,) float32 flux [W].
+    contrast : (n,) float32 speckle contrast of the light of each splat [-].
+    """
+
+    depth: int
+    uv: np.ndarray
+    value: np.ndarray
+    contrast: np.ndarray
+
+
+@dataclass
+class TransportResult:
+    """Light beyond the first surface's direct reflection.
+
+    batches : surface splats of depths ≥ 2 (:class:`SplatBatch`).
+    subsurface : {depth: (rows, columns) float32 expected electrons} of light that
+        walked inside a translucent material entered at that depth (depth-1 light is
+        the first surface's own subsurface light; ≥ 2 is secondary).
+    walks : number of subsurface walks, total events of those walks.
+    """
+
+    batches: list = field(default_factory=list)
+    subsurface: dict = field(default_factory=dict)
+    walks: tuple = (0, 0)
+
+
+class LightTransport:
+    """Continues light-tracing paths from their first hits (Dr.Jit, wavefront per depth).
+
+    Parameters
+    ----------
+    mi, dr : modules
+        ``mitsuba`` (JIT variant set) and ``drjit``.
+    scene : sim.scene.SimScene
+        The posed scene (its ``media`` decide which parts are translucent).
+    lens : LensConnection
+        Camera connection.
+    channel : int
+        RGB channel of the laser wavelength.
+    bounces : int
+        Path depth N (≥ 1).
+    shape : (int, int)
+        Sensor (rows, columns).
+    electrons_per_watt : float
+        Conversion of splat flux to electrons [e⁻/W].
+    rr_depth : int
+        First depth at which Russian roulette may end a path.
+    max_walk_steps : int
+        Event limit of a subsurface walk.
+    contrast : (n_parts + 1,) float
+        Speckle contrast of each part's surface light (index = part index + 1; 0 = none).
+    thinning : int
+        Only one path in ``thinning`` (chosen at random within each consecutive block of
+        that many, its power × ``thinning``) continues beyond the first surface: the
+        secondary light is dimmer and broader than the stripe and needs fewer samples
+        (unbiased; more variance in the secondary light only).
+    """
+
+    def __init__(self, mi, dr, scene, lens: LensConnection, channel: int, bounces: int,
+                 shape: tuple[int, int], electrons_per_watt: float, rr_depth: int = 3,
+                 max_walk_steps: int = 256, contrast=None, thinning: int = 1) -> None:
+        self._mi, self._dr = mi, dr
+        self.scene, self.lens, self.channel = scene, lens, channel
+        self.bounces, self.rr_depth, self.max_walk_steps = bounces, rr_depth, max_walk_steps
+        self.shape = shape
+        self.thinning = int(thinning)
+        self.electrons_per_watt = electrons_per_watt
+        media = scene.media
+        self.has_media = any(m is not None for m in media)
+        cols = [[0.0] * (len(media) + 1) for _ in range(5)]
+        for i, m in enumerate(media):
+            if m is not None:
+                for c, v in enumerate((1.0, m.sigma_s_per_mm, m.sigma_a_per_mm, m.g, m.eta)):
+                    cols[c][i + 1] = v
+        self._media = [mi.Float(c) for c in cols]   # is_medium, σ_s, σ_a, g, η by part + 1
+        n = len(media) + 1
+        self._contrast = mi.Float(list(contrast) if contrast is not None else [1.0] * n)
+
+    @property
+    def active(self) -> bool:
+        """Whether anything beyond the renderer's first-surface splats is to be traced."""
+        return self.bounces > 1 or self.has_media
+
+    # ------------------------------------------------------------ random numbers
+    def _rand(self, s, path_id, depth: int, dim: int):
+        """Uniform [0, 1) for (frame key s, path, depth, dimension): stateless TEA hash."""
+        mi = self._mi
+        salt = (0x632BE5AB * (depth + 1) + 0x85157AF5 * (dim + 1)) & 0xFFFFFFFF
+        return mi.sample_tea_float32(path_id, s ^ mi.UInt32(salt), 6)
+
+    # ------------------------------------------------------------ main loop
+    def trace(self, si, ray_d, beta, s, frame) -> TransportResult:
+        """Continue paths from their first hits.
+
+        Parameters
+        ----------
+        si : mitsuba.SurfaceInteraction3f
+            First hits, scene frame.
+        ray_d : mitsuba.Vector3f
+            Direction of the rays that made them (scene frame).
+        beta : mitsuba.Float
+            Power of each path [W] (0 for dead lanes).
+        s : mitsuba.UInt32
+            Opaque frame key.
+        frame : tuple
+            ``(scene_from_rig, rig_from_scene)`` opaque transforms.
+
+        Returns
+        -------
+        TransportResult
+        """
+        mi, dr = self._mi, self._dr
+        result = TransportResult()
+        path_id = dr.arange(mi.UInt32, dr.width(beta))
+        beta0 = mi.Float(beta)
+        active = si.is_valid() & (beta > 0)
+        for depth in range(1, self.bounces + 1):
+            if depth > 1:
+                result.batches.append(self._connect(si, beta, path_id, depth, s, frame))
+            if depth == self.bounces and not self.has_media:
+                break
+            wo, weight, entered = self._scatter(si, ray_d, beta, path_id, depth, s, frame,
+                                                active, result)
+            if depth == self.bounces:
+                break
+            ray, beta, beta0, path_id, active = self._next(si, wo, weight, entered, beta, beta0,
+                                                           path_id, depth, s, active)
+            if dr.width(beta) == 0:
+                break
+            si = self.scene.scene.ray_intersect(ray, active)
+            ray_d = ray.d
+            active &= si.is_valid()
+            dr.eval(si, active)
+        return result
+
+    def _connect(self, si, beta, path_id, depth, s, frame) -> SplatBatch:
+        """Camera connection of the vertices of one depth (≥ 2) → a splat batch."""
+        mi, dr = self._mi, self._dr
+        to_scene, to_rig = frame
+        active = si.is_valid() & (beta > 0)
+        u_ap = mi.Point2f(self._rand(s, path_id, depth, 0), self._rand(s, path_id, depth, 1))
+        p = to_rig @ si.p
+        geo, uv, ok, a = self.lens.connect(p, active, u_ap)
+        wo = to_scene @ mi.Vector3f(dr.normalize(a - p))
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        f_cos = si.bsdf().eval(ctx, si, si.to_local(wo), ok)[self.channel]
+        ok &= ~self.scene.scene.ray_test(si.spawn_ray_to(to_scene @ a), ok)
+        value = dr.select(ok, beta * f_cos * geo, 0.0)
+        contrast = dr.gather(mi.Float, self._contrast, self.scene.part_index_dr(si))
+        dr.eval(value, uv, contrast)
+        return SplatBatch(depth, np.asarray(uv, np.float32), np.asarray(value, np.float32),
+                          np.asarray(contrast, np.float32))
+
+    def _scatter(self, si, ray_d, beta, path_id, depth, s, frame, active, result):
+        """Sample each vertex's BSDF; run the subsurface walks of light entering a medium.
+
+        Returns (outgoing direction (scene), throughput weight, entered-medium mask);
+        lanes that left a medium get the exit ray through ``self._exits``.
+        """
+        mi, dr = self._mi, self._dr
+        part = self.scene.part_index_dr(si)
+        is_med = (dr.gather(mi.Float, self._media[0], part) > 0.5) & active
+        si = self._outside_frame(si, ray_d, is_med)
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        u1 = self._rand(s, path_id, depth, 2)
+        u2 = mi.Point2f(self._rand(s, path_id, depth, 3), self._rand(s, path_id, depth, 4))
+        bs, w = si.bsdf().sample(ctx, si, u1, u2, active)
+        wo = si.to_world(bs.wo)
+        weight = w[self.channel]
+        entered = is_med & (mi.Frame3f.cos_theta(bs.wo) < 0.0) & (weight > 0)
+        self._exits = None
+        if self.has_media and bool(dr.any(entered)[0]):
+            self._exits = self._walk(si, wo, beta * weight, part, path_id, depth, s, frame,
+                                     entered, result)
+        return wo, weight, entered
+
+    def _outside_frame(self, si, ray_d, mask):
+        """Turn the shading frame of translucent hits toward the side the light came from."""
+        mi, dr = self._mi, self._dr
+        flip = mask & (dr.dot(si.n, ray_d) > 0.0)
+        n = dr.select(flip, -si.n, si.n)
+        si.n = n
+        si.sh_frame = mi.Frame3f(dr.select(flip, -si.sh_frame.n, si.sh_frame.n))
+        si.wi = si.to_local(-ray_d)
+        return si
+
+    # ------------------------------------------------------------ subsurface
+    def _walk(self, si, d_in, power, part, path_id, depth, s, frame, entered, result):
+        """Random walks of the light that entered media; splats; exit rays (scene frame)."""
+        mi, dr = self._mi, self._dr
+        med = WalkMedium(*[dr.gather(mi.Float, col, part) for col in self._media[1:]])
+        local = mi.Frame3f(-si.n)               # z of the walk's local frame points inward
+        u_ap = mi.Point2f(self._rand(s, path_id, depth, 5), self._rand(s, path_id, depth, 6))
+        conn = self._nee_frame(si, local, med, self.lens.aperture_point(u_ap), frame, entered)
+        target = self._subsurface_image(result, 1 if depth == 1 else 2)
+        rng = mi.PCG32(size=dr.width(power), initstate=mi.UInt64(s) * 0x9E3779B97F4A7C15
+                       + (depth + 1), initseq=mi.UInt64(path_id))
+
+        def nee(x, d, w, act, u):
+            self._nee_splat(x, d, w, act, med, conn, u, target)
+
+        walk = random_walk(mi, dr, med, local.to_local(d_in), power, rng, entered,
+                           self.max_walk_steps, nee)
+        exit_p = mi.Point3f(si.p + local.to_world(mi.Vector3f(walk.position)) + 1e-4 * si.n)
+        exit_d = local.to_world(walk.direction)
+        dr.eval(target, walk.exited, exit_p, exit_d, walk.weight)
+        n_walks = int(dr.count(entered)[0])
+        steps = int(dr.sum(dr.select(entered, walk.steps, 0))[0])
+        result.walks = (result.walks[0] + n_walks, result.walks[1] + steps)
+        return walk.exited & entered, exit_p, exit_d, walk.weight
+
+    def _nee_frame(self, si, local, med, a_rig, frame, entered) -> dict:
+        """Per-walk constants of the camera connection through the boundary.
+
+        The lens point A is ~10⁵ penetration depths away, so the outside direction ω_o,
+        the refracted inside direction ω_i, the Fresnel transmittance and the aperture's
+        solid angle are those of the entry point for the whole walk, and the image of an
+        exit point e = entry + δ (δ in the tangent plane, ≲ mm) is uv₀ + J·δ, J the
+        projection's Jacobian (finite differences, second-order error ≈ |δ|²·M/(L·p):
+        0.03 px at 1 mm).  One shadow ray per walk decides whether the entry point sees A.
+        """
+        mi, dr = self._mi, self._dr
+        to_scene, to_rig = frame
+        a_scene = to_scene @ a_rig
+        visible = entered & ~self.scene.scene.ray_test(si.spawn_ray_to(a_scene), entered)
+        w_o = local.to_local(dr.normalize(a_scene - si.p))
+        cos_o = -w_o.z
+        cos_i = dr.safe_sqrt(1.0 - (1.0 - cos_o * cos_o) / (med.eta * med.eta))
+        f, _, _, _ = mi.fresnel(-cos_i, med.eta)
+        trans = dr.select(med.eta == 1.0, 1.0, 1.0 - f)
+        p0 = to_rig @ si.p
+        geo, uv0, ok, _ = self.lens.connect_at(p0, visible & (cos_o > 1e-4), a_rig)
+        eps = 0.05  # [mm]
+        _, uv1, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * local.s), ok, a_rig)
+        _, uv2, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * local.t), ok, a_rig)
+        k = dr.select(ok, trans * cos_o / (med.eta * med.eta * cos_i) * geo, 0.0) \
+            * (self.electrons_per_watt * FIXED_POINT_SCALE)
+        return {"uv0": uv0, "ju": (uv1 - uv0) / eps, "jv": (uv2 - uv0) / eps, "k": k,
+                "w_i": mi.Vector3f(w_o.x / med.eta, w_o.y / med.eta, -cos_i),
+                "inv_cos_i": 1.0 / dr.maximum(cos_i, 1e-6)}
+
+    def _subsurface_image(self, result, key: int):
+        """The fixed-point accumulation image for subsurface light of depth class ``key``."""
+        mi, dr = self._mi, self._dr
+        if key not in result.subsurface:
+            result.subsurface[key] = dr.zeros(mi.UInt32, self.shape[0] * self.shape[1])
+        return result.subsurface[key]
+
+    def _nee_splat(self, x, d, w, act, med, conn, u, target):
+        """Next-event estimation through the plane boundary from walk vertex x → fixed-point splat."""
+        mi, dr = self._mi, self._dr
+        w_i = conn["w_i"]
+        path = x.z * conn["inv_cos_i"]
+        ex, ey = x.x + path * w_i.x, x.y + path * w_i.y
+        sigma_t = med.sigma_s + med.sigma_a
+        value = w * hg_eval(dr, med.g, dr.dot(d, w_i)) * dr.exp(-sigma_t * path) * conn["k"]
+        uv = conn["uv0"] + conn["ju"] * ex + conn["jv"] * ey
+        fixed = mi.UInt32(dr.minimum(value + u, 4.0e9))
+        iu = mi.Int32(dr.floor(uv.x + 0.5))
+        iv = mi.Int32(dr.floor(uv.y + 0.5))
+        rows, cols = self.shape
+        ok = act & (iu >= 0) & (iu < cols) & (iv >= 0) & (iv < rows) & (fixed > 0)
+        dr.scatter_reduce(dr.ReduceOp.Add, target, fixed, mi.UInt32(iv * cols + iu), ok)
+
+    # ------------------------------------------------------------ continuation
+    def _next(self, si, wo, weight, entered, beta, beta0, path_id, depth, s, active):
+        """Next segment of every surviving path (surface bounces + medium exits), compacted."""
+        mi, dr = self._mi, self._dr
+        surface = active & ~entered & (weight > 0)
+        beta_s = beta * weight
+        origin = si.spawn_ray(wo)
+        o, d, b = origin.o, origin.d, beta_s
+        alive = surface
+        if self._exits is not None:
+            out, exit_p, exit_d, exit_w = self._exits
+            o = dr.select(out, exit_p, o)
+            d = dr.select(out, exit_d, d)
+            b = dr.select(out, exit_w, b)
+            alive |= out
+        if depth == 1 and self.thinning > 1:
+            m = self.thinning
+            pick = mi.sample_tea_32(path_id // m, s ^ mi.UInt32(0x2545F491), 6)[0] % m
+            alive &= (path_id % m) == pick
+            b = b * float(m)
+        if depth + 1 > self.rr_depth:
+            q = dr.minimum(b / dr.maximum(beta0, 1e-30), 0.95)
+            keep = self._rand(s, path_id, depth, 7) < q
+            alive &= keep
+            b = b / dr.maximum(q, 1e-30)
+        idx = dr.compress(alive)
+        ray = mi.Ray3f(dr.gather(mi.Point3f, o, idx), dr.gather(mi.Vector3f, d, idx))
+        return (ray, dr.gather(mi.Float, b, idx), dr.gather(mi.Float, beta0, idx),
+                dr.gather(mi.UInt32, path_id, idx), dr.full(mi.Bool, True, dr.width(idx)))
+
+    def subsurface_electrons(self, result: TransportResult) -> dict:
+        """The fixed-point subsurface images as (rows, columns) float32 electrons.
+
+        Parameters
+        ----------
+        result : TransportResult
+            From :meth:`trace` (its images are converted in place).
+
+        Returns
+        -------
+        dict
+            {1: first-surface subsurface light, 2: secondary} (only those present).
+        """
+        out = {}
+        for key, img in result.subsurface.items():
+            a = np.asarray(img, np.float64).reshape(self.shape) / FIXED_POINT_SCALE
+            out[key] = a.astype(np.float32)
+        result.subsurface = out
+        return out
+
