@@ -42,26 +42,28 @@ mean free path 1/(σ_s' + σ_a); van de Hulst, *Multiple Light Scattering*,
 tag           σ_s'     σ_a       η     α     R (normal    source
               [1/mm]   [1/mm]                incidence)
 ============= ======== ========= ===== ===== ============ ===================================
-marble        3.00     0.0071    1.5   0.10  0.86         Jensen et al. 2001 (Table 1, blue
+marble        3.00     0.0071    1.5   0.10  0.77         Jensen et al. 2001 (Table 1, blue
                                                           channel); α assumed (honed stone)
-paper         53       0.12      1.5   0.30  0.85         KM coefficients of bleached office
+paper         53       0.12      1.5   0.30  0.76         KM coefficients of bleached office
                                                           paper at 457 nm (ISO brightness
                                                           ≈ 90 %): s ≈ 50 m²/kg, k ≈ 0.3 m²/kg
                                                           at 800 kg/m³, converted with
                                                           σ_s' ≈ 4/3·S, σ_a ≈ K/2 (assumed:
                                                           typical values, not one paper)
-cardboard     23       2.6       1.5   0.30  0.35         assumed: KM s ≈ 25 m²/kg of
+cardboard     23       1.26      1.5   0.30  0.35         assumed: KM s ≈ 25 m²/kg of
                                                           unbleached kraft at 700 kg/m³;
                                                           σ_a set so that R = the opaque
                                                           tag's albedo 0.35
-tape          20       0.85      1.5   0.20  0.55         assumed: a crepe-paper (masking)
+tape          20       0.286     1.5   0.20  0.55         assumed: a crepe-paper (masking)
                                                           tape; σ_a set so that R = 0.55
-white-plastic 2.5      0.003     1.49  0.10  0.88         assumed: white acetal (POM)-like
+white-plastic 2.5      0.003     1.49  0.10  0.83         assumed: white acetal (POM)-like
                                                           polymer; no measured set used
 ============= ======== ========= ===== ===== ============ ===================================
 
 R is the total diffuse reflectance (surface gloss + subsurface) at normal
-incidence computed by the twin's own walk (``benchmarks/bench_optics.py``);
+incidence computed by the twin's own walk (:func:`sim.subsurface.total_reflectance`,
+2·10⁵ paths, walks up to 1024 events; ``benchmarks/bench_optics.py`` prints it); the
+opaque stand-ins use it as their albedo.
 Jensen, Marschner, Levoy, Hanrahan, "A practical model for subsurface light
 transport", SIGGRAPH 2001.  No measured optical data set for kraft board,
 masking tape or a particular white plastic was found; those rows are
@@ -173,15 +175,15 @@ class Translucent:
 
 #: Translucent tags and their media at 450 nm (module docstring for the sources).
 TRANSLUCENT: dict[str, Translucent] = {
-    "marble": Translucent(3.00, 0.0071, 0.0, 1.5, 0.10, 0.86,
+    "marble": Translucent(3.00, 0.0071, 0.0, 1.5, 0.10, 0.77,
                           "Jensen et al. 2001, Table 1 (blue); α assumed"),
-    "paper": Translucent(53.0, 0.12, 0.0, 1.5, 0.30, 0.85,
+    "paper": Translucent(53.0, 0.12, 0.0, 1.5, 0.30, 0.76,
                          "KM s ≈ 50 m²/kg, k ≈ 0.3 m²/kg at 457 nm, 800 kg/m³ (typical, assumed)"),
-    "cardboard": Translucent(23.0, 2.6, 0.0, 1.5, 0.30, 0.35,
+    "cardboard": Translucent(23.0, 1.26, 0.0, 1.5, 0.30, 0.35,
                              "assumed (unbleached kraft); σ_a gives R = 0.35"),
-    "tape": Translucent(20.0, 0.85, 0.0, 1.5, 0.20, 0.55,
+    "tape": Translucent(20.0, 0.286, 0.0, 1.5, 0.20, 0.55,
                         "assumed (crepe-paper tape); σ_a gives R = 0.55"),
-    "white-plastic": Translucent(2.5, 0.003, 0.0, 1.49, 0.10, 0.88,
+    "white-plastic": Translucent(2.5, 0.003, 0.0, 1.49, 0.10, 0.83,
                                  "assumed (white acetal-like polymer)"),
 }
 

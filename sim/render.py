@@ -146,7 +146,7 @@ class RenderSettings:
     pixel_filter: str = "tent"
     rr_depth: int = 3
     secondary_thinning: int = 4
-    subsurface_max_steps: int = 256
+    subsurface_max_steps: int = 512
 
     def __post_init__(self) -> None:
         if self.pixel_filter not in ("box", "tent"):

@@ -111,7 +111,7 @@ class LightTransport:
 
     def __init__(self, mi, dr, scene, lens: LensConnection, channel: int, bounces: int,
                  shape: tuple[int, int], electrons_per_watt: float, rr_depth: int = 3,
-                 max_walk_steps: int = 256, contrast=None, thinning: int = 1) -> None:
+                 max_walk_steps: int = 512, contrast=None, thinning: int = 1) -> None:
         self._mi, self._dr = mi, dr
         self.scene, self.lens, self.channel = scene, lens, channel
         self.bounces, self.rr_depth, self.max_walk_steps = bounces, rr_depth, max_walk_steps
