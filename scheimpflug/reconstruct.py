@@ -159,7 +159,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
-                   keep_saturated: bool = False, progress: ProgressCallback | None = None):
+                   keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                   multi_peak: str = "nearest"):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -176,6 +177,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Keep rows whose stripe is saturated (dropped by default).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    multi_peak : str
+        Rule for rows with several peaks (:data:`scheimpflug.stripe.MULTI_PEAK_RULES`).
 
     Returns
     -------
@@ -185,7 +188,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Counters ``blank_frames`` and ``saturated_rows``.
     """
     def one(rec, frame):
-        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=folder.saturation_dn(frame))
+        return extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
+                               saturation_dn=folder.saturation_dn(frame))
 
     rows, us, peaks = [], [], []
     stats = {"blank_frames": 0, "saturated_rows": 0}

@@ -28,6 +28,9 @@ def add_parser(sub):
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
                         "and on speckled stripes, benchmarks/RESULTS.md)")
+    p.add_argument("--multi-peak", choices=("nearest", "strongest", "track"), default="nearest",
+                   help="rule for rows with several peaks (inter-reflections): 'track' picks the "
+                        "most continuous, narrow, bright one (default nearest)")
     p.add_argument("--min-snr", type=float, default=6.0,
                    help="detection threshold, peak over background noise [-] (default 6)")
     p.add_argument("--keep-saturated", action="store_true",
@@ -66,7 +69,8 @@ def _extract(folder, args):
 
     with Progress(0, label="extract", quiet=args.quiet) as bar:
         return extract_folder(folder, args.method, min_snr=args.min_snr,
-                              keep_saturated=args.keep_saturated, progress=bar)
+                              keep_saturated=args.keep_saturated, progress=bar,
+                              multi_peak=args.multi_peak)
 
 
 def _run(args) -> int:
