@@ -265,6 +265,40 @@ class SimScene:
         ids = np.where(valid, self.object_ids(si), 0).astype(np.int32)
         return Hits(t, p, n, ids)
 
+    def first_hit_parts(self, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First hits of rays from the lens centre (the rig origin), for many rays at once.
+
+        Parameters
+        ----------
+        directions : (n, 3) float
+            Unit directions, rig frame.
+
+        Returns
+        -------
+        t : (n,) float64
+            Distance to the hit [mm] (inf where none).
+        part : (n,) int64
+            Index of the hit part in ``specs`` (−1 where none).
+        normal : (n, 3) float64
+            Unit geometric normal of the hit triangle, rig frame (NaN where none).
+        """
+        self._require_jit()
+        import drjit as dr
+
+        mi = self._mi
+        d = np.asarray(directions, dtype=np.float64)
+        o, ds = _to_scene(self.scene_from_rig, np.zeros((1, 3)), d)
+        ray = mi.Ray3f(mi.Point3f(*[float(c) for c in o[0]]), mi.Vector3f(ds.T.astype(np.float32)))
+        si = self.scene.ray_intersect(ray)
+        part = dr.select(si.is_valid(), mi.Int32(self.part_index_dr(si)) - 1, -1)
+        dr.eval(si.t, si.n, part)
+        t = np.asarray(si.t, np.float64)
+        idx = np.asarray(part, np.int64)
+        rot = self.scene_from_rig[:3, :3]
+        n = np.asarray(si.n, np.float64).T @ rot
+        t = np.where(idx >= 0, t, np.inf)
+        return t, idx, np.where((idx >= 0)[:, None], n, np.nan)
+
     def occluded(self, origins, targets, eps_mm: float = 1e-3) -> np.ndarray:
         """(n,) bool: is the open segment origin→target blocked (endpoints excluded by ``eps_mm``)?"""
         self._require_jit()

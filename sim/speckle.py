@@ -64,10 +64,11 @@ import math
 import numba as nb
 import numpy as np
 
-from scheimpflug.model.camera import SensorPose, chief_ray_from_pixel
+from scheimpflug.model.camera import SensorPose
 from scheimpflug.model.rig import Rig
 
 from .lightsheet import light_sheet
+from .truth import pixel_directions
 
 __all__ = [
     "SpeckleKernel",
@@ -176,15 +177,19 @@ class SurfaceSpeckle:
         Seed of the surfaces' microstructure (not of the frame: the same part
         position gives the same speckle in every frame).
     min_electrons : float
-        Pixels with less laser light get no speckle computed (their speckle is far below
+        Pixels with less laser light get no speckle computed (their speckle is below
         their shot noise) [e⁻].
+    min_row_fraction : float
+        Nor do pixels below this fraction of their row's brightest: the stripe's far
+        flanks and faint diffuse glow, which do not move a stripe detector [-].
     """
 
     def __init__(self, rig: Rig, pose: SensorPose, scene, seed: int = 0,
-                 min_electrons: float = 1.0) -> None:
+                 min_electrons: float = 1.0, min_row_fraction: float = 0.01) -> None:
         self.rig, self.pose, self.scene = rig, pose, scene
         self.seed = int(seed) & 0x7FFFFFFF
         self.min_electrons = float(min_electrons)
+        self.min_row_fraction = float(min_row_fraction)
         self.wavelength_mm = rig.laser.wavelength_nm * 1e-6
         self.laser_origin_mm = np.asarray(light_sheet(rig).origin_mm, np.float64)
         m_min, m_max, stretch_max = self._ranges()
@@ -196,6 +201,7 @@ class SurfaceSpeckle:
         radius = math.ceil(_RING * lam_nw_max * self.fine / pose.pitch_mm * stretch_max * 1.02)
         self.margin_px = int(math.ceil((radius + 1) / self.fine))   # pixels whose scatterers matter
         self._kernels: dict = {}
+        self._directions = None       # chief rays of all pixels (rows, columns, 3), on first use
         self.last_fine: dict | None = None
 
     # ------------------------------------------------------------ geometry
@@ -263,7 +269,8 @@ class SurfaceSpeckle:
         Parameters
         ----------
         laser : (rows, columns) float
-            Laser electrons; where ≥ ``min_electrons`` S is computed [e⁻].
+            Laser electrons; where ≥ ``min_electrons`` and ≥ ``min_row_fraction`` of the
+            row's maximum, S is computed [e⁻].
         keep_fine : bool
             Keep the fine-grid intensity |U|²/E|U|² of every computed tile in
             ``self.last_fine`` ({(tile row, tile column): (T·s, T·s) float64}).
@@ -273,15 +280,17 @@ class SurfaceSpeckle:
         (rows, columns) float32
         """
         rows, cols = laser.shape
-        lit = np.asarray(laser) >= self.min_electrons
+        laser = np.asarray(laser)
+        lit = (laser >= self.min_electrons) \
+            & (laser >= self.min_row_fraction * laser.max(axis=1, keepdims=True))
         out = np.ones((rows, cols), np.float32)
         if not lit.any():
             return out
         tiles = _lit_tiles(lit, TILE_PX)
         kernels, kidx = self._tile_kernels(tiles)
         need = _needed_pixels(lit, self.margin_px)
-        ok, part_pt, part_n, m12, part_idx = self._hits(need, rows, cols)
-        slot, grid, occ, corr = self._deposit(need, ok, part_pt, part_n, m12, part_idx)
+        index, part_pt, part_n, m12, part_idx = self._hits(need, rows, cols)
+        slot, grid, occ, corr = self._deposit(index, part_pt, part_n, m12, part_idx)
         n_taps = max(len(k.values) for k in kernels)
         offsets = np.zeros((len(kernels), n_taps, 2), np.int64)
         values = np.zeros((len(kernels), n_taps), np.complex128)
@@ -298,7 +307,7 @@ class SurfaceSpeckle:
         return out
 
     # ------------------------------------------------------------ internals
-    def _deposit(self, need, ok, part_pt, part_n, m12, part_idx):
+    def _deposit(self, index, part_pt, part_n, m12, part_idx):
         """Scatterers of the needed pixels on per-tile fine grids (one-sample halo), halos
         folded into their neighbours, cells normalised to unit variance.
 
@@ -307,16 +316,16 @@ class SurfaceSpeckle:
         neighbour correlations (n, 4)).
         """
         t, s = TILE_PX, self.fine
-        base_tiles = _lit_tiles(need & ok, t)
-        slot = -np.ones((-(-need.shape[0] // t), -(-need.shape[1] // t)), np.int64)
+        base_tiles = _lit_tiles(index >= 0, t)
+        slot = -np.ones((-(-index.shape[0] // t), -(-index.shape[1] // t)), np.int64)
         slot[base_tiles[:, 0], base_tiles[:, 1]] = np.arange(len(base_tiles))
         b = t * s + 2
         grid = np.zeros((len(base_tiles), b, b), np.complex128)
         w2 = np.zeros((len(base_tiles), b, b))
         cross = np.zeros((len(base_tiles), 4, b, b))
-        _deposit_base(base_tiles, t, s, ok, need, part_pt, part_n, m12, part_idx, self.lattice_mm,
+        _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, self.lattice_mm,
                       self.seed, self._camera_params(), self.laser_origin_mm,
-                      2 * math.pi / self.wavelength_mm, grid, w2, cross)
+                      2 * math.pi / self.wavelength_mm, grid, w2, cross, _CIS)
         _fold_halos(base_tiles, slot, t * s, grid, w2, cross)
         occ = np.zeros((len(base_tiles), b, b))
         corr = np.zeros((len(base_tiles), 4))
@@ -349,35 +358,24 @@ class SurfaceSpeckle:
         return kernels, index
 
     def _hits(self, need: np.ndarray, rows: int, cols: int):
-        """Chief-ray hits of the needed pixels: part-frame point and normal (toward the lens),
-        rig_from_part rows (12,), part index."""
-        ok = np.zeros((rows, cols), np.bool_)
-        part_pt = np.zeros((rows, cols, 3))
-        part_n = np.zeros((rows, cols, 3))
-        rig_from_part = np.zeros((rows, cols, 12))
-        part_index = np.zeros((rows, cols), np.int64)
+        """Chief-ray hits of the needed pixels, compact: index (rows, columns) int64 into the
+        arrays (−1 = no hit or not needed), part-frame point (n, 3) and normal (n, 3, toward
+        the lens), rig_from_part rows (n, 12), part index (n,)."""
+        index = -np.ones((rows, cols), np.int64)
         rr, cc = np.nonzero(need)
-        if rr.size == 0:
-            return ok, part_pt, part_n, rig_from_part, part_index
-        uv = np.stack([cc, rr], 1).astype(np.float64)
-        w = chief_ray_from_pixel(self.rig, uv, self.pose)
-        hits = self.scene.intersect(np.zeros_like(w), w)
-        ids = np.array([spec.object_id for spec in self.scene.specs])
-        part_of = -np.ones(int(max(ids.max(), hits.object_id.max())) + 1, np.int64)
-        part_of[ids] = np.arange(len(ids))
-        idx = part_of[hits.object_id]
-        sel = np.nonzero((hits.object_id > 0) & (idx >= 0))[0]
+        if self._directions is None:
+            self._directions = pixel_directions(self.rig).reshape(rows, cols, 3)
+        w = self._directions[rr, cc]
+        t, idx, n = self.scene.first_hit_parts(w) if rr.size else (np.zeros(0),) * 3
+        sel = np.nonzero(idx >= 0)[0]
         mats = np.stack([np.asarray(m, np.float64) for m in self.scene.rig_from_part])
         m = mats[idx[sel]]
-        p, n = hits.point_mm[sel], hits.normal[sel]
+        p, n = t[sel, None] * w[sel], n[sel]
         n = np.where((np.sum(n * p, 1) > 0)[:, None], -n, n)
         rot, trans = m[:, :3, :3], m[:, :3, 3]
-        part_pt[rr[sel], cc[sel]] = np.einsum("kji,kj->ki", rot, p - trans)
-        part_n[rr[sel], cc[sel]] = np.einsum("kji,kj->ki", rot, n)
-        rig_from_part[rr[sel], cc[sel]] = m[:, :3, :].reshape(-1, 12)
-        part_index[rr[sel], cc[sel]] = idx[sel]
-        ok[rr[sel], cc[sel]] = True
-        return ok, part_pt, part_n, rig_from_part, part_index
+        index[rr[sel], cc[sel]] = np.arange(sel.size)
+        return (index, np.einsum("kji,kj->ki", rot, p - trans), np.einsum("kji,kj->ki", rot, n),
+                np.ascontiguousarray(m[:, :3, :].reshape(-1, 12)), idx[sel].astype(np.int64))
 
 
 def _lit_tiles(lit: np.ndarray, t: int) -> np.ndarray:
@@ -410,10 +408,23 @@ def _mix(h):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _cell_hash(i, j, k, part, seed):  # pragma: no cover - compiled
-    h = _mix(np.uint64(i & 0x1FFFFF) | (np.uint64(j & 0x1FFFFF) << np.uint64(21))
-             | (np.uint64(k & 0x1FFFFF) << np.uint64(42)))
-    return _mix(h ^ (np.uint64(part + 1) * np.uint64(0x9E3779B97F4A7C15)) ^ np.uint64(seed))
+def _cell_hash(i, j, k, key):  # pragma: no cover - compiled
+    """64 random bits of lattice cell (i, j, k) of the part whose key is ``key``."""
+    return _mix((np.uint64(i & 0x1FFFFF) | (np.uint64(j & 0x1FFFFF) << np.uint64(21))
+                 | (np.uint64(k & 0x1FFFFF) << np.uint64(42))) ^ key)
+
+
+_CIS_N = 4096
+_CIS = np.exp(2j * np.pi * np.arange(_CIS_N + 1) / _CIS_N)
+
+
+@nb.njit(cache=True, nogil=True)
+def _cis(phase, table):  # pragma: no cover - compiled
+    """exp(i·phase) by linear interpolation in a 4096-entry table (error < 3e-7)."""
+    x = (phase / (2 * math.pi)) % 1.0 * (table.shape[0] - 1)
+    i = int(x)
+    f = x - i
+    return table[i] * (1.0 - f) + table[i + 1] * f
 
 
 @nb.njit(cache=True, nogil=True)
@@ -494,8 +505,15 @@ def _deposit_one(grid, w2, cross, fu, fv, are, aim):  # pragma: no cover - compi
 
 @nb.njit(cache=True, nogil=True)
 def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2, cross,
-                   gr0, gc0, s, off):  # pragma: no cover - compiled
-    """Deposit the scatterers owned by pixel (r, c) (their chief-ray image in its square)."""
+                   gr0, gc0, s, off, table):  # pragma: no cover - compiled
+    """Deposit the scatterers owned by pixel (r, c) (their chief-ray image in its square).
+
+    The part's lattice is 2-D, in the plane of the two frame axes farthest from the
+    normal: column (p1, p2) holds one scatterer, jittered in the column and lying on the
+    surface along the third axis (so it stays on the surface when the part moves; the
+    density is ≥ 1/δ² per area).  Its amplitude is circular with independent triangular
+    real and imaginary parts (E|c|² = 1; sums of many are Gaussian), times
+    exp(i·k·optical path), the path linear over the pixel's footprint."""
     t1, t2 = _tangents(n)
     u0, v0, j11, j21, j12, j22 = _jacobian(y, t1, t2, m12, cam)
     det = j11 * j22 - j12 * j21
@@ -513,8 +531,6 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
     hi1 = int(math.floor((y[a1] + abs(t1[a1]) * e1 + abs(t2[a1]) * e2) / delta))
     lo2 = int(math.floor((y[a2] - abs(t1[a2]) * e1 - abs(t2[a2]) * e2) / delta))
     hi2 = int(math.floor((y[a2] + abs(t1[a2]) * e1 + abs(t2[a2]) * e2) / delta))
-    spread = (abs(n[a1]) + abs(n[a2])) * delta / abs(n[axis])   # jitter in a1, a2 moves the slab
-    half = 0.5 * delta / abs(n[axis])
     x0 = _affine(m12, y[0], y[1], y[2])
     du0, dv0 = u0 - c, v0 - r
     dl = math.sqrt((x0[0] - lo[0]) ** 2 + (x0[1] - lo[1]) ** 2 + (x0[2] - lo[2]) ** 2)
@@ -527,56 +543,54 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
                             + m12[8 + a] * ((x0[2] - lo[2]) / dl + x0[2] / dc))
     g1 = grad[0] * t1[0] + grad[1] * t1[1] + grad[2] * t1[2]
     g2 = grad[0] * t2[0] + grad[1] * t2[1] + grad[2] * t2[2]
-    idx = np.empty(3, np.int64)
-    scale = 1.0 / 2097152.0
-    mask = np.uint64(0x1FFFFF)
+    scale = 1.0 / 4294967296.0
+    key = _mix((np.uint64(part + 1) * np.uint64(0x9E3779B97F4A7C15)) ^ np.uint64(seed)
+               ^ (np.uint64(axis + 1) << np.uint64(61)))
+    m16 = np.uint64(0xFFFF)
+    m32 = np.uint64(0xFFFFFFFF)
+    u16 = 1.0 / 65536.0
+    root3 = math.sqrt(3.0)
+    d = np.empty(3)
     for p1 in range(lo1, hi1 + 1):
         for p2 in range(lo2, hi2 + 1):
-            base = n[a1] * (p1 * delta - y[a1]) + n[a2] * (p2 * delta - y[a2])
-            q0 = y[axis] - base / n[axis]
-            q_lo = q0 - half - spread
-            q_hi = q0 + half + spread
-            for p3 in range(int(math.floor(q_lo / delta)), int(math.ceil(q_hi / delta))):
-                idx[a1], idx[a2], idx[axis] = p1, p2, p3
-                h = _cell_hash(idx[0], idx[1], idx[2], part, seed)
-                hj = _mix(h + np.uint64(1))
-                d0 = (idx[0] + ((hj & mask) + 0.5) * scale) * delta - y[0]
-                d1 = (idx[1] + (((hj >> np.uint64(21)) & mask) + 0.5) * scale) * delta - y[1]
-                d2 = (idx[2] + (((hj >> np.uint64(42)) & mask) + 0.5) * scale) * delta - y[2]
-                dn = n[0] * d0 + n[1] * d1 + n[2] * d2
-                if abs(dn) >= 0.5 * delta:
-                    continue
-                s1 = t1[0] * d0 + t1[1] * d1 + t1[2] * d2      # tangent coordinates
-                s2 = t2[0] * d0 + t2[1] * d1 + t2[2] * d2
-                du = du0 + j11 * s1 + j12 * s2
-                dv = dv0 + j21 * s1 + j22 * s2
-                if not (-0.5 <= du < 0.5 and -0.5 <= dv < 0.5):
-                    continue
-                # optical path laser → scatterer → lens centre, linear in the tangent offset
-                # (curvature term ≈ |δ|²/(2L) < 1e-5 mm over a pixel footprint)
-                ha = _mix(h + np.uint64(2))
-                u_amp = ((ha & np.uint64(0xFFFFFFFF)) + 0.5) * (1.0 / 4294967296.0)
-                u_ph = ((ha >> np.uint64(32)) + 0.5) * (1.0 / 4294967296.0)
-                amp = math.sqrt(-math.log(u_amp))       # Rayleigh: circular Gaussian, E|c|² = 1
-                ph = phase0 + g1 * s1 + g2 * s2 + 2 * math.pi * u_ph
-                fu = (c + du - gc0 + 0.5) * s - 0.5 + off
-                fv = (r + dv - gr0 + 0.5) * s - 0.5 + off
-                _deposit_one(grid, w2, cross, fu, fv, amp * math.cos(ph), amp * math.sin(ph))
+            # the scatterer of lattice column (p1, p2): jittered in the a1–a2 plane, on the
+            # surface along the part's `axis` (the axis nearest the normal)
+            hj = _cell_hash(p1, p2, 0, key)
+            d[a1] = (p1 + ((hj & m32) + 0.5) * scale) * delta - y[a1]
+            d[a2] = (p2 + ((hj >> np.uint64(32)) + 0.5) * scale) * delta - y[a2]
+            d[axis] = -(n[a1] * d[a1] + n[a2] * d[a2]) / n[axis]
+            d0, d1, d2 = d[0], d[1], d[2]
+            s1 = t1[0] * d0 + t1[1] * d1 + t1[2] * d2      # tangent coordinates
+            s2 = t2[0] * d0 + t2[1] * d1 + t2[2] * d2
+            du = du0 + j11 * s1 + j12 * s2
+            dv = dv0 + j21 * s1 + j22 * s2
+            if not (-0.5 <= du < 0.5 and -0.5 <= dv < 0.5):
+                continue
+            # optical path laser → scatterer → lens centre, linear in the tangent offset
+            # (curvature term ≈ |δ|²/(2L) < 1e-5 mm over a pixel footprint)
+            ha = _mix(hj ^ np.uint64(0xD1B54A32D192ED03))  # amplitude bits
+            cre = (((ha & m16) + ((ha >> np.uint64(16)) & m16)) * u16 - 1.0) * root3
+            cim = ((((ha >> np.uint64(32)) & m16) + (ha >> np.uint64(48))) * u16 - 1.0) * root3
+            a = (cre + 1j * cim) * _cis(phase0 + g1 * s1 + g2 * s2, table)
+            fu = (c + du - gc0 + 0.5) * s - 0.5 + off
+            fv = (r + dv - gr0 + 0.5) * s - 0.5 + off
+            _deposit_one(grid, w2, cross, fu, fv, a.real, a.imag)
 
 
 @nb.njit(cache=True, parallel=True)
-def _deposit_base(base_tiles, t, s, ok, need, part_pt, part_n, m12, part_idx, lattice, seed, cam,
-                  lo, k_wave, grid, w2, cross):  # pragma: no cover - compiled
+def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, lattice, seed, cam,
+                  lo, k_wave, grid, w2, cross, table):  # pragma: no cover - compiled
     """Each needed pixel's scatterers, once, on the fine grid of its own tile (offset 1)."""
-    rows, cols = ok.shape
+    rows, cols = index.shape
     for i in nb.prange(base_tiles.shape[0]):
         tr, tc = base_tiles[i, 0], base_tiles[i, 1]
         for r in range(tr * t, min(rows, tr * t + t)):
             for c in range(tc * t, min(cols, tc * t + t)):
-                if ok[r, c] and need[r, c]:
-                    _deposit_pixel(r, c, part_idx[r, c], part_pt[r, c], part_n[r, c], m12[r, c],
-                                   lattice, seed, cam, lo, k_wave, grid[i], w2[i], cross[i],
-                                   tr * t, tc * t, s, 1.0)
+                j = index[r, c]
+                if j >= 0:
+                    _deposit_pixel(r, c, part_idx[j], part_pt[j], part_n[j], m12[j], lattice,
+                                   seed, cam, lo, k_wave, grid[i], w2[i], cross[i], tr * t,
+                                   tc * t, s, 1.0, table)
 
 
 @nb.njit(cache=True)

@@ -163,8 +163,12 @@ def _fresnel_inside(mi, dr, cos_i, eta):
 
 
 def random_walk(mi, dr, medium: WalkMedium, direction, weight, rng, active, max_steps: int,
-                nee=None) -> WalkResult:
-    """Random walks in the half-space z ≥ 0 below a boundary plane (one Dr.Jit loop).
+                nee=None, chunk: int = 128) -> WalkResult:
+    """Random walks in the half-space z ≥ 0 below a boundary plane.
+
+    The walks run in Dr.Jit loops of ``chunk`` events; between chunks the finished walks
+    are removed (compaction), so that the cost follows the total number of events and
+    not the longest walk of each SIMD packet.
 
     Parameters
     ----------
@@ -177,31 +181,96 @@ def random_walk(mi, dr, medium: WalkMedium, direction, weight, rng, active, max_
     weight : Float
         Power entering [W].
     rng : mitsuba.PCG32
-        One random stream per lane (advanced in place).
+        One random stream per lane.
     active : Bool
         Lanes that walk.
     max_steps : int
         Events after which a walk is abandoned (≥ 1).
     nee : callable, optional
-        ``nee(x, d, w, active, u)``: called at every scattering vertex x (local ``Point3f``,
-        before the new direction is drawn) with the incoming direction d, the weight w
-        after the albedo and a uniform sample u of the walk's stream (for dithering); used
-        to splat the vertex's light toward the camera.
+        ``nee(x, d, w, active, u, lane)``: called at every scattering vertex x (local
+        ``Point3f``, before the new direction is drawn) with the incoming direction d, the
+        weight w after the albedo, a uniform sample u of the walk's stream (for dithering)
+        and the walk's original lane index (``UInt32``, to gather per-walk data); used to
+        splat the vertex's light toward the camera.
+    chunk : int
+        Events per loop between compactions.
 
     Returns
     -------
     WalkResult
     """
-    sigma_t = medium.sigma_s + medium.sigma_a
-    albedo = medium.sigma_s / sigma_t
-    w_rr = 0.05 * mi.Float(weight)  # Russian-roulette threshold and survivor weight
-    state = (rng, mi.Point3f(0.0, 0.0, 0.0), mi.Vector3f(direction), mi.Float(weight),
-             mi.UInt32(0), mi.Bool(active), mi.Bool(False), mi.Vector3f(0.0, 0.0, -1.0))
+    n = max(dr.width(weight), dr.width(active), dr.width(direction), dr.width(rng.state))
+    weight = mi.Float(weight) + dr.zeros(mi.Float, n)
+    res = WalkResult(dr.zeros(mi.Bool, n), dr.zeros(mi.Point3f, n),
+                     mi.Vector3f(dr.zeros(mi.Float, n), dr.zeros(mi.Float, n), dr.full(mi.Float, -1.0, n)),
+                     dr.zeros(mi.Float, n), dr.zeros(mi.UInt32, n))
+    lanes = dr.compress(mi.Bool(active) & (mi.Float(weight) > 0))
+    if dr.width(lanes) == 0:
+        return res
+    params = [mi.Float(p) + dr.zeros(mi.Float, n) for p in (medium.sigma_s, medium.sigma_a,
+                                                            medium.g, medium.eta)]
+    state = _walk_state(mi, dr, lanes, direction, weight, rng, params)
+    done = 0
+    while done < max_steps:
+        done = min(done + chunk, max_steps)
+        state = _walk_chunk(mi, dr, state, done, nee)
+        _store_finished(mi, dr, state, res, done >= max_steps)
+        keep = dr.compress(state["act"])
+        if dr.width(keep) == 0:
+            break
+        state = {k: _gather(mi, dr, v, keep) for k, v in state.items()}
+    return res
+
+
+def _gather(mi, dr, value, index):
+    if isinstance(value, mi.PCG32):
+        out = mi.PCG32(size=dr.width(index))
+        out.state = dr.gather(mi.UInt64, value.state, index)
+        out.inc = dr.gather(mi.UInt64, value.inc, index)
+        return out
+    return dr.gather(type(value), value, index)
+
+
+def _walk_state(mi, dr, lanes, direction, weight, rng, params) -> dict:
+    """Compacted per-walk state of the lanes that walk."""
+    m = dr.width(lanes)
+    w0 = dr.gather(mi.Float, mi.Float(weight), lanes)
+    return {"lane": lanes, "rng": _gather(mi, dr, rng, lanes),
+            "x": dr.zeros(mi.Point3f, m),
+            "d": dr.gather(mi.Vector3f, mi.Vector3f(direction) + dr.zeros(mi.Vector3f, dr.width(rng.state)), lanes),
+            "w": w0, "w_rr": 0.05 * w0, "it": dr.zeros(mi.UInt32, m),
+            "act": dr.full(mi.Bool, True, m), "out": dr.zeros(mi.Bool, m),
+            "d_out": mi.Vector3f(dr.zeros(mi.Float, m), dr.zeros(mi.Float, m), dr.full(mi.Float, -1.0, m)),
+            "ss": dr.gather(mi.Float, params[0], lanes), "sa": dr.gather(mi.Float, params[1], lanes),
+            "g": dr.gather(mi.Float, params[2], lanes), "eta": dr.gather(mi.Float, params[3], lanes)}
+
+
+def _store_finished(mi, dr, st, res, last: bool) -> None:
+    """Write the results of the walks that ended (or hit the event limit) to their lanes."""
+    fin = ~st["act"] | last
+    lane = st["lane"]
+    dr.scatter(res.exited, st["out"], lane, fin)
+    dr.scatter(res.position, st["x"], lane, fin)
+    dr.scatter(res.direction, st["d_out"], lane, fin)
+    dr.scatter(res.weight, st["w"], lane, fin)
+    dr.scatter(res.steps, st["it"], lane, fin)
+    dr.eval(res.exited, res.position, res.direction, res.weight, res.steps)
+
+
+def _walk_chunk(mi, dr, st: dict, until: int, nee) -> dict:
+    """Advance every walk of ``st`` until it ends or has made ``until`` events."""
+    sigma_t = st["ss"] + st["sa"]
+    albedo = st["ss"] / sigma_t
+    medium = WalkMedium(st["ss"], st["sa"], st["g"], st["eta"])
+    lane, w_rr = st["lane"], st["w_rr"]
+    until = dr.opaque(mi.UInt32, until)        # not a literal: one kernel for every chunk
+    names = ("rng", "x", "d", "w", "it", "act", "out", "d_out")
 
     def cond(rng, x, d, w, it, act, out, d_out):
-        return act
+        return act & (it < until)
 
     def body(rng, x, d, w, it, act, out, d_out):
+        act = act & (it < until)
         t = -dr.log(1.0 - rng.next_float32()) / sigma_t
         t_b = dr.select(d.z < 0.0, -x.z / dr.minimum(d.z, -1e-12), dr.inf)
         at_boundary = t_b <= t
@@ -219,18 +288,20 @@ def random_walk(mi, dr, medium: WalkMedium, direction, weight, rng, active, max_
         scatter = act & ~at_boundary
         w = dr.select(scatter, w * albedo, w)
         if nee is not None:
-            nee(x, d, w, scatter, rng.next_float32())
+            nee(x, d, w, scatter, rng.next_float32(), lane)
         d_new = hg_sample(mi, dr, medium.g, d, rng.next_float32(), rng.next_float32())
         d = dr.select(scatter, d_new, dr.select(at_boundary, mi.Vector3f(d.x, d.y, -d.z), d))
         low = scatter & (it >= 8) & (w < w_rr)
         survive = rng.next_float32() * w_rr < w
         w = dr.select(low, dr.select(survive, w_rr, 0.0), w)
-        it += 1
-        act &= ~leave & ~(low & ~survive) & (it < max_steps)
+        it = dr.select(act, it + 1, it)
+        act &= ~leave & ~(low & ~survive)
         return rng, x, d, w, it, act, out, d_out
 
-    rng, x, d, w, it, act, out, d_out = dr.while_loop(state, cond, body)
-    return WalkResult(out, x, d_out, w, it)
+    result = dr.while_loop(tuple(st[k] for k in names), cond, body)
+    st = dict(st, **dict(zip(names, result)))
+    dr.eval(*[v for k, v in st.items() if k != "rng"], st["rng"].state, st["rng"].inc)
+    return st
 
 
 def total_reflectance(medium, n_paths: int = 200_000, cos_incidence: float = 1.0, seed: int = 0,

@@ -249,8 +249,8 @@ class LightTransport:
         rng = mi.PCG32(size=dr.width(power), initstate=mi.UInt64(s) * 0x9E3779B97F4A7C15
                        + (depth + 1), initseq=mi.UInt64(path_id))
 
-        def nee(x, d, w, act, u):
-            self._nee_splat(x, d, w, act, med, conn, u, target)
+        def nee(x, d, w, act, u, lane):
+            self._nee_splat(x, d, w, act, med, conn, u, lane, target)
 
         walk = random_walk(mi, dr, med, local.to_local(d_in), power, rng, entered,
                            self.max_walk_steps, nee)
@@ -299,15 +299,20 @@ class LightTransport:
             result.subsurface[key] = dr.zeros(mi.UInt32, self.shape[0] * self.shape[1])
         return result.subsurface[key]
 
-    def _nee_splat(self, x, d, w, act, med, conn, u, target):
-        """Next-event estimation through the plane boundary from walk vertex x → fixed-point splat."""
+    def _nee_splat(self, x, d, w, act, med, conn, u, lane, target):
+        """Next-event estimation through the plane boundary from walk vertex x → fixed-point splat
+        (the walk's constants gathered by its lane)."""
         mi, dr = self._mi, self._dr
-        w_i = conn["w_i"]
-        path = x.z * conn["inv_cos_i"]
+
+        def get(v):
+            return dr.gather(type(v), v, lane, act)
+
+        w_i = get(conn["w_i"])
+        path = x.z * get(conn["inv_cos_i"])
         ex, ey = x.x + path * w_i.x, x.y + path * w_i.y
-        sigma_t = med.sigma_s + med.sigma_a
-        value = w * hg_eval(dr, med.g, dr.dot(d, w_i)) * dr.exp(-sigma_t * path) * conn["k"]
-        uv = conn["uv0"] + conn["ju"] * ex + conn["jv"] * ey
+        sigma_t = get(med.sigma_s) + get(med.sigma_a)
+        value = w * hg_eval(dr, get(med.g), dr.dot(d, w_i)) * dr.exp(-sigma_t * path) * get(conn["k"])
+        uv = get(conn["uv0"]) + get(conn["ju"]) * ex + get(conn["jv"]) * ey
         fixed = mi.UInt32(dr.minimum(value + u, 4.0e9))
         iu = mi.Int32(dr.floor(uv.x + 0.5))
         iv = mi.Int32(dr.floor(uv.y + 0.5))

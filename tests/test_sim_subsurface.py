@@ -156,7 +156,6 @@ def test_apparent_emission_moves_forward_with_incidence(variant):
 
     m = TRANSLUCENT["marble"]
     n = 50_000
-    lane = (dr.arange(mi.UInt32, n) % 4096) * 2      # spread the sums: no atomic contention
     moments = []
     for incidence in (0.0, 20.0, 40.0, 60.0):
         si = dr.zeros(mi.SurfaceInteraction3f, n)
@@ -170,10 +169,11 @@ def test_apparent_emission_moves_forward_with_incidence(variant):
         acc = dr.zeros(mi.Float, 2 * 4096)
         sigma_t = m.sigma_s_per_mm + m.sigma_a_per_mm
 
-        def nee(x, d, wt, act, u):
+        def nee(x, d, wt, act, u, walk):
             val = wt * hg_eval(dr, 0.0, -d.z) * dr.exp(-sigma_t * x.z)   # toward the normal
-            dr.scatter_reduce(dr.ReduceOp.Add, acc, val, lane, act)
-            dr.scatter_reduce(dr.ReduceOp.Add, acc, val * x.x, lane + 1, act)
+            slot = (walk % 4096) * 2                  # spread the sums: no atomic contention
+            dr.scatter_reduce(dr.ReduceOp.Add, acc, val, slot, act)
+            dr.scatter_reduce(dr.ReduceOp.Add, acc, val * x.x, slot + 1, act)
 
         medium = WalkMedium(mi.Float(m.sigma_s_per_mm), mi.Float(m.sigma_a_per_mm), mi.Float(0.0),
                             mi.Float(m.eta))
