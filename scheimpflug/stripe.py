@@ -366,8 +366,11 @@ _CAND = 8              # fields per candidate: valid, u, snr, amp, saturated, bg
 
 @nb.njit(cache=True, nogil=True)
 def _separate_peaks(x, bg, thresh, dip, ks):
-    """Columns of the separate local maxima above ``thresh`` (a deeper dip than ``dip`` × the
-    lower peak's height above ``bg`` between neighbours), at most ks.size, by column."""
+    """Columns of the separate local maxima above ``thresh``, at most ks.size, by column.
+
+    Neighbouring maxima count as separate when the profile between them dips deeper than
+    ``dip`` × the lower one's height above ``bg``.
+    """
     n = x.shape[0]
     m = 0
     for k in range(1, n - 1):
@@ -707,11 +710,18 @@ def extract_stripes_batch(frames: Iterable, method: str = "gaussian3",
 class PeakChoices:
     """How a detector's per-row choices compare with the truth of one or more frames.
 
-    rows : rows where the truth has a stripe.
-    correct : detections within the tolerance of the true stripe centre.
-    secondary : wrong detections that sit on a peak of secondary light.
-    other : other wrong detections (incl. detections in rows without a true stripe).
-    missed : rows with a true stripe and no detection.
+    Parameters
+    ----------
+    rows : int
+        Rows where the truth has a stripe.
+    correct : int
+        Detections within the tolerance of the true stripe centre.
+    secondary : int
+        Wrong detections that sit on a peak of secondary light.
+    other : int
+        Other wrong detections (incl. detections in rows without a true stripe).
+    missed : int
+        Rows with a true stripe and no detection.
     """
 
     rows: int = 0
@@ -751,6 +761,7 @@ def peak_choices(profile: StripeProfile, stripe_u, secondary_u=None,
     Returns
     -------
     PeakChoices
+        The counts of this frame (add them up over frames with ``+``).
 
     Raises
     ------

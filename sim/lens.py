@@ -42,6 +42,7 @@ def floats(v) -> list[float]:
     Returns
     -------
     list of float
+        The elements in order.
     """
     return [float(c) for c in np.asarray(v, dtype=np.float64).ravel()]
 

@@ -241,6 +241,7 @@ class MaterialSettings:
         Returns
         -------
         Translucent or None
+            Its medium (also when ``subsurface`` is off).
         """
         return self.translucent.get(material) if is_translucent(material) else None
 
@@ -256,6 +257,7 @@ def is_translucent(material: str) -> bool:
     Returns
     -------
     bool
+        True for cardboard, tape, paper, white plastic and marble.
     """
     return material in TRANSLUCENT
 
@@ -330,6 +332,7 @@ def channel_for_wavelength(wavelength_nm: float) -> int:
     Returns
     -------
     int
+        2 below 490 nm, 1 below 580 nm, else 0.
     """
     if wavelength_nm < 490.0:
         return 2

@@ -170,15 +170,23 @@ _KRONECKER_U32 = tuple(int(round(c * 2**32)) & 0xFFFFFFFF for c in (
 
 @dataclass
 class FrameLight:
-    """A rendered frame and its laser light by origin (expected electrons, float32 (rows, columns)).
+    """A rendered frame and its laser light by origin (expected electrons).
 
-    image : laser (with speckle) + ambient [e⁻].
-    laser : all laser light before speckle, or None when not split (the ideal twin) [e⁻].
-    coherent : laser light weighted by each splat's speckle contrast [e⁻].
-    secondary : light that reached the imaged surface after ≥ 1 earlier surface
-        (inter-reflections; their subsurface light included), or None [e⁻].
-    subsurface : light that entered the first lit surface and left it elsewhere, or None [e⁻].
-    walks : (number of subsurface walks, their total events).
+    Parameters
+    ----------
+    image : (rows, columns) float32
+        Laser (with speckle) + ambient [e⁻].
+    laser : (rows, columns) float32 or None
+        All laser light before speckle; None when not split (the ideal twin) [e⁻].
+    coherent : (rows, columns) float32 or None
+        Laser light weighted by each splat's speckle contrast [e⁻].
+    secondary : (rows, columns) float32 or None
+        Light that reached the imaged surface after ≥ 1 earlier surface
+        (inter-reflections; their subsurface light included) [e⁻].
+    subsurface : (rows, columns) float32 or None
+        Light that entered the first lit surface and left it elsewhere [e⁻].
+    walks : tuple
+        (number of subsurface walks, their total events).
     """
 
     image: np.ndarray
@@ -312,6 +320,7 @@ class Renderer:
         Returns
         -------
         FrameLight
+            The image and, beyond the ideal twin, its laser light by origin.
         """
         self.scene.set_pose(rig_from_part)
         key = self._key(seed)
@@ -427,6 +436,7 @@ class Renderer:
         Returns
         -------
         FrameLight
+            ``laser`` and ``image`` hold the source's light (no ambient).
         """
         mi, dr = self._mi, self._dr
         self.scene.set_pose(rig_from_part)

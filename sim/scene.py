@@ -183,6 +183,7 @@ class SimScene:
         Returns
         -------
         mitsuba.UInt32
+            Index into ``specs`` plus one per hit.
         """
         import drjit as dr
 

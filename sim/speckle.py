@@ -206,8 +206,11 @@ class SurfaceSpeckle:
 
     # ------------------------------------------------------------ geometry
     def _ranges(self) -> tuple[float, float, float]:
-        """(min, max) lateral magnification m = f/(x − f) over the sheet the sensor sees, and the
-        largest column stretch 1/cos ψ of the chief rays on the sensor."""
+        """Magnification range and largest column stretch of the sensor's view.
+
+        (min, max) lateral magnification m = f/(x − f) over the sheet the sensor sees, and
+        the largest stretch 1/cos ψ of the chief rays on the sensor.
+        """
         from scheimpflug.model.camera import sensor_point_from_pixel, sheet_point_from_pixel
 
         cols = np.linspace(0, self.pose.columns - 1, 9)
@@ -233,6 +236,7 @@ class SurfaceSpeckle:
         Returns
         -------
         float
+            The grain [px].
         """
         return 1.22 * self.wavelength_mm * self.rig.lens.f_number * (1 + magnification) \
             / self.pose.pitch_mm
@@ -278,6 +282,7 @@ class SurfaceSpeckle:
         Returns
         -------
         (rows, columns) float32
+            Mean-1 speckle factor [-].
         """
         rows, cols = laser.shape
         laser = np.asarray(laser)
@@ -308,8 +313,10 @@ class SurfaceSpeckle:
 
     # ------------------------------------------------------------ internals
     def _deposit(self, index, part_pt, part_n, m12, part_idx):
-        """Scatterers of the needed pixels on per-tile fine grids (one-sample halo), halos
-        folded into their neighbours, cells normalised to unit variance.
+        """Scatterers of the needed pixels, deposited on per-tile fine grids.
+
+        Each tile's grid has a one-sample halo; halos are folded into their neighbours and
+        the cells normalised to unit variance.
 
         Returns (slot (tile rows, tile columns) int64 — grid index of a tile or −1, grids
         (n, B, B) complex128 with B = T·s + 2 (index 0 = fine sample −1), occupancy (n, B, B),
@@ -358,9 +365,12 @@ class SurfaceSpeckle:
         return kernels, index
 
     def _hits(self, need: np.ndarray, rows: int, cols: int):
-        """Chief-ray hits of the needed pixels, compact: index (rows, columns) int64 into the
-        arrays (−1 = no hit or not needed), part-frame point (n, 3) and normal (n, 3, toward
-        the lens), rig_from_part rows (n, 12), part index (n,)."""
+        """Chief-ray hits of the needed pixels, in compact arrays.
+
+        Returns index (rows, columns) int64 into the arrays (−1 = no hit or not needed),
+        part-frame point (n, 3) and normal (n, 3, toward the lens), rig_from_part rows
+        (n, 12), part index (n,).
+        """
         index = -np.ones((rows, cols), np.int64)
         rr, cc = np.nonzero(need)
         if self._directions is None:
@@ -430,7 +440,7 @@ def _cis(phase, table):  # pragma: no cover - compiled
 @nb.njit(cache=True, nogil=True)
 def _project(x, y, z, cam):  # pragma: no cover - compiled
     """Chief-ray image (u, v) [px] of a rig point (thin lens, radial distortion, sensor plane)."""
-    f, k1, k2 = cam[13], cam[14], cam[15]
+    k1, k2 = cam[14], cam[15]
     t2 = (y * y + z * z) / (x * x)
     s = 1.0 + k1 * t2 + k2 * t2 * t2
     wx, wy, wz = -x, -y * s, -z * s
@@ -444,7 +454,7 @@ def _project(x, y, z, cam):  # pragma: no cover - compiled
 
 @nb.njit(cache=True, nogil=True)
 def _affine(m, p0, p1, p2):  # pragma: no cover - compiled
-    """m (12,) = rows of a 3 × 4 rigid transform, applied to the point (p0, p1, p2)."""
+    """M (12,) = rows of a 3 × 4 rigid transform, applied to the point (p0, p1, p2)."""
     return (m[0] * p0 + m[1] * p1 + m[2] * p2 + m[3], m[4] * p0 + m[5] * p1 + m[6] * p2 + m[7],
             m[8] * p0 + m[9] * p1 + m[10] * p2 + m[11])
 
@@ -513,7 +523,8 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
     surface along the third axis (so it stays on the surface when the part moves; the
     density is ≥ 1/δ² per area).  Its amplitude is circular with independent triangular
     real and imaginary parts (E|c|² = 1; sums of many are Gaussian), times
-    exp(i·k·optical path), the path linear over the pixel's footprint."""
+    exp(i·k·optical path), the path linear over the pixel's footprint.
+    """
     t1, t2 = _tangents(n)
     u0, v0, j11, j21, j12, j22 = _jacobian(y, t1, t2, m12, cam)
     det = j11 * j22 - j12 * j21
@@ -620,7 +631,7 @@ def _fold_halos(base_tiles, slot, n, grid, w2, cross):  # pragma: no cover - com
 
 @nb.njit(cache=True, parallel=True)
 def _normalise(grid, w2, cross, occ, corr):  # pragma: no cover - compiled
-    """o = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile."""
+    """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile."""
     n = grid.shape[1] - 2
     for i in nb.prange(grid.shape[0]):
         sums = np.zeros(4)
@@ -647,8 +658,11 @@ def _normalise(grid, w2, cross, occ, corr):  # pragma: no cover - compiled
 
 @nb.njit(cache=True, nogil=True)
 def _window(slot, grid, occ, n, fa0, fb0, size, win, wocc):  # pragma: no cover - compiled
-    """Copy the normalised field (and occupancy) of global fine rows fa0… and columns fb0…
-    (a size × size window) out of the tile grids; returns whether every cell is occupied."""
+    """Copy a size × size window of the normalised field and occupancy out of the tile grids.
+
+    The window starts at global fine row fa0 and column fb0; returns whether every cell
+    is occupied.
+    """
     full = True
     for a in range(size):
         fa = fa0 + a

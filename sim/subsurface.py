@@ -76,9 +76,16 @@ FIXED_POINT_SCALE = 64.0
 class WalkMedium:
     """Per-lane medium parameters of a walk (Dr.Jit ``Float`` arrays or Python floats).
 
-    sigma_s, sigma_a : scattering and absorption coefficients [1/mm].
-    g : Henyey–Greenstein asymmetry [-].
-    eta : relative refractive index of the interior [-].
+    Parameters
+    ----------
+    sigma_s : Float
+        Scattering coefficient [1/mm].
+    sigma_a : Float
+        Absorption coefficient [1/mm].
+    g : Float
+        Henyey–Greenstein asymmetry [-].
+    eta : Float
+        Relative refractive index of the interior [-].
     """
 
     sigma_s: object
@@ -91,11 +98,18 @@ class WalkMedium:
 class WalkResult:
     """Where the walks ended (Dr.Jit arrays, local frame of each walk's entry point).
 
-    exited : ``Bool``, the light left through the boundary.
-    position : ``Point3f``, exit point (t1, t2, 0) [mm].
-    direction : ``Vector3f``, direction outside (z < 0 points away from the material).
-    weight : ``Float``, power carried out [W].
-    steps : ``UInt32``, events of each walk.
+    Parameters
+    ----------
+    exited : Bool
+        The light left through the boundary.
+    position : Point3f
+        Exit point (t1, t2, 0) [mm].
+    direction : Vector3f
+        Direction outside (z < 0 points away from the material).
+    weight : Float
+        Power carried out [W].
+    steps : UInt32
+        Events of each walk.
     """
 
     exited: object
@@ -198,6 +212,7 @@ def random_walk(mi, dr, medium: WalkMedium, direction, weight, rng, active, max_
     Returns
     -------
     WalkResult
+        One entry per input lane (zeros for lanes that did not walk).
     """
     n = max(dr.width(weight), dr.width(active), dr.width(direction), dr.width(rng.state))
     weight = mi.Float(weight) + dr.zeros(mi.Float, n)

@@ -49,10 +49,16 @@ __all__ = [
 class SplatBatch:
     """Splats of one path depth (numpy).
 
-    depth : path depth k of the vertices (1 = first surface).
-    uv : (2, n) float32 pixel coordinates [px].
-    value : (n,) float32 flux [W].
-    contrast : (n,) float32 speckle contrast of the light of each splat [-].
+    Parameters
+    ----------
+    depth : int
+        Path depth k of the vertices (1 = first surface).
+    uv : (2, n) float32
+        Pixel coordinates [px].
+    value : (n,) float32
+        Flux [W].
+    contrast : (n,) float32
+        Speckle contrast of the light of each splat [-].
     """
 
     depth: int
@@ -65,11 +71,16 @@ class SplatBatch:
 class TransportResult:
     """Light beyond the first surface's direct reflection.
 
-    batches : surface splats of depths ≥ 2 (:class:`SplatBatch`).
-    subsurface : {depth: (rows, columns) float32 expected electrons} of light that
-        walked inside a translucent material entered at that depth (depth-1 light is
-        the first surface's own subsurface light; ≥ 2 is secondary).
-    walks : number of subsurface walks, total events of those walks.
+    Parameters
+    ----------
+    batches : list of SplatBatch
+        Surface splats of depths ≥ 2.
+    subsurface : dict
+        {1 or 2: (rows, columns) expected electrons} of light that walked inside a
+        translucent material entered at depth 1 (the first surface's own subsurface
+        light) or ≥ 2 (secondary) [e⁻].
+    walks : tuple
+        (number of subsurface walks, total events of those walks).
     """
 
     batches: list = field(default_factory=list)
@@ -161,6 +172,7 @@ class LightTransport:
         Returns
         -------
         TransportResult
+            Splats of depths ≥ 2 and the subsurface images.
         """
         mi, dr = self._mi, self._dr
         result = TransportResult()
@@ -300,8 +312,11 @@ class LightTransport:
         return result.subsurface[key]
 
     def _nee_splat(self, x, d, w, act, med, conn, u, lane, target):
-        """Next-event estimation through the plane boundary from walk vertex x → fixed-point splat
-        (the walk's constants gathered by its lane)."""
+        """Next-event estimation through the plane boundary from walk vertex x.
+
+        The walk's constants are gathered by its lane; the splat goes to the fixed-point
+        image.
+        """
         mi, dr = self._mi, self._dr
 
         def get(v):

@@ -157,6 +157,7 @@ class MitsubaTwin:
         Returns
         -------
         (rows, columns) float32
+            Expected electrons [e⁻].
         """
         light = self.renderer.render_light(frame.rig_from_part, frame.seed)
         self._posed = frame.index
@@ -174,6 +175,7 @@ class MitsubaTwin:
         Returns
         -------
         FrameLight or None
+            None if another frame was rendered since.
         """
         index, light = self._light
         return light if index == frame.index else None

@@ -30,7 +30,8 @@ DOCUMENTED_MODULES = [
     "scheimpflug.budget", "scheimpflug.model.rig", "scheimpflug.model.hinge", "scheimpflug.model.camera",
     "scheimpflug.model.design", "scheimpflug.model.binning", "scheimpflug.io.frames", "scheimpflug.io.ply",
     "scheimpflug.io.atomic", "sim.variant", "sim.scene", "sim.materials", "sim.lightsheet", "sim.render",
-    "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer",
+    "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer", "sim.lens", "sim.speckle",
+    "sim.transport", "sim.subsurface",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
 #: parameter is documented with a type and a description and no unknown one is, a function that

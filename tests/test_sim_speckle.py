@@ -152,10 +152,10 @@ def test_stripe_scatter_matches_dorsch_limit(variant):
     Dorsch et al.'s regime: the spot (here the stripe, the laser focused on the plate) about
     as wide as a speckle grain — f/16 with the paper rig's 150 µm sheet waist.
     """
+    from scheimpflug.stripe import extract_stripes
     from sim.render import Renderer, RenderSettings
     from sim.scene import SimScene
     from sim.truth import laser_origin_mm
-    from scheimpflug.stripe import extract_stripes
 
     base = load_preset("paper").replace(lens={"f_number": 16.0}, laser={"speckle_contrast": 1.0},
                                         environment={"ambient_irradiance_w_m2": 0.0})

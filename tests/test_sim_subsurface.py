@@ -169,7 +169,7 @@ def test_apparent_emission_moves_forward_with_incidence(variant):
         acc = dr.zeros(mi.Float, 2 * 4096)
         sigma_t = m.sigma_s_per_mm + m.sigma_a_per_mm
 
-        def nee(x, d, wt, act, u, walk):
+        def nee(x, d, wt, act, u, walk, acc=acc, sigma_t=sigma_t):
             val = wt * hg_eval(dr, 0.0, -d.z) * dr.exp(-sigma_t * x.z)   # toward the normal
             slot = (walk % 4096) * 2                  # spread the sums: no atomic contention
             dr.scatter_reduce(dr.ReduceOp.Add, acc, val, slot, act)

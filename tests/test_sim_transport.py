@@ -192,8 +192,8 @@ def test_multibounce_subsurface_frames_bit_identical_across_threads(variant):
     import drjit as dr
 
     from scheimpflug.model.binning import binned_rig
-    from sim.writer import MitsubaTwin
     from sim.scenarios import rotary_scenario
+    from sim.writer import MitsubaTwin
 
     rig = binned_rig(load_preset("paper"), 4).replace(twin={"bounces": 3, "subsurface": True})
     scenario = rotary_scenario(rig, part="pile", step_deg=40, frames=1)

@@ -171,16 +171,20 @@ class Twin:
 
     The defaults are the ideal twin: first-surface light only, opaque materials.
 
-    bounces : light-path depth of the laser pass: 1 = the first surface the sheet meets
-        only; N > 1 also follows the light N − 1 more times from surface to surface
+    Parameters
+    ----------
+    bounces : int
+        Light-path depth of the laser pass: 1 = the first surface the sheet meets only;
+        N > 1 also follows the light N − 1 more times from surface to surface
         (inter-reflections) [-].
-    subsurface : translucent materials (cardboard, paper, tape, plastic, marble) carry
-        a scattering interior below a rough dielectric boundary and the light random-walks
-        inside (true), or are opaque Lambertian surfaces (false) [-].
-    speckle_model : ``"surface"`` — speckle formed by coherent imaging of scatterers
-        attached to the lit surface (moves with the part); ``"sensor"`` — a random
-        pattern fixed to the sensor.  Its strength is ``[laser] speckle_contrast``
-        (0 = no speckle) [-].
+    subsurface : bool
+        Translucent materials (cardboard, paper, tape, plastic, marble) carry a
+        scattering interior below a rough dielectric boundary and the light random-walks
+        inside (true), or are opaque Lambertian surfaces (false).
+    speckle_model : str
+        ``"surface"`` — speckle formed by coherent imaging of scatterers attached to the
+        lit surface (moves with the part); ``"sensor"`` — a random pattern fixed to the
+        sensor.  Its strength is ``[laser] speckle_contrast`` (0 = no speckle).
     """
 
     bounces: int = 1
