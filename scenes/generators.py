@@ -56,6 +56,30 @@ def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float 
 
     The measured face is the −x face at x = 0 (it faces the laser, which comes
     from −x).  Defaults: the paper's 89 mm height; 120 mm wide, 5 mm thick (assumed).
+
+    Parameters
+    ----------
+    width_mm : float, default 120.0
+        Width w along y [mm].
+    height_mm : float, default 89.0
+        Height h [mm].
+    thickness_mm : float, default 5.0
+        Thickness t along x [mm].
+    material : str, default "metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "plate"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "plate").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, or the material is unknown.
     """
     _positive(width_mm=width_mm, height_mm=height_mm, thickness_mm=thickness_mm)
     analytic = {"kind": "plate", "width_mm": float(width_mm), "height_mm": float(height_mm),
@@ -72,6 +96,30 @@ def blocker(thickness_mm: float = 2.0, width_mm: float = 60.0, height_mm: float 
     Its large faces are perpendicular to x; the face the laser hits at stage
     angle 0 is at x = −t/2 (``analytic["laser_face_x_mm"]``), so an axis locator
     adds t/2 to the measured face distance.
+
+    Parameters
+    ----------
+    thickness_mm : float, default 2.0
+        Thickness t along x [mm].
+    width_mm : float, default 60.0
+        Width w along y [mm].
+    height_mm : float, default 80.0
+        Height h [mm].
+    material : str, default "metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "blocker"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "blocker").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, or the material is unknown.
     """
     _positive(thickness_mm=thickness_mm, width_mm=width_mm, height_mm=height_mm)
     analytic = {"kind": "blocker", "thickness_mm": float(thickness_mm), "width_mm": float(width_mm),
@@ -87,6 +135,30 @@ def box(length_mm: float = 252.0, width_mm: float = 165.0, height_mm: float = 62
 
     Defaults: the paper's cardboard box, 252 × 165 × 62 mm.  Its faces are
     planes: ``analytic["planes"]`` lists (unit normal, offset) with n·x = offset.
+
+    Parameters
+    ----------
+    length_mm : float, default 252.0
+        Length L along x [mm].
+    width_mm : float, default 165.0
+        Width W along y [mm].
+    height_mm : float, default 62.0
+        Height H [mm].
+    material : str, default "cardboard"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "box"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "box").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, or the material is unknown.
     """
     _positive(length_mm=length_mm, width_mm=width_mm, height_mm=height_mm)
     L, W, H = float(length_mm), float(width_mm), float(height_mm)
@@ -114,7 +186,32 @@ def _theta(n: int) -> np.ndarray:
 
 def cylinder(diameter_mm: float = 100.0, height_mm: float = 108.0, *, max_sagitta_mm: float = _SAGITTA_MM,
              material: str = "metal", name: str = "cylinder") -> Part:
-    """Smooth solid cylinder on the axis: r ≤ D/2, z ∈ [0, H] [mm]."""
+    """Smooth solid cylinder on the axis: r ≤ D/2, z ∈ [0, H] [mm].
+
+    Parameters
+    ----------
+    diameter_mm : float, default 100.0
+        Diameter D [mm].
+    height_mm : float, default 108.0
+        Height H [mm].
+    max_sagitta_mm : float, default 1e-4
+        Largest chord sagitta of the polygonal wall [mm].
+    material : str, default "metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "cylinder"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "cylinder").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, or the material is unknown.
+    """
     _positive(diameter_mm=diameter_mm, height_mm=height_mm, max_sagitta_mm=max_sagitta_mm)
     R = diameter_mm / 2
     n = segments_for_sagitta(R, max_sagitta_mm)
@@ -161,7 +258,41 @@ def knurled_cylinder(diameter_mm: float = 100.0, height_mm: float = 108.0, *,
 
     Parameters
     ----------
-    max_edge_mm : largest triangle edge across the teeth, along θ and z [mm].
+    diameter_mm : float, default 100.0
+        Diameter D (at the knurl crests) [mm].
+    height_mm : float, default 108.0
+        Height H [mm].
+    band_z0_mm : float, default 0.0
+        Bottom of the knurled band [mm].
+    band_height_mm : float, default 20.0
+        Height of the band [mm]; 0 gives :func:`cylinder` (the knurl
+        parameters are then ignored).
+    pattern : {"diamond", "straight"}
+        Knurl pattern (:func:`scenes.knurl.knurl_spec`).
+    pitch_mm : float, default 1.0
+        Requested normal pitch of the grooves [mm] (snapped to close the circle).
+    depth_mm : float, default 0.4
+        Groove depth [mm].
+    helix_deg : float, default 30.0
+        Groove angle to the axis [deg].
+    max_edge_mm : float, default 0.15
+        Largest triangle edge across the teeth, along θ and z [mm].
+    material : str, default "metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "cylinder"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "knurled_cylinder", the knurl in ``knurl``).
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, the band does not lie within
+        [0, H], a knurl parameter is out of range, or the material is unknown.
     """
     if band_height_mm == 0:
         return cylinder(diameter_mm, height_mm, material=material, name=name)
@@ -194,6 +325,41 @@ def knurled_ring(od_mm: float = 69.0, id_mm: float = 45.0, height_mm: float = 15
 
     Defaults: the paper's OD 69 mm; ID 45, height 15, diamond knurl pitch 1.2 mm,
     depth 0.5 mm, 30° helix (assumed).
+
+    Parameters
+    ----------
+    od_mm : float, default 69.0
+        Outer diameter at the knurl crests [mm].
+    id_mm : float, default 45.0
+        Bore diameter [mm], < od_mm − 2·depth_mm.
+    height_mm : float, default 15.0
+        Height h [mm].
+    pattern : {"diamond", "straight"}
+        Knurl pattern (:func:`scenes.knurl.knurl_spec`).
+    pitch_mm : float, default 1.2
+        Requested normal pitch of the grooves [mm] (snapped to close the circle).
+    depth_mm : float, default 0.5
+        Groove depth [mm].
+    helix_deg : float, default 30.0
+        Groove angle to the axis [deg].
+    max_edge_mm : float, default 0.15
+        Largest triangle edge across the teeth, along θ and z [mm].
+    material : str, default "knurled-metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "ring"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "knurled_ring").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, the bore is not smaller than
+        the knurl roots, a knurl parameter is out of range, or the material is unknown.
     """
     _positive(od_mm=od_mm, id_mm=id_mm, height_mm=height_mm)
     if not id_mm < od_mm - 2 * depth_mm:
@@ -217,6 +383,33 @@ def tape_roll(od_mm: float = 120.0, id_mm: float = 76.0, width_mm: float = 48.0,
     """Roll of tape lying flat: annulus ID/2 ≤ r ≤ OD/2, z ∈ [0, width] [mm].
 
     Defaults: the paper's OD 120 mm; 76 mm (3") core, 48 mm wide (assumed).
+
+    Parameters
+    ----------
+    od_mm : float, default 120.0
+        Outer diameter [mm].
+    id_mm : float, default 76.0
+        Core (inner) diameter [mm], < od_mm.
+    width_mm : float, default 48.0
+        Width of the tape = height of the roll lying flat [mm].
+    max_sagitta_mm : float, default 1e-4
+        Largest chord sagitta of the polygonal walls [mm].
+    material : str, default "tape"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "tape"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "tape_roll").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, ``id_mm`` ≥ ``od_mm``, or the
+        material is unknown.
     """
     _positive(od_mm=od_mm, id_mm=id_mm, width_mm=width_mm, max_sagitta_mm=max_sagitta_mm)
     if not id_mm < od_mm:
@@ -264,7 +457,35 @@ def sphere(diameter_mm: float = 25.4, *, stand_height_mm: float = 30.0, post_dia
     stand + D/2); the post (Ø ``post_diameter_mm``) runs from the table up to the
     sphere's centre, inside the sphere, as a separate closed shell.
     ``stand_height_mm = 0``: a bare sphere touching the table.  The sphere is an
-    icosphere inscribed in the true sphere with sagitta ≤ ``max_sagitta_mm``.
+    icosphere inscribed in the true sphere with sagitta ≤ ``max_sagitta_mm``
+    (at most 7 subdivisions).
+
+    Parameters
+    ----------
+    diameter_mm : float, default 25.4
+        Sphere diameter D [mm].
+    stand_height_mm : float, default 30.0
+        Height of the sphere's lowest point above the table (≥ 0) [mm].
+    post_diameter_mm : float, default 8.0
+        Post diameter [mm].
+    max_sagitta_mm : float, default 1e-3
+        Largest sagitta of the icosphere's facets [mm] (the post: 10×).
+    material : str, default "metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "sphere"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "sphere").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, ``stand_height_mm`` < 0, or the
+        material is unknown.
     """
     _positive(diameter_mm=diameter_mm, post_diameter_mm=post_diameter_mm, max_sagitta_mm=max_sagitta_mm)
     if stand_height_mm < 0:
@@ -281,7 +502,39 @@ def sphere(diameter_mm: float = 25.4, *, stand_height_mm: float = 30.0, post_dia
 def ball_bar(sphere_diameter_mm: float = 20.0, centre_distance_mm: float = 100.0, *,
              stand_height_mm: float = 30.0, post_diameter_mm: float = 6.0,
              max_sagitta_mm: float = 1e-3, material: str = "metal", name: str = "ball-bar") -> Part:
-    """Two equal spheres on posts, centres at (±L/2, 0, stand + D/2) [mm] (VDI/VDE 2634 style)."""
+    """Two equal spheres on posts, centres at (±L/2, 0, stand + D/2) [mm] (VDI/VDE 2634 style).
+
+    Each sphere and post is built as in :func:`sphere`.
+
+    Parameters
+    ----------
+    sphere_diameter_mm : float, default 20.0
+        Sphere diameter D [mm].
+    centre_distance_mm : float, default 100.0
+        Distance L between the sphere centres [mm], > D.
+    stand_height_mm : float, default 30.0
+        Height of the spheres' lowest points above the table (≥ 0) [mm].
+    post_diameter_mm : float, default 6.0
+        Post diameter [mm].
+    max_sagitta_mm : float, default 1e-3
+        Largest sagitta of the icosphere's facets [mm].
+    material : str, default "metal"
+        Material tag (:data:`scenes.part.MATERIALS`).
+    name : str, default "ball-bar"
+        Part name.
+
+    Returns
+    -------
+    Part
+        The part in its own frame (standing on ``z = 0``), with its analytic
+        description (``kind`` "ball_bar").
+
+    Raises
+    ------
+    MeshError
+        When a dimension is not a finite number > 0, ``centre_distance_mm`` ≤
+        ``sphere_diameter_mm``, ``stand_height_mm`` < 0, or the material is unknown.
+    """
     _positive(sphere_diameter_mm=sphere_diameter_mm, centre_distance_mm=centre_distance_mm,
               post_diameter_mm=post_diameter_mm, max_sagitta_mm=max_sagitta_mm)
     if centre_distance_mm <= sphere_diameter_mm or stand_height_mm < 0:

@@ -49,18 +49,33 @@ def knurl_spec(radius_mm: float, z0_mm: float, z1_mm: float, *, pattern: str = "
 
     Parameters
     ----------
-    radius_mm : crest radius R [mm].
-    z0_mm, z1_mm : band limits along the axis [mm], z0 < z1.
-    pattern : ``"straight"`` (one groove family) or ``"diamond"`` (two, crossed).
-    pitch_mm : requested normal pitch p [mm].
-    depth_mm : groove depth d [mm], 0 < d < R.
-    helix_deg : groove angle α to the axis [deg]; 0 ≤ α ≤ 60 (diamond: α > 0).
+    radius_mm : float
+        Crest radius R [mm].
+    z0_mm : float
+        Lower band limit along the axis [mm].
+    z1_mm : float
+        Upper band limit along the axis [mm], z1 > z0.
+    pattern : {"diamond", "straight"}
+        ``"straight"`` (one groove family) or ``"diamond"`` (two, crossed; default).
+    pitch_mm : float, default 1.0
+        Requested normal pitch p [mm], 0 < p < R.
+    depth_mm : float, default 0.4
+        Groove depth d [mm], 0 < d < min(p, R).
+    helix_deg : float, default 30.0
+        Groove angle α to the axis [deg]; 0 ≤ α ≤ 60 (diamond: α > 0).
 
     Returns
     -------
-    dict with ``pattern, crest_radius_mm, root_radius_mm, depth_mm, pitch_mm``
-    (actual), ``requested_pitch_mm, helix_deg, teeth_around, circumferential_pitch_mm,
-    axial_period_mm`` (``null`` for α = 0), ``band_z_range_mm``.
+    dict
+        ``pattern, crest_radius_mm, root_radius_mm, depth_mm, pitch_mm``
+        (actual), ``requested_pitch_mm, helix_deg, teeth_around`` (N ≥ 3),
+        ``circumferential_pitch_mm, axial_period_mm`` (None, JSON ``null``, for
+        α = 0), ``band_z_range_mm``; lengths [mm], angle [deg].
+
+    Raises
+    ------
+    ValueError
+        For an unknown pattern or a parameter outside the ranges above.
     """
     _validate(radius_mm, z0_mm, z1_mm, pattern, pitch_mm, depth_mm, helix_deg)
     cos_a = math.cos(math.radians(helix_deg))
@@ -94,13 +109,22 @@ def _tri(x: np.ndarray) -> np.ndarray:
 
 
 def knurl_radius_mm(theta_rad, z_mm, spec: dict) -> np.ndarray:
-    """Exact surface radius of the knurl band at (θ, z) [mm] (broadcasting arrays).
+    """Exact surface radius of the knurl band at (θ, z).
 
     Parameters
     ----------
-    theta_rad : float or array, angle about the axis [rad].
-    z_mm : float or array, height [mm] (meaningful inside ``band_z_range_mm``).
-    spec : dict from :func:`knurl_spec` (or a part's ``analytic["knurl"]``).
+    theta_rad : float or array_like
+        Angle about the axis [rad].
+    z_mm : float or array_like
+        Height [mm] (meaningful inside ``band_z_range_mm``).
+    spec : dict
+        From :func:`knurl_spec` (or a part's ``analytic["knurl"]``).
+
+    Returns
+    -------
+    ndarray
+        r(θ, z) [mm], the broadcast shape of ``theta_rad`` and ``z_mm``:
+        between the root R − d and the crest R (module docstring).
     """
     r_c, p, d = spec["crest_radius_mm"], spec["pitch_mm"], spec["depth_mm"]
     alpha = math.radians(spec["helix_deg"])
@@ -114,10 +138,24 @@ def knurl_radius_mm(theta_rad, z_mm, spec: dict) -> np.ndarray:
 def knurl_grid(spec: dict, max_edge_mm: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
     """Aligned grid (see module doc) with edges ≤ ``max_edge_mm`` along θ and z.
 
+    Parameters
+    ----------
+    spec : dict
+        From :func:`knurl_spec`.
+    max_edge_mm : float, default 0.15
+        Largest grid step along the circumference and along z [mm].
+
     Returns
     -------
-    theta_rad : (N k,) float [rad]
-    z_mm : (m,) float, rows from z0 to z1 inclusive [mm]
+    theta_rad : (N k,) float
+        Angles 2π i / (N k), i = 0 … N k − 1 [rad]; k even, ≥ 4.
+    z_mm : (m,) float
+        Rows from z0 to z1 inclusive [mm] (only the two band ends for α = 0).
+
+    Raises
+    ------
+    ValueError
+        When ``max_edge_mm`` ≤ 0.
     """
     if max_edge_mm <= 0:
         raise ValueError(f"max_edge_mm = {max_edge_mm}: must be > 0")

@@ -23,19 +23,31 @@ def load_part(name_or_path: str | os.PathLike, *, seed: int | None = 0, units: s
 
     Parameters
     ----------
-    name_or_path : a name of :data:`PART_NAMES`, or a path ending in .stl/.ply/.obj
+    name_or_path : str or os.PathLike
+        A name of :data:`PART_NAMES`, or a path ending in .stl/.ply/.obj
         (a user mesh) or .toml (a scene file).
-    seed : run seed for scene files with a ``[variation]`` table; presets and
+    seed : int or None, default 0
+        Run seed for scene files with a ``[variation]`` table; presets and
         meshes do not depend on it.
-    units : unit of a mesh file: "mm", "m" or "inch" (presets: only "mm").
-    axis_offset_mm : (2,) float, (x, y) of the rotary axis in the given
-        geometry's frame [mm]; the assembly is shifted by −offset.
-    **overrides : preset generator parameters (e.g. ``height_mm=50``); for a
-        mesh file ``material`` and ``name``.
+    units : str, default "mm"
+        Unit of a mesh file: "mm", "m" or "inch" (presets and scene files: only "mm").
+    axis_offset_mm : (2,) array_like, default (0, 0)
+        (x, y) of the rotary axis in the given geometry's frame [mm]; the
+        assembly is shifted by −offset.
+    **overrides
+        Preset generator parameters (e.g. ``height_mm=50``); for a mesh file
+        ``material`` and ``name``; none for a scene file.
+
+    Returns
+    -------
+    Assembly
+        The parts in the part frame (rotary axis on ``z``).
 
     Raises
     ------
-    MeshError : unknown name, bad file, bad parameter.
+    MeshError
+        Unknown name, bad file, bad parameter, units or overrides where they
+        do not apply, or an ``axis_offset_mm`` that is not two finite numbers.
     """
     key = str(name_or_path)
     suffix = Path(key).suffix.lower()

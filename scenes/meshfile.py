@@ -43,8 +43,28 @@ def _check_file(path: Path) -> None:
         raise MeshError(f"{path}: file is empty")
 
 
+def _check_stl(path: Path) -> None:
+    """Refuse a file that is neither a binary STL (84 + 50·n bytes) nor an ASCII one ("solid").
+
+    trimesh returns an empty mesh for some garbage (depending on which text
+    decoders are installed); deciding here keeps the message the same everywhere.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(84)
+    n = int.from_bytes(head[80:84], "little") if len(head) == 84 else -1
+    if n >= 0 and size == 84 + 50 * n:
+        return
+    if head.lstrip().lower().startswith(b"solid"):
+        return
+    raise MeshError(f"{path}: cannot read as STL mesh (not a binary STL: {size} bytes for a header of "
+                    f"{max(n, 0)} triangles; not an ASCII STL: no 'solid' keyword)")
+
+
 def _read(path: Path) -> trimesh.Trimesh:
     kind = path.suffix.lower().lstrip(".")
+    if kind == "stl":
+        _check_stl(path)
     try:
         mesh = trimesh.load(path, file_type=kind, force="mesh", process=True)
     except Exception as exc:  # trimesh raises many kinds on corrupt input
@@ -61,17 +81,43 @@ def load_mesh(path: str | os.PathLike, *, units: str = "mm", axis_offset_mm=(0.0
               material: str = "metal", name: str | None = None, object_id: int = 1) -> Part:
     """A user mesh as a :class:`Part` in mm, with the rotary axis on ``z``.
 
+    The file is read by trimesh (with its default processing: duplicate
+    vertices merged), scaled to mm and shifted so the rotary axis is ``z``.
+
     Parameters
     ----------
-    path : STL, PLY or OBJ file.
-    units : length unit of the file: ``"mm"``, ``"m"`` or ``"inch"``.
-    axis_offset_mm : (2,) float, (x, y) of the rotary axis in the file's frame,
-        after unit conversion [mm]; the mesh is shifted by −offset.
-    material : a tag of :data:`~scenes.part.MATERIALS`.
+    path : str or os.PathLike
+        STL, PLY or OBJ file.
+    units : str, default "mm"
+        Length unit of the file: ``"mm"``, ``"m"`` or ``"inch"`` (also ``"in"``).
+    axis_offset_mm : (2,) array_like, default (0, 0)
+        (x, y) of the rotary axis in the file's frame, after unit conversion
+        [mm]; the mesh is shifted by −offset.
+    material : str, default "metal"
+        A tag of :data:`~scenes.part.MATERIALS`.
+    name : str, optional
+        Part name; default the file name without its extension.
+    object_id : int, default 1
+        Object id of the part.
 
     Returns
     -------
-    Part with ``analytic = {"kind": "mesh", "file": ..., "units": ..., ...}``.
+    Part
+        The mesh in the part frame [mm], with ``analytic = {"kind": "mesh",
+        "file": ..., "units": ..., "axis_offset_mm": ..., "watertight": ...}``.
+
+    Raises
+    ------
+    MeshError
+        Unknown units; a missing, empty, unreadable or non-mesh file (no
+        triangles, NaN vertices, an unsupported extension); a bad
+        ``axis_offset_mm``; an unknown material.
+
+    Warns
+    -----
+    MeshWarning
+        When the mesh is not watertight, or its lowest point is not on the
+        table (z = 0).
     """
     path = Path(path)
     if units not in UNITS_MM:

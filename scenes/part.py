@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from scheimpflug.errors import MeshError
-from scheimpflug.io.atomic import atomic_path
+from scheimpflug.io.ply import read_mesh, write_mesh_ply
 
 __all__ = [
     "MATERIALS",
@@ -49,16 +49,19 @@ class MeshWarning(UserWarning):
 
 
 def yaw_matrix(yaw_deg: float, position_mm=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """4 × 4 rigid transform ``T(position) · Rz(yaw)``.
+    """Rigid transform ``T(position) · Rz(yaw)``.
 
     Parameters
     ----------
-    yaw_deg : rotation about +z, counter-clockwise seen from above [deg].
-    position_mm : (3,) float, translation applied after the rotation [mm].
+    yaw_deg : float
+        Rotation about +z, counter-clockwise seen from above [deg].
+    position_mm : (3,) array_like, default (0, 0, 0)
+        Translation applied after the rotation [mm].
 
     Returns
     -------
     (4, 4) float
+        The homogeneous transform.
     """
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
     m = np.eye(4)
@@ -78,14 +81,28 @@ def _check_json(name: str, analytic: dict) -> None:
 class Part:
     """One rigid body of a scene.
 
-    Attributes
+    Frozen; validated on construction.
+
+    Parameters
     ----------
-    name : str, e.g. ``"ring"``.
-    mesh : trimesh.Trimesh, triangles in [mm], in the assembly frame (see module doc).
-    material : one of :data:`MATERIALS`.
-    analytic : dict, JSON-serialisable exact description: ``kind``, dimensions
-        [mm], knurl parameters, and ``mesh_from_part`` (4 × 4 nested list).
-    object_id : int, 1-based id, unique within an assembly (0 = background).
+    name : str
+        Part name, e.g. ``"ring"``.
+    mesh : trimesh.Trimesh
+        Triangles in the assembly frame [mm] (see the module docstring).
+    material : str, default "metal"
+        One of :data:`MATERIALS`.
+    analytic : dict, optional
+        JSON-serialisable exact description: ``kind``, dimensions [mm], knurl
+        parameters, and ``mesh_from_part`` (4 × 4 nested list).
+    object_id : int, default 1
+        1-based id, unique within an assembly (0 = background).
+
+    Raises
+    ------
+    MeshError
+        For an unknown material, an object id that is not an int ≥ 0, a mesh
+        without triangles, or an analytic description that is not
+        JSON-serialisable (NaN included).
     """
 
     name: str
@@ -106,11 +123,23 @@ class Part:
 
     @property
     def mesh_from_part(self) -> np.ndarray:
-        """(4, 4) float: own (analytic) frame → mesh frame."""
+        """Own (analytic) frame → mesh frame, (4, 4) float [mm] (identity if not set)."""
         return np.asarray(self.analytic.get("mesh_from_part", np.eye(4).tolist()), dtype=float)
 
     def transformed(self, b_from_mesh: np.ndarray) -> Part:
-        """The part moved by the rigid 4 × 4 transform ``b_from_mesh`` (analytic pose updated)."""
+        """The part moved by a rigid transform.
+
+        Parameters
+        ----------
+        b_from_mesh : (4, 4) array_like
+            Rigid transform from the mesh's frame to the new frame b [mm].
+
+        Returns
+        -------
+        Part
+            A copy with the mesh in frame b and ``analytic["mesh_from_part"]``
+            updated to ``b_from_mesh @ mesh_from_part``.
+        """
         m = np.asarray(b_from_mesh, dtype=float)
         mesh = self.mesh.copy()
         mesh.apply_transform(m)
@@ -118,11 +147,25 @@ class Part:
         return replace(self, mesh=mesh, analytic=analytic)
 
     def posed(self, position_mm=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> Part:
-        """The part turned by ``yaw_deg`` about its ``z`` axis, then moved by ``position_mm``."""
+        """The part turned about its ``z`` axis, then moved.
+
+        Parameters
+        ----------
+        position_mm : (3,) array_like, default (0, 0, 0)
+            Translation applied after the rotation [mm].
+        yaw_deg : float, default 0.0
+            Rotation about +z, counter-clockwise seen from above [deg].
+
+        Returns
+        -------
+        Part
+            ``self.transformed(yaw_matrix(yaw_deg, position_mm))``.
+        """
         return self.transformed(yaw_matrix(yaw_deg, position_mm))
 
     @property
     def triangle_count(self) -> int:
+        """Number of triangles of the mesh [-]."""
         return int(len(self.mesh.faces))
 
 
@@ -130,10 +173,19 @@ class Part:
 class Assembly:
     """Parts posed together in the assembly (= part) frame [mm].
 
-    Attributes
+    Frozen; validated on construction.
+
+    Parameters
     ----------
-    name : str, preset name, mesh file name or scene name.
-    parts : tuple of :class:`Part`, object ids 1..n in order.
+    name : str
+        Preset name, mesh file name or scene name.
+    parts : sequence of Part
+        The parts (stored as a tuple), object ids 1..n in order.
+
+    Raises
+    ------
+    MeshError
+        When there is no part, or object ids repeat or are 0.
     """
 
     name: str
@@ -148,7 +200,15 @@ class Assembly:
         object.__setattr__(self, "parts", tuple(self.parts))
 
     def combined_mesh(self) -> trimesh.Trimesh:
-        """All parts in one mesh (faces in part order; see :meth:`face_object_ids`)."""
+        """All parts in one mesh.
+
+        Returns
+        -------
+        trimesh.Trimesh
+            Vertices and faces of every part, concatenated in part order
+            (not processed: no vertex is merged), assembly frame [mm];
+            :meth:`face_object_ids` gives each face's part.
+        """
         verts, faces, offset = [], [], 0
         for p in self.parts:
             verts.append(np.asarray(p.mesh.vertices, dtype=float))
@@ -157,7 +217,13 @@ class Assembly:
         return trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
 
     def face_object_ids(self) -> np.ndarray:
-        """(m,) int32 object id of each face of :meth:`combined_mesh`."""
+        """Object id of each face of :meth:`combined_mesh`.
+
+        Returns
+        -------
+        (m,) int32
+            The object id of the part each face belongs to.
+        """
         return np.concatenate([np.full(len(p.mesh.faces), p.object_id, dtype=np.int32)
                                for p in self.parts])
 
@@ -169,14 +235,36 @@ class Assembly:
 
     @property
     def triangle_count(self) -> int:
+        """Number of triangles of all parts [-]."""
         return sum(p.triangle_count for p in self.parts)
 
     def transformed(self, b_from_assembly: np.ndarray) -> Assembly:
-        """The whole assembly moved by a rigid 4 × 4 transform (e.g. ``stage_from_part``)."""
+        """The whole assembly moved by a rigid transform.
+
+        Parameters
+        ----------
+        b_from_assembly : (4, 4) array_like
+            Rigid transform from the assembly frame to frame b (e.g.
+            ``stage_from_part``) [mm].
+
+        Returns
+        -------
+        Assembly
+            A copy with every part moved (:meth:`Part.transformed`).
+        """
         return replace(self, parts=tuple(p.transformed(b_from_assembly) for p in self.parts))
 
     def summary(self) -> dict:
-        """JSON-ready figures: per-part triangle counts, mesh memory [bytes], bounds [mm]."""
+        """Figures of the assembly, JSON-ready.
+
+        Returns
+        -------
+        dict
+            ``name``, ``triangles``, ``mesh_bytes`` (vertex and face arrays)
+            [bytes], ``bounds_mm`` [mm], and ``parts``: per part its name,
+            object id, material, analytic ``kind``, triangle and vertex counts
+            and mesh bytes.
+        """
         parts = [{"name": p.name, "object_id": p.object_id, "material": p.material,
                   "kind": p.analytic.get("kind"), "triangles": p.triangle_count,
                   "vertices": int(len(p.mesh.vertices)),
@@ -192,78 +280,55 @@ class Assembly:
         Vertices are stored as doubles (``x y z``), faces as ``vertex_indices``
         (uchar count, int indices) followed by ``int object_id``.  A comment
         line lists ``object_id name material`` for each part.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Destination file (written to a temporary name, then renamed).
+
+        Returns
+        -------
+        pathlib.Path
+            ``path``.
         """
         mesh = self.combined_mesh()
-        header = _ply_header(self, len(mesh.vertices), len(mesh.faces))
-        faces = np.empty(len(mesh.faces), dtype=_FACE_DTYPE)
-        faces["n"], faces["v"], faces["id"] = 3, mesh.faces, self.face_object_ids()
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            fh.write(header.encode("ascii"))
-            fh.write(np.ascontiguousarray(mesh.vertices, dtype="<f8").tobytes())
-            fh.write(faces.tobytes())
-        return Path(path)
-
-
-def _ply_header(asm: Assembly, n_vertices: int, n_faces: int) -> str:
-    lines = ["ply", "format binary_little_endian 1.0",
-             f"comment scheimpflug scene {asm.name.replace(chr(10), ' ')}; units mm"]
-    lines += [f"comment object_id {p.object_id} {p.name} {p.material}" for p in asm.parts]
-    lines += [f"element vertex {n_vertices}", "property double x", "property double y",
-              "property double z", f"element face {n_faces}",
-              "property list uchar int vertex_indices", "property int object_id", "end_header"]
-    return "\n".join(lines) + "\n"
-
-
-_FACE_DTYPE = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("id", "<i4")])
-_OUR_PROPS = ["property double x", "property double y", "property double z",
-              "property list uchar int vertex_indices", "property int object_id"]
-
-
-def _read_own_ply(data: bytes):
-    """Fast path for the exact layout written by :meth:`Assembly.to_ply`; None otherwise."""
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        return None
-    lines = data[:end].decode("ascii", "replace").splitlines()
-    if "format binary_little_endian 1.0" not in lines:
-        return None
-    props = [ln for ln in lines if ln.startswith("property")]
-    counts = [int(ln.split()[2]) for ln in lines if ln.startswith("element")]
-    elements = [ln.split()[1] for ln in lines if ln.startswith("element")]
-    if props != _OUR_PROPS or elements != ["vertex", "face"]:
-        return None
-    nv, nf = counts
-    body = memoryview(data)[end + len(b"end_header\n"):]
-    if len(body) != nv * 24 + nf * _FACE_DTYPE.itemsize:
-        raise ValueError(f"body has {len(body)} bytes, header announces {nv} vertices and {nf} faces")
-    verts = np.frombuffer(body[:nv * 24], dtype="<f8").reshape(nv, 3)
-    faces = np.frombuffer(body[nv * 24:], dtype=_FACE_DTYPE)
-    if np.any(faces["n"] != 3) or (nf and (faces["v"].min() < 0 or faces["v"].max() >= nv)):
-        raise ValueError("faces are not triangles or index missing vertices")
-    mesh = trimesh.Trimesh(verts.astype(float), faces["v"].astype(np.int64), process=False)
-    return mesh, faces["id"].astype(np.int32)
+        comments = [f"scheimpflug scene {self.name}; units mm"]
+        comments += [f"object_id {p.object_id} {p.name} {p.material}" for p in self.parts]
+        return write_mesh_ply(path, mesh.vertices, mesh.faces, self.face_object_ids(), tuple(comments))
 
 
 def read_ply(path: str | os.PathLike) -> tuple[trimesh.Trimesh, np.ndarray]:
     """Read a truth PLY (as written by :meth:`Assembly.to_ply`, or any triangle PLY).
 
+    Read by :func:`scheimpflug.io.ply.read_mesh`, the project's one mesh
+    reader (trimesh's loader; vertices as stored, no welding).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PLY file.
+
     Returns
     -------
-    mesh : trimesh.Trimesh [mm], faces in file order.
-    object_ids : (m,) int32 per face (all 1 if the file has no ``object_id``).
+    mesh : trimesh.Trimesh
+        The mesh [mm] (not processed), faces in file order.
+    object_ids : (m,) int32
+        Object id per face (all 1 if the file has no ``object_id``).
+
+    Raises
+    ------
+    MeshError
+        When the file cannot be read or parsed (including a body whose size
+        does not match the header, non-triangle faces or out-of-range indices).
     """
     path = Path(path)
     try:
-        own = _read_own_ply(path.read_bytes())
-        if own is not None:
-            return own
-        mesh = trimesh.load(path, file_type="ply", process=False, force="mesh")
-    except Exception as exc:  # trimesh raises many kinds on corrupt input
+        vertices, faces, ids = read_mesh(path)
+    except MeshError as exc:
         raise MeshError(f"{path}: cannot read PLY ({exc})") from None
-    raw = mesh.metadata.get("_ply_raw", {}).get("face", {}).get("data")
-    names = getattr(getattr(raw, "dtype", None), "names", None) or ()
-    ids = raw["object_id"] if "object_id" in names else np.ones(len(mesh.faces), dtype=np.int32)
-    return mesh, np.asarray(ids, dtype=np.int32).reshape(-1)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    ids = np.ones(len(faces), dtype=np.int32) if ids is None else ids.astype(np.int32)
+    return mesh, ids
 
 
 def warn_mesh(message: str) -> None:

@@ -57,7 +57,24 @@ PART_NAMES = tuple(sorted([*_SINGLE, "pile"]))
 
 
 def preset_parameters(name: str) -> tuple[str, ...]:
-    """Keyword parameters a preset accepts as overrides (sorted)."""
+    """Keyword parameters a preset accepts as overrides.
+
+    Parameters
+    ----------
+    name : str
+        A preset name of :data:`PART_NAMES`.
+
+    Returns
+    -------
+    tuple of str
+        The preset generator's parameter names, sorted (for ``pile``:
+        ``box``, ``layout``, ``ring``, ``tape``).
+
+    Raises
+    ------
+    KeyError
+        For a name that is not a preset.
+    """
     if name == "pile":
         return tuple(sorted(inspect.signature(pile).parameters))
     fn = _SINGLE[name][0]
@@ -80,15 +97,30 @@ def pile(ring: dict | None = None, box: dict | None = None, tape: dict | None = 
          layout: dict | None = None) -> Assembly:
     """The paper's pile of sundries: knurled ring, cardboard box on it, tape roll on top.
 
+    The ring stands on the table, the box lies on the ring's top and the tape
+    on the box's top, each placed by :data:`PILE_LAYOUT` (the tape's position
+    is given in the box's own frame).
+
     Parameters
     ----------
-    ring, box, tape : keyword overrides for :func:`~scenes.generators.knurled_ring`,
-        :func:`~scenes.generators.box`, :func:`~scenes.generators.tape_roll`.
-    layout : overrides of :data:`PILE_LAYOUT`.
+    ring : dict, optional
+        Keyword overrides for :func:`~scenes.generators.knurled_ring`.
+    box : dict, optional
+        Keyword overrides for :func:`~scenes.generators.box`.
+    tape : dict, optional
+        Keyword overrides for :func:`~scenes.generators.tape_roll`.
+    layout : dict, optional
+        Overrides of :data:`PILE_LAYOUT` (positions [mm], yaws [deg]).
 
     Returns
     -------
-    Assembly with object ids ring 1, box 2, tape 3.
+    Assembly
+        Named "pile", part frame, with object ids ring 1, box 2, tape 3.
+
+    Raises
+    ------
+    MeshError
+        For an unknown or bad generator parameter, or a dimension out of range.
     """
     lay = dict(PILE_LAYOUT, **(layout or {}))
     r = _call("pile.ring", g.knurled_ring, dict(ring or {}))
@@ -105,11 +137,26 @@ def pile(ring: dict | None = None, box: dict | None = None, tape: dict | None = 
 
 
 def build_preset(name: str, **overrides) -> Assembly:
-    """The preset ``name`` with generator parameters overridden (e.g. ``height_mm=50``).
+    """A preset part with generator parameters overridden.
+
+    Parameters
+    ----------
+    name : str
+        A preset name of :data:`PART_NAMES`.
+    **overrides
+        Generator parameters (e.g. ``height_mm=50``; for ``pile``: ``ring``,
+        ``box``, ``tape``, ``layout``).
+
+    Returns
+    -------
+    Assembly
+        One part named after the preset (the pile: three parts), part frame.
 
     Raises
     ------
-    MeshError : unknown preset (lists the known ones) or unknown parameter.
+    MeshError
+        Unknown preset (lists the known ones), unknown or bad parameter, or a
+        dimension out of range.
     """
     if name == "pile":
         return _call("pile", pile, overrides)

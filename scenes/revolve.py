@@ -27,6 +27,25 @@ _MERGE_TOL_MM = 1e-9  # vertices of consecutive rows closer than this are one ve
 def segments_for_sagitta(radius_mm: float, max_sagitta_mm: float, multiple: int = 4) -> int:
     """Number of polygon sides keeping the chord sagitta ≤ ``max_sagitta_mm``.
 
+    Parameters
+    ----------
+    radius_mm : float
+        Circle radius R (> 0) [mm].
+    max_sagitta_mm : float
+        Largest allowed sagitta s (> 0) [mm].
+    multiple : int, default 4
+        The count is rounded up to a multiple of this.
+
+    Returns
+    -------
+    int
+        Number of sides n (at least 8, before rounding up).
+
+    Raises
+    ------
+    ValueError
+        When ``radius_mm`` or ``max_sagitta_mm`` is not > 0.
+
     Notes
     -----
     Sagitta of a chord spanning 2π/n on a circle of radius R:
@@ -79,17 +98,30 @@ def revolved_mesh(theta_rad: np.ndarray, z_mm: np.ndarray, r_mm: np.ndarray, *,
 
     Parameters
     ----------
-    theta_rad : (n,) float, increasing angles in [0, 2π) [rad].
-    z_mm : (m,) float, height of each row [mm].
-    r_mm : (m, n) float, radius of each grid vertex [mm]; a row of zeros is a pole.
-    closed : join the last row back to the first (a tube/annulus); otherwise
+    theta_rad : (n,) float
+        Increasing angles in [0, 2π) [rad].
+    z_mm : (m,) float
+        Height of each row [mm].
+    r_mm : (m, n) float
+        Radius of each grid vertex [mm]; a row of zeros is a pole.
+    closed : bool, default False
+        Join the last row back to the first (a tube/annulus); otherwise
         the first and last rows must be poles.
-    r_mid_mm : (m − 1 or m, n) float or None, exact radius at each quad's centre;
-        used to pick the quad diagonal closest to the true surface (NaN: don't care).
+    r_mid_mm : (m − 1, n) or (m, n) float, optional
+        Exact radius at each quad's centre; used to pick the quad diagonal
+        closest to the true surface (NaN: don't care).
 
     Returns
     -------
-    trimesh.Trimesh with outward faces, ``process=False``.
+    trimesh.Trimesh
+        The mesh, part frame [mm], with outward faces when the rows follow the
+        module docstring's orientation; ``process=False``, unused vertices
+        dropped, coincident vertices of consecutive rows shared.
+
+    Raises
+    ------
+    ValueError
+        When ``r_mm`` is not of shape ``(len(z_mm), len(theta_rad))``.
     """
     theta = np.asarray(theta_rad, dtype=float)
     z = np.asarray(z_mm, dtype=float)
@@ -104,7 +136,25 @@ def revolved_mesh(theta_rad: np.ndarray, z_mm: np.ndarray, r_mm: np.ndarray, *,
 
 
 def box_mesh(lo_mm, hi_mm) -> trimesh.Trimesh:
-    """Axis-aligned box from corner ``lo_mm`` to ``hi_mm`` ((3,) float [mm]), 12 outward triangles."""
+    """Axis-aligned box between two corners.
+
+    Parameters
+    ----------
+    lo_mm : (3,) array_like
+        Lower corner (xmin, ymin, zmin) [mm].
+    hi_mm : (3,) array_like
+        Upper corner [mm], greater than ``lo_mm`` on every axis.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        12 outward triangles, ``process=False``.
+
+    Raises
+    ------
+    ValueError
+        When ``hi_mm`` is not greater than ``lo_mm`` on every axis.
+    """
     lo, hi = np.asarray(lo_mm, dtype=float), np.asarray(hi_mm, dtype=float)
     if np.any(hi <= lo):
         raise ValueError(f"box corners must satisfy hi > lo, got {lo} and {hi}")

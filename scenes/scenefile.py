@@ -182,12 +182,21 @@ def load_scene(path: str | os.PathLike, seed: int | None = None) -> Assembly:
 
     Parameters
     ----------
-    path : scene TOML file.
-    seed : run seed combined with the file's ``seed``; None → 0.
+    path : str or os.PathLike
+        Scene TOML file; mesh files in it are relative to its folder.
+    seed : int or None, optional
+        Run seed (≥ 0) combined with the file's ``seed``; None → 0.
+
+    Returns
+    -------
+    Assembly
+        The parts posed in the part frame, object ids 1, 2, … in file order.
 
     Raises
     ------
-    MeshError : unreadable TOML, unknown keys/presets/parts, bad ranges, bad mesh files.
+    MeshError
+        Unreadable TOML, unknown keys/presets/parts, non-unique part names,
+        bad seeds or ranges, bad mesh files.
     """
     path = Path(path)
     data = _read_toml(path)

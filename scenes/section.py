@@ -15,17 +15,24 @@ __all__ = ["sheet_section"]
 
 
 def sheet_section(mesh: trimesh.Trimesh, angle_deg: float = 0.0) -> np.ndarray:
-    """Segments of the section of ``mesh`` (part frame) by the sheet at stage angle ``angle_deg``.
+    """Section of a part by the laser sheet at a stage angle.
+
+    Ideal stage: the part is turned by +θ about ``z`` and cut by the plane
+    y = 0 (trimesh's ``mesh_plane``); the table height and the stage's tilt and
+    runout are not applied.
 
     Parameters
     ----------
-    mesh : trimesh.Trimesh in the part frame [mm].
-    angle_deg : stage angle θ, counter-clockwise seen from above [deg].
+    mesh : trimesh.Trimesh
+        The part, part frame [mm].
+    angle_deg : float, default 0.0
+        Stage angle θ, counter-clockwise seen from above [deg].
 
     Returns
     -------
-    (k, 2, 2) float: segment end points as (x, z) in the sheet [mm]
-    (x along the propagation direction from the axis, z up).
+    (k, 2, 2) float
+        Segment end points as (x, z) in the sheet [mm] (x along the
+        propagation direction from the axis, z up from the table).
     """
     m = yaw_matrix(angle_deg)
     verts = np.asarray(mesh.vertices) @ m[:3, :3].T

@@ -54,23 +54,37 @@ __all__ = [
 ]
 
 DEFAULT_BLOCKER_THICKNESS_MM = 2.0
+"""Blocker thickness when neither the option nor the manifest gives one [mm]."""
 _MIN_COS = 0.3     # blocker frames closer to edge-on than ~73° are skipped
 _MIN_ROWS = 20     # fewer lit rows: no blocker in view
 
 
 @dataclass(frozen=True)
 class AxisResult:
-    """Rotary axis from blocker frames.
+    """Rotary axis from blocker frames (:func:`locate_axis`).
 
-    axis_mm : axis position, stage coordinate (same frame as d0) [mm].
-    face_mm : median stage coordinate of the blocker face over frames [mm].
-    column_px : median stripe column over frames [px].
-    blocker_thickness_mm : thickness used [mm].
-    thickness_source : "option", "manifest" or "default".
-    per_frame_axis_mm : axis estimate of every usable frame [mm].
-    spread_mm : robust σ (1.4826 MAD) of the stage coordinate over all lit rows [mm].
-    n_rows : lit rows used [-].
-    skipped : (file, reason) of frames not used.
+    Parameters
+    ----------
+    axis_mm : float
+        Axis position, stage coordinate (same frame as d0) [mm]: the median of
+        the per-frame estimates.
+    face_mm : float
+        Median stage coordinate of the blocker face over frames [mm].
+    column_px : float
+        Median stripe column over frames [px].
+    blocker_thickness_mm : float
+        Thickness used [mm].
+    thickness_source : str
+        "option", "manifest" or "default".
+    per_frame_axis_mm : tuple of float
+        Axis estimate of every usable frame [mm].
+    spread_mm : float
+        Robust σ (1.4826 MAD) of the stage coordinate over all lit rows, each
+        about its frame's face [mm].
+    n_rows : int
+        Lit rows used [-].
+    skipped : tuple of (str, str), optional
+        (file, reason) of frames not used.
     """
 
     axis_mm: float
@@ -84,6 +98,14 @@ class AxisResult:
     skipped: tuple[tuple[str, str], ...] = ()
 
     def to_json_dict(self) -> dict:
+        """The result as a JSON-ready dict.
+
+        Returns
+        -------
+        dict
+            Every field under its own name (tuples as lists); ``skipped`` as a
+            list of ``{"file", "reason"}`` objects.
+        """
         return {"axis_mm": self.axis_mm, "face_mm": self.face_mm, "column_px": self.column_px,
                 "blocker_thickness_mm": self.blocker_thickness_mm,
                 "thickness_source": self.thickness_source,
@@ -94,14 +116,22 @@ class AxisResult:
 
 @dataclass(frozen=True)
 class CylinderAxisFit:
-    """Rotary axis from a cylinder scan.
+    """Rotary axis from a cylinder scan (:func:`axis_from_cylinder_scan`).
 
-    axis_mm : A, axis position in stage coordinates [mm].
-    eccentricity_mm : e, distance of the cylinder's centre from the axis [mm].
-    phase_deg : ψ [deg].
-    radius_mm : R used [mm].
-    rms_mm : RMS residual of the fit [mm].
-    n_frames : frames used [-].
+    Parameters
+    ----------
+    axis_mm : float
+        A, axis position in stage coordinates [mm].
+    eccentricity_mm : float
+        e, distance of the cylinder's centre from the axis [mm].
+    phase_deg : float
+        ψ, wrapped to [−180, 180] [deg].
+    radius_mm : float
+        R used [mm].
+    rms_mm : float
+        RMS residual of the fit [mm].
+    n_frames : int
+        Frames used [-].
     """
 
     axis_mm: float
@@ -112,6 +142,13 @@ class CylinderAxisFit:
     n_frames: int
 
     def to_json_dict(self) -> dict:
+        """The fit as a JSON-ready dict.
+
+        Returns
+        -------
+        dict
+            Every field under its own name.
+        """
         return {"axis_mm": self.axis_mm, "eccentricity_mm": self.eccentricity_mm,
                 "phase_deg": self.phase_deg, "radius_mm": self.radius_mm, "rms_mm": self.rms_mm,
                 "n_frames": self.n_frames}
@@ -127,9 +164,22 @@ def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector):
 
 
 def axis_from_faces(face_mm, thickness_mm: float, angles_deg=None) -> np.ndarray:
-    """Axis estimates [mm] from blocker face positions [mm] (module docstring).
+    """Axis estimates from blocker face positions (module docstring).
 
-    ``angles_deg`` (or None = all facing the laser) sets the 1/|cos θ| factor.
+    Parameters
+    ----------
+    face_mm : array_like float
+        Stage coordinates of the blocker face toward the laser [mm].
+    thickness_mm : float
+        Blocker thickness t [mm].
+    angles_deg : array_like float, optional
+        Blocker angle θ from facing the laser, per face [deg]; None: all
+        facing the laser (θ = 0).
+
+    Returns
+    -------
+    ndarray float64
+        ``face + t / (2 |cos θ|)`` [mm], broadcast shape of the inputs.
     """
     face = np.asarray(face_mm, dtype=np.float64)
     if angles_deg is None:
@@ -153,7 +203,36 @@ def _thickness(ff: FrameFolder, option: float | None) -> tuple[float, str]:
 def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
                 blocker_thickness_mm: float | None = None,
                 detector: str = "cog") -> AxisResult:
-    """Rotary axis position from the blocker frame(s) of ``folder`` (module docstring)."""
+    """Rotary axis position from the blocker frame(s) of a frame folder (module docstring).
+
+    Parameters
+    ----------
+    folder : str, Path or FrameFolder
+        Blocker frames; ``angle_deg`` in the manifest (optional) is the
+        blocker's turn from facing the laser.
+    calibration : Calibration
+        The rig's calibration (pixel → stage coordinate, paper Eq. 11).
+    blocker_thickness_mm : float, optional
+        Blocker thickness [mm]; default the manifest's
+        ``scenario_params.blocker_thickness_mm``, else
+        :data:`DEFAULT_BLOCKER_THICKNESS_MM`.
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+
+    Returns
+    -------
+    AxisResult
+        The axis position, its per-frame estimates and spread, and the frames
+        skipped (nearly edge-on, |cos θ| < 0.3, or with fewer than 20 lit rows).
+
+    Raises
+    ------
+    CalibrationError
+        If no frame is usable.
+    FrameError
+        If the frame size differs from the calibration's, the thickness is
+        not a number in [0, 100) mm, or the folder or a frame is invalid.
+    """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     _check_size(ff, calibration)
     t, src = _thickness(ff, blocker_thickness_mm)
@@ -194,11 +273,29 @@ def _check_size(ff: FrameFolder, cal: Calibration) -> None:
 def axis_from_cylinder_scan(angles_deg, near_stage_mm, radius_mm: float) -> CylinderAxisFit:
     """Fit ``s_near(θ) = A + e cos(θ+ψ) − sqrt(R² − e² sin²(θ+ψ))`` (module docstring).
 
+    A linear first-harmonic fit gives the start; nonlinear least squares
+    with 0 ≤ e < R then fits A, e and ψ.
+
     Parameters
     ----------
-    angles_deg : (n,) float — stage angles [deg].
-    near_stage_mm : (n,) float — stage coordinate of the cylinder's near side [mm].
-    radius_mm : R, the cylinder's radius [mm].
+    angles_deg : (n,) array_like float
+        Rotary stage angles θ [deg].
+    near_stage_mm : (n,) array_like float
+        Stage coordinate of the cylinder's near side in each frame [mm].
+    radius_mm : float
+        R, the cylinder's radius [mm], > 0.
+
+    Returns
+    -------
+    CylinderAxisFit
+        A, e, ψ, R, the RMS residual and the number of frames.
+
+    Raises
+    ------
+    ValueError
+        If the arrays are not 1-D of the same length, or ``radius_mm`` ≤ 0.
+    CalibrationError
+        With fewer than 3 frames, or angles spread over less than 30°.
     """
     th = np.radians(np.asarray(angles_deg, dtype=np.float64))
     x = np.asarray(near_stage_mm, dtype=np.float64)
@@ -229,7 +326,32 @@ def axis_from_cylinder_scan(angles_deg, near_stage_mm, radius_mm: float) -> Cyli
 
 def cylinder_near_positions(folder: str | Path | FrameFolder, calibration: Calibration, *,
                             detector: str = "cog"):
-    """(angles_deg, near_stage_mm) per usable frame of a cylinder scan: median over lit rows."""
+    """Near-side stage coordinate of a cylinder in every usable frame of a scan.
+
+    Frames with fewer than 20 lit rows are left out silently.
+
+    Parameters
+    ----------
+    folder : str, Path or FrameFolder
+        Cylinder scan frames, each with ``angle_deg`` in the manifest.
+    calibration : Calibration
+        The rig's calibration (pixel → stage coordinate, paper Eq. 11).
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+
+    Returns
+    -------
+    angles_deg : (n,) ndarray float64
+        Rotary stage angle of each usable frame [deg].
+    near_stage_mm : (n,) ndarray float64
+        Median stage coordinate of the stripe over the frame's lit rows [mm].
+
+    Raises
+    ------
+    FrameError
+        If a frame has no ``angle_deg``, the frame size differs from the
+        calibration's, or the folder or a frame is invalid.
+    """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     _check_size(ff, calibration)
     angles, near = [], []
@@ -248,6 +370,32 @@ def cylinder_near_positions(folder: str | Path | FrameFolder, calibration: Calib
 
 def locate_axis_from_cylinder(folder, calibration: Calibration, radius_mm: float, *,
                               detector: str = "cog") -> CylinderAxisFit:
-    """Rotary axis from a frame folder of a cylinder of radius ``radius_mm`` [mm] turning."""
+    """Rotary axis from a frame folder of a turning cylinder of known radius.
+
+    :func:`cylinder_near_positions` then :func:`axis_from_cylinder_scan`.
+
+    Parameters
+    ----------
+    folder : str, Path or FrameFolder
+        Cylinder scan frames, each with ``angle_deg`` in the manifest.
+    calibration : Calibration
+        The rig's calibration.
+    radius_mm : float
+        The cylinder's radius R [mm].
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+
+    Returns
+    -------
+    CylinderAxisFit
+        The fitted axis position, eccentricity and phase.
+
+    Raises
+    ------
+    FrameError
+        As :func:`cylinder_near_positions`.
+    CalibrationError, ValueError
+        As :func:`axis_from_cylinder_scan`.
+    """
     angles, near = cylinder_near_positions(folder, calibration, detector=detector)
     return axis_from_cylinder_scan(angles, near, radius_mm)

@@ -1,4 +1,4 @@
-"""Error budget of a simulated scan: where does the error come from?
+"""Error budget of a simulated scan: where the error comes from.
 
 Three stages, each against its own ground truth from the digital twin:
 
@@ -40,6 +40,7 @@ __all__ = [
 ]
 
 CALIBRATION_PARAMETERS = ("hinge_u_px", "hinge_v_px", "F2_px_mm", "d0_mm", "C_mm")
+"""The compared calibration constants, in the order of the hinge functions."""
 _MATCH_PX = 3.0   # a measured column farther than this from the true centre is a wrong detection [px]
 
 
@@ -62,6 +63,11 @@ def sheet_shift_mm(du_px, u_px, v_px, calibration: SheetCalibration) -> tuple[np
     dD_mm, dh_mm : ndarray float
         Shift along the sheet (stage coordinate) and in height [mm]:
         −F² du/(u − u_h)² and −C (v − v_h) du/(u − u_h)².
+
+    Raises
+    ------
+    ValueError
+        If ``u_px`` and ``v_px`` do not broadcast together.
     """
     du = np.asarray(du_px, np.float64)
     ds_du, dh_du, _ = stage_jacobian(u_px, v_px, *(_get(calibration, k) for k in
@@ -93,7 +99,7 @@ def extraction_error(measured_rows: Sequence[np.ndarray], measured_u: Sequence[n
     calibration : SheetCalibration, optional
         To convert to mm on the sheet (:func:`sheet_shift_mm`); use the rig's
         true constants so the conversion itself carries no calibration error.
-    match_px : float
+    match_px : float, default 3.0
         Measured columns farther than this from the truth are counted as wrong
         detections (another surface, a reflection) and kept out of bias/RMS [px].
 
@@ -104,8 +110,15 @@ def extraction_error(measured_rows: Sequence[np.ndarray], measured_u: Sequence[n
         ``n_spurious`` (detections where the truth has no stripe),
         ``n_wrong`` (beyond ``match_px``)), ``bias_px``, ``rms_px``, ``std_px``,
         ``p95_abs_px``, ``max_abs_px`` over matched rows, and with a
-        calibration the same for ``distance`` (``*_mm``, along the sheet) and
-        ``sheet_rms_mm`` (in-plane, distance and height together).
+        calibration the same for ``distance`` (``*_distance_mm``, along the
+        sheet) and ``sheet_rms_mm`` (in-plane, distance and height together).
+        Statistics are None when no row matched.
+
+    Raises
+    ------
+    ValueError
+        If the three sequences differ in length, or a frame's rows do not
+        match its columns in shape or fall outside the truth rows.
     """
     if not (len(measured_rows) == len(measured_u) == len(truth_u)):
         raise ValueError("measured_rows, measured_u and truth_u need one entry per frame")
@@ -153,6 +166,8 @@ def calibration_error(calibration: SheetCalibration, truth: SheetCalibration, co
         of pixels spanning it.
     axis_mm, axis_truth_mm : float, optional
         Located and true rotary axis (stage coordinate) [mm].
+    grid : int, default 64
+        Number of pixels along each sensor axis in the evaluation grid [-].
 
     Returns
     -------
@@ -162,6 +177,11 @@ def calibration_error(calibration: SheetCalibration, truth: SheetCalibration, co
         near (column 0) and far (last column) mean); with both axes,
         ``axis_error_mm`` and ``radial_error_mm`` (δs − δaxis); ``rms_mm``: the
         in-sheet RMS (radial when the axis is known, else stage) with height.
+
+    Raises
+    ------
+    ValueError
+        If ``columns`` or ``rows`` is less than 2.
     """
     if columns < 2 or rows < 2:
         raise ValueError("columns and rows must be at least 2")
@@ -201,7 +221,7 @@ def error_budget(extraction: dict | None = None, calibration: dict | None = None
         :func:`calibration_error` output.
     distance_mm : (n,) float, optional
         Point-to-mesh distances of the reconstruction [mm] (``scoring``).
-    signed : bool
+    signed : bool, default False
         Whether ``distance_mm`` is signed.
 
     Returns

@@ -77,7 +77,29 @@ __all__ = [
 
 @dataclass(frozen=True)
 class CalibrationTolerances:
-    """Thresholds of the plate measurement, one reason each."""
+    """Thresholds of the plate measurement, one reason each.
+
+    Parameters
+    ----------
+    min_rows : int, default 20
+        Fewer lit rows: no plate in view [rows].
+    outlier_floor_px : float, default 0.5
+        Never reject stripe points closer than this to the line [px].
+    outlier_mads : float, default 4.0
+        Reject points beyond this many robust σ (1.4826 × MAD) from the line [-].
+    band_px : int, default 4
+        Half-band beside the stripe summed for the edge profile [px].
+    edge_inset_rows : int, default 4
+        Plateau starts this far inside the edge (blur ≈ 1 px) [rows].
+    plateau_rows : int, default 12
+        Rows averaged (median) for the plateau / background level [rows].
+    background_gap_rows : int, default 6
+        Background rows start this far outside the edge [rows].
+    min_frames : int, default 3
+        Fewer usable frames cannot fix a line and a hinge [-].
+    min_slope_gap : float, default 1e-3
+        Endpoint slopes closer than this are parallel [-].
+    """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
     outlier_floor_px: float = 0.5  # never reject stripe points closer than this to the line [px]
@@ -97,19 +119,35 @@ class CalibrationTolerances:
 class Calibration:
     """A calibration: pixel (u, v) → stage coordinate and height (paper Eqs. 11–12).
 
-    hinge_u_px, hinge_v_px : image hinge (u_h, v_h) [px].
-    F2_px_mm : F², distance constant [px·mm] (negative).
-    F2_sigma_px_mm : spread of the per-frame F² [px·mm].
-    d0_mm : stage coordinate of the object hinge [mm].
-    C_mm : height constant [mm].
-    C_sigma_mm : spread of the per-frame C [mm].
-    endpoint_fit_r2 : R² of the (top, bottom) endpoint line fits [-].
-    method : "paper" or "refined".
-    columns, rows : sensor size the calibration was made with [px].
-    plate_height_mm : the calibration plate's height [mm].
-    n_frames : frames used [-].
-    hinge_u_sigma_px : standard error of u_h [px].
-    estimates : JSON dicts of both estimates ({"paper": ..., "refined": ...}).
+    Parameters
+    ----------
+    hinge_u_px, hinge_v_px : float
+        Image hinge (u_h, v_h) [px].
+    F2_px_mm : float
+        F², distance constant [px·mm] (negative).
+    F2_sigma_px_mm : float
+        Spread (sample σ) of the per-frame F² [px·mm].
+    d0_mm : float
+        Stage coordinate of the object hinge [mm].
+    C_mm : float
+        Height constant [mm].
+    C_sigma_mm : float
+        Spread (sample σ) of the per-frame C [mm].
+    endpoint_fit_r2 : tuple of float
+        R² of the (top, bottom) endpoint line fits [-].
+    method : str
+        "paper" or "refined".
+    columns, rows : int
+        Sensor size the calibration was made with [px] (0 if unknown).
+    plate_height_mm : float, default 89.0
+        The calibration plate's height [mm].
+    n_frames : int, default 0
+        Frames used [-].
+    hinge_u_sigma_px : float, default nan
+        Standard error of u_h [px].
+    estimates : dict, optional
+        JSON dicts of both estimates (``{"paper": ..., "refined": ...}``);
+        not compared or hashed.
     """
 
     hinge_u_px: float
@@ -134,24 +172,52 @@ class Calibration:
         Parameters
         ----------
         u, v : array_like float
-            Column and row [px], broadcast together.
+            Column and row on the sensor [px], shapes that broadcast together.
 
         Returns
         -------
         stage_mm, h_mm : ndarray float64
             ``F²/(u − u_h) + d0`` and ``C·(v − v_h)/(u − u_h)`` [mm]; NaN at u = u_h
             (:func:`scheimpflug.model.hinge.stage_from_pixel`).
+
+        Raises
+        ------
+        ValueError
+            If ``u`` and ``v`` do not broadcast together.
         """
         return stage_from_pixel(u, v, *self.constants())
 
     def pixel_from_stage(self, stage_mm, h_mm) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel (u, v) [px] of the sheet point (stage_mm, h_mm) [mm]: the inverse of
-        :meth:`stage_from_pixel` (:func:`scheimpflug.model.hinge.pixel_from_stage`).
+        """Pixel of a sheet point: the inverse of :meth:`stage_from_pixel`.
+
+        Parameters
+        ----------
+        stage_mm, h_mm : array_like float
+            Stage coordinate and height above the meridian plane [mm], shapes
+            that broadcast together.
+
+        Returns
+        -------
+        u_px, v_px : ndarray float64
+            Pixel (u, v) [px]; NaN at ``stage_mm = d0``
+            (:func:`scheimpflug.model.hinge.pixel_from_stage`).
+
+        Raises
+        ------
+        ValueError
+            If ``stage_mm`` and ``h_mm`` do not broadcast together.
         """
         return pixel_from_stage(stage_mm, h_mm, *self.constants())
 
     def constants(self) -> tuple[float, float, float, float, float]:
-        """(u_h [px], v_h [px], F² [px·mm], d0 [mm], C [mm]) in the order of the hinge functions."""
+        """The calibration constants in the order of the hinge functions.
+
+        Returns
+        -------
+        tuple of float
+            (u_h [px], v_h [px], F² [px·mm], d0 [mm], C [mm]), as
+            :func:`scheimpflug.model.hinge.stage_from_pixel` takes them.
+        """
         return self.hinge_u_px, self.hinge_v_px, self.F2_px_mm, self.d0_mm, self.C_mm
 
     def _core_dict(self) -> dict[str, Any]:
@@ -162,18 +228,52 @@ class Calibration:
                 "n_frames": self.n_frames}
 
     def to_json_dict(self) -> dict[str, Any]:
-        """INTERFACE.md calibrate fields, plus both estimates and the sensor size."""
+        """The calibration as the JSON object of ``calibration.json``.
+
+        Returns
+        -------
+        dict
+            INTERFACE.md calibrate fields (``hinge_px``, ``F2_px_mm``,
+            ``F2_sigma_px_mm``, ``d0_mm``, ``C_mm``, ``C_sigma_mm``,
+            ``endpoint_fit_r2``, ``hinge_u_sigma_px`` (None if not finite),
+            ``method``, ``n_frames``), plus ``columns``, ``rows``,
+            ``plate_height_mm`` and both estimates (``paper``, ``refined``).
+        """
         d = self._core_dict()
         d.update(columns=self.columns, rows=self.rows, plate_height_mm=self.plate_height_mm)
         d.update({k: v for k, v in self.estimates.items()})
         return d
 
     def save(self, path: str | Path) -> None:
-        """Write :meth:`to_json_dict` to ``path`` atomically."""
+        """Write :meth:`to_json_dict` to a file atomically.
+
+        Parameters
+        ----------
+        path : str or Path
+            Destination JSON file.
+        """
         write_json_atomic(path, self.to_json_dict())
 
     @classmethod
     def from_json_dict(cls, d: dict) -> Calibration:
+        """A calibration from the JSON object :meth:`to_json_dict` writes.
+
+        Parameters
+        ----------
+        d : dict
+            Needs ``hinge_px``, ``F2_px_mm``, ``d0_mm`` and ``C_mm``; other
+            fields take defaults (NaN σ, method "paper", size 0, 89 mm plate).
+
+        Returns
+        -------
+        Calibration
+            The calibration (values are not range-checked; :meth:`load` does).
+
+        Raises
+        ------
+        CalibrationError
+            If a required field is missing or a field has the wrong type.
+        """
         try:
             r2 = d.get("endpoint_fit_r2", [math.nan, math.nan])
             return cls(hinge_u_px=float(d["hinge_px"][0]), hinge_v_px=float(d["hinge_px"][1]),
@@ -193,7 +293,24 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        """Read a calibration JSON written by :meth:`save` (or by ``scheimpflug calibrate``)."""
+        """Read a calibration JSON written by :meth:`save` (or by ``scheimpflug calibrate``).
+
+        Parameters
+        ----------
+        path : str or Path
+            The calibration file.
+
+        Returns
+        -------
+        Calibration
+            The calibration.
+
+        Raises
+        ------
+        CalibrationError
+            If the file is missing, unreadable or not a JSON object, lacks or
+            garbles a field, or does not have F² < 0, C > 0 and a finite d0.
+        """
         p = Path(path)
         try:
             d = json.loads(p.read_text("utf-8"))
@@ -215,14 +332,25 @@ def _json_float(x: float):
 
 @dataclass(frozen=True)
 class PlateMeasurement:
-    """What one calibration frame gives.
+    """What one calibration frame gives (:func:`measure_plate_frame`).
 
-    stage_mm : stage coordinate [mm].
-    u_mean_px : mean stripe centre over the lit rows [px].
-    n_rows : lit rows on the plate [-].
-    line : (a, b) of the stripe line u = a + b v [px, px/px].
-    top_px, bottom_px : (u, v) of the top and bottom endpoints, or None [px].
-    rows, u : the inlier stripe points [px].
+    Parameters
+    ----------
+    stage_mm : float
+        Stage coordinate [mm].
+    u_mean_px : float
+        Mean stripe centre over the lit (inlier) rows [px].
+    n_rows : int
+        Lit inlier rows on the plate [-].
+    line : tuple of float
+        (a, b) of the stripe line u = a + b v [px, px/px].
+    top_px, bottom_px : tuple of float or None
+        (u, v) of the top and bottom endpoints on the stripe line, or None if
+        not measurable [px].
+    rows : (n,) ndarray int64
+        Rows of the inlier stripe points [px].
+    u : (n,) ndarray float64
+        Columns of the inlier stripe points [px].
     """
 
     stage_mm: float
@@ -239,11 +367,18 @@ class PlateMeasurement:
 class CalibrationResult:
     """Both estimates, the chosen one and the diagnostics for plots.
 
-    best : the chosen :class:`Calibration`.
-    paper, refined : both estimates.
-    measurements : the usable frames' :class:`PlateMeasurement`.
-    skipped : (file or index, reason) of every frame not used.
-    top_line, bottom_line : (m, b) of the paper's endpoint fits v = m u + b.
+    Parameters
+    ----------
+    best : Calibration
+        The chosen estimate.
+    paper, refined : Calibration
+        Both estimates (module docstring).
+    measurements : tuple of PlateMeasurement
+        The usable frames' measurements (both endpoints measured).
+    skipped : tuple of (str, str)
+        (file or index, reason) of every frame not used.
+    top_line, bottom_line : tuple of float
+        (m, b) of the paper's endpoint fits v = m u + b [px/px, px].
     """
 
     best: Calibration
@@ -316,9 +451,34 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
                         tol: CalibrationTolerances = CalibrationTolerances()) -> PlateMeasurement:
     """Stripe line and sub-pixel plate endpoints of one calibration frame.
 
-    Raises :class:`CalibrationError` (with the reason) when the frame holds no
-    usable plate stripe; endpoints that cannot be measured (edge outside the
-    frame) are None.
+    The stripe centres (``detector``) are fitted by a line u = a + b v with
+    iterative MAD rejection; each endpoint is the sub-pixel row where a band
+    beside the stripe falls to 50 % between its plateau and the background.
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The frame [DN].
+    stage_mm : float
+        Stage coordinate of the plate in this frame [mm].
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+    saturation_dn : float, optional
+        Saturation level [DN]; default the dtype's maximum.
+    tol : CalibrationTolerances, optional
+        Thresholds; default :class:`CalibrationTolerances`'s.
+
+    Returns
+    -------
+    PlateMeasurement
+        The stripe line and endpoints; an endpoint that cannot be measured
+        (edge outside the frame, no plateau) is None.
+
+    Raises
+    ------
+    CalibrationError
+        With the reason, when the frame holds no usable plate stripe: too few
+        lit rows, too few rows on a line, or the stripe saturated in most rows.
     """
     prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
     if len(prof) < tol.min_rows:
@@ -452,7 +612,39 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
                            rows: int = 0, method: str = "best",
                            tol: CalibrationTolerances = CalibrationTolerances(),
                            skipped=()) -> CalibrationResult:
-    """Both estimates from per-frame plate measurements (pure; no I/O)."""
+    """Both estimates from per-frame plate measurements (pure; no I/O).
+
+    Parameters
+    ----------
+    measurements : iterable of PlateMeasurement
+        Per-frame measurements; those without both endpoints are left out.
+    plate_height_mm : float, default 89.0
+        Plate height H [mm], > 0.
+    columns, rows : int, default 0
+        Sensor size, recorded in the calibration [px].
+    method : {"best", "paper", "refined"}, default "best"
+        Which estimate becomes ``best``; "best" takes the one with the smaller
+        standard error of u_h.
+    tol : CalibrationTolerances, optional
+        Thresholds; default :class:`CalibrationTolerances`'s.
+    skipped : iterable of (str, str), optional
+        (file or index, reason) of frames already skipped, passed through.
+
+    Returns
+    -------
+    CalibrationResult
+        Both estimates, the chosen one and the diagnostics.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``method``.
+    CalibrationError
+        If the plate height is not > 0, fewer than ``tol.min_frames`` frames
+        have both edges, the plate did not move, the endpoint lines are
+        parallel, or the distance fit is not a Scheimpflug geometry
+        (F² ≥ 0 or a stage position not beyond d0).
+    """
     if method not in ("best", "paper", "refined"):
         raise ValueError(f"unknown calibration method {method!r} (paper, refined, best)")
     if not plate_height_mm > 0:
@@ -497,18 +689,45 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
                      tol: CalibrationTolerances = CalibrationTolerances()) -> CalibrationResult:
     """Calibrate from a frame folder of plate frames (INTERFACE.md).
 
-    Parameters
-    ----------
-    folder : path or :class:`FrameFolder` — frames with ``stage_mm``.
-    plate_height_mm : plate height [mm]; default the manifest's
-        ``scenario_params.plate_height_mm`` or 89 mm (the paper's).
-    method : "best", "paper" or "refined" — which estimate becomes ``best``.
-    detector : stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
-    progress : ProgressCallback, optional
-        ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
-
     Frames without a stripe, without both plate edges in view or saturated are
     skipped with a warning (``CalibrationResult.skipped``).
+
+    Parameters
+    ----------
+    folder : str, Path or FrameFolder
+        Plate frames, each with ``stage_mm`` in the manifest.
+    plate_height_mm : float, optional
+        Plate height [mm]; default the manifest's
+        ``scenario_params.plate_height_mm`` or 89 mm (the paper's).
+    method : {"best", "paper", "refined"}, default "best"
+        Which estimate becomes ``best``.
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` before each frame and once at the end
+        (:mod:`scheimpflug.callbacks`).
+    tol : CalibrationTolerances, optional
+        Thresholds; default :class:`CalibrationTolerances`'s.
+
+    Returns
+    -------
+    CalibrationResult
+        Both estimates, the chosen one, the measurements and the skipped frames.
+
+    Raises
+    ------
+    CalibrationError
+        If a frame has no ``stage_mm``, or the usable frames cannot determine
+        the calibration (:func:`calibrate_measurements`).
+    FrameError
+        If the folder or a frame is missing or invalid.
+    ValueError
+        For an unknown ``method``.
+
+    Warns
+    -----
+    UserWarning
+        For each skipped frame, with its file and the reason.
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:

@@ -16,10 +16,24 @@ from typing import Protocol
 __all__ = ["ProgressCallback", "report"]
 
 
-class ProgressCallback(Protocol):
-    """``progress(done, total)``: ``done`` of ``total`` steps are finished."""
+# A Protocol is never instantiated: its (*args, **kwargs) constructor has nothing to document.
+class ProgressCallback(Protocol):  # numpydoc ignore=PR01
+    """``progress(done, total)``: ``done`` of ``total`` steps are finished.
 
-    def __call__(self, done: int, total: int) -> None: ...
+    Any callable with this signature is a progress callback (a structural
+    type: nothing needs to subclass it).  See :meth:`__call__`.
+    """
+
+    def __call__(self, done: int, total: int) -> None:
+        """Report that ``done`` of ``total`` steps are finished.
+
+        Parameters
+        ----------
+        done : int
+            Steps finished so far [-], 0 ≤ done ≤ total.
+        total : int
+            Steps in all [-].
+        """
 
 
 def report(progress: ProgressCallback | None, done: int, total: int) -> None:
@@ -28,7 +42,7 @@ def report(progress: ProgressCallback | None, done: int, total: int) -> None:
     Parameters
     ----------
     progress : ProgressCallback or None
-        The caller's callback.
+        The caller's callback; None reports nothing.
     done, total : int
         Steps finished and steps in all [-].
     """

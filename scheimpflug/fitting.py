@@ -68,15 +68,18 @@ def _rank_check(centred: np.ndarray, rank: int, what: str) -> np.ndarray:
 class PlaneFit:
     """Plane ``normal · x = offset_mm`` (unit normal, sign chosen with normal[argmax|n|] > 0).
 
-    Attributes
+    Parameters
     ----------
-    normal : (3,) float
+    normal : (3,) ndarray float
+        Unit normal, in the points' frame [-].
     offset_mm : float
         Signed distance of the plane from the origin [mm].
-    centroid_mm : (3,) float
-    residuals_mm : (n,) float
+    centroid_mm : (3,) ndarray float
+        Centroid of the fitted points, on the plane [mm].
+    residuals_mm : (n,) ndarray float
         Signed orthogonal distances of the points [mm].
     rms_mm : float
+        RMS of the residuals [mm].
     """
 
     normal: np.ndarray
@@ -86,13 +89,39 @@ class PlaneFit:
     rms_mm: float
 
     def to_dict(self) -> dict:
+        """The fit as the JSON object of ``scheimpflug evaluate``.
+
+        Returns
+        -------
+        dict
+            ``normal``, ``offset_mm``, ``centroid_mm``, ``rms_mm``, ``n_points``;
+            arrays as lists, residuals left out.
+        """
         return {"normal": self.normal.tolist(), "offset_mm": self.offset_mm,
                 "centroid_mm": self.centroid_mm.tolist(), "rms_mm": self.rms_mm,
                 "n_points": int(self.residuals_mm.size)}
 
 
 def fit_plane(points: np.ndarray) -> PlaneFit:
-    """Total-least-squares plane through ``points`` (n, 3) [mm], n ≥ 3, not collinear."""
+    """Total-least-squares plane through points (orthogonal distances, SVD).
+
+    Parameters
+    ----------
+    points : (n, 3) array_like float
+        Points [mm], any frame; rows with a non-finite coordinate are dropped.
+        At least 3 finite points, not collinear.
+
+    Returns
+    -------
+    PlaneFit
+        The plane (in the points' frame), residuals and RMS.
+
+    Raises
+    ------
+    ValueError
+        If ``points`` is not (n, 3), has fewer than 3 finite points, or they
+        are collinear (do not span 2 dimensions).
+    """
     p = _points(points, 3, 3, "plane")
     c = p.mean(axis=0)
     _rank_check(p - c, 2, "plane")
@@ -108,11 +137,13 @@ def fit_plane(points: np.ndarray) -> PlaneFit:
 class PaperPlaneFit:
     """The paper's plane ``y = a + b·x + c·z`` (x, y, z in mm).
 
-    Attributes
+    Parameters
     ----------
-    a_mm, b, c : float
-        Coefficients: intercept [mm], slopes dy/dx and dy/dz [-].
-    residuals_y_mm : (n,) float
+    a_mm : float
+        Intercept [mm].
+    b, c : float
+        Slopes dy/dx and dy/dz [-].
+    residuals_y_mm : (n,) ndarray float
         y residuals [mm].
     rmse_mm : float
         RMS of the y residuals [mm] (the paper's RMSE).
@@ -128,16 +159,41 @@ class PaperPlaneFit:
     rms_orthogonal_mm: float
 
     def to_dict(self) -> dict:
+        """The fit as the JSON object of ``scheimpflug evaluate``.
+
+        Returns
+        -------
+        dict
+            ``a_mm``, ``b``, ``c``, ``rmse_mm``, ``rms_orthogonal_mm``, ``n_points``;
+            arrays as lists, residuals left out.
+        """
         return {"a_mm": self.a_mm, "b": self.b, "c": self.c, "rmse_mm": self.rmse_mm,
                 "rms_orthogonal_mm": self.rms_orthogonal_mm,
                 "n_points": int(self.residuals_y_mm.size)}
 
 
 def fit_plane_paper(points: np.ndarray) -> PaperPlaneFit:
-    """Least-squares ``y = a + b x + c z`` through ``points`` (n, 3) [mm] (paper §4 form).
+    """Least-squares ``y = a + b x + c z`` through points (paper §4 form).
 
     Only meaningful for planes not parallel to y (a box side seen roughly
     face-on along y); use :func:`fit_plane` for arbitrary orientations.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like float
+        Points [mm] (part frame for a scan); rows with a non-finite
+        coordinate are dropped.  At least 3 finite points.
+
+    Returns
+    -------
+    PaperPlaneFit
+        Coefficients, y residuals, RMSE and orthogonal RMS.
+
+    Raises
+    ------
+    ValueError
+        If ``points`` is not (n, 3), has fewer than 3 finite points, or their
+        (x, z) do not span 2 dimensions.
     """
     p = _points(points, 3, 3, "plane")
     design = np.column_stack([np.ones(len(p)), p[:, 0], p[:, 2]])
@@ -157,13 +213,16 @@ def fit_plane_paper(points: np.ndarray) -> PaperPlaneFit:
 class CircleFit:
     """Circle in a plane (top view: x, y).
 
-    Attributes
+    Parameters
     ----------
-    centre_mm : (2,) float
+    centre_mm : (2,) ndarray float
+        Centre [mm].
     radius_mm, diameter_mm : float
-    residuals_mm : (n,) float
+        Radius and diameter [mm].
+    residuals_mm : (n,) ndarray float
         Signed radial errors |p − centre| − radius [mm].
     mean_abs_error_mm, rms_mm : float
+        Mean absolute and RMS radial error [mm].
     """
 
     centre_mm: np.ndarray
@@ -174,6 +233,14 @@ class CircleFit:
     rms_mm: float
 
     def to_dict(self) -> dict:
+        """The fit as the JSON object of ``scheimpflug evaluate``.
+
+        Returns
+        -------
+        dict
+            ``centre_mm``, ``radius_mm``, ``diameter_mm``, ``mean_abs_error_mm``, ``rms_mm``, ``n_points``;
+            arrays as lists, residuals left out.
+        """
         return {"centre_mm": self.centre_mm.tolist(), "radius_mm": self.radius_mm,
                 "diameter_mm": self.diameter_mm, "mean_abs_error_mm": self.mean_abs_error_mm,
                 "rms_mm": self.rms_mm, "n_points": int(self.residuals_mm.size)}
@@ -210,17 +277,25 @@ def fit_circle(xy: np.ndarray, method: str = "pratt", refine: bool = True) -> Ci
 
     Parameters
     ----------
-    xy : (n, 2) float
-        Points [mm], n ≥ 3, not collinear.
-    method : {"pratt", "kasa"}
+    xy : (n, 2) array_like float
+        Points [mm]; rows with a non-finite coordinate are dropped.  At least
+        3 finite points, not collinear.
+    method : {"pratt", "kasa"}, default "pratt"
         Algebraic fit used as the start (Kåsa is biased towards small radii on
         short arcs; Pratt is not, to first order).
-    refine : bool
+    refine : bool, default True
         Minimise Σ (|p − c| − r)² from the algebraic start (Gauss–Newton / LM).
 
     Returns
     -------
     CircleFit
+        Centre, radius, diameter and radial residuals.
+
+    Raises
+    ------
+    ValueError
+        If ``xy`` is not (n, 2), has fewer than 3 finite points, the points
+        are collinear, or ``method`` is unknown.
     """
     p = _points(xy, 2, 3, "circle")
     mean = p.mean(axis=0)
@@ -251,7 +326,25 @@ def _circle_geometric(q, centre, radius):
 
 
 def fit_circle_top_view(points: np.ndarray, method: str = "pratt") -> CircleFit:
-    """Circle fit of 3-D points (n, 3) [mm] seen from above (their x, y), as the paper's ring."""
+    """Circle fit of 3-D points seen from above (their x, y), as the paper's ring.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like float
+        Points [mm] (part frame for a scan, z up); z is ignored.
+    method : {"pratt", "kasa"}, default "pratt"
+        Algebraic start of :func:`fit_circle` (refined geometrically).
+
+    Returns
+    -------
+    CircleFit
+        The circle in the x, y plane.
+
+    Raises
+    ------
+    ValueError
+        As :func:`fit_circle` (for ``points`` not (n, 3) as well).
+    """
     p = _points(points, 3, 3, "circle")
     return fit_circle(p[:, :2], method=method)
 
@@ -263,18 +356,20 @@ def fit_circle_top_view(points: np.ndarray, method: str = "pratt") -> CircleFit:
 class CylinderFit:
     """Right circular cylinder.
 
-    Attributes
+    Parameters
     ----------
-    axis : (3,) float
-        Unit axis direction (sign chosen with axis[argmax|a|] > 0).
-    centre_mm : (3,) float
+    axis : (3,) ndarray float
+        Unit axis direction (sign chosen with axis[argmax|a|] > 0) [-].
+    centre_mm : (3,) ndarray float
         Point on the axis at the middle of the points' extent along it [mm].
     radius_mm, diameter_mm : float
+        Radius and diameter [mm].
     height_mm : float
         Extent of the points along the axis [mm].
-    residuals_mm : (n,) float
+    residuals_mm : (n,) ndarray float
         Signed radial errors (distance to the axis − radius) [mm].
     rms_mm : float
+        RMS of the residuals [mm].
     """
 
     axis: np.ndarray
@@ -286,6 +381,14 @@ class CylinderFit:
     rms_mm: float
 
     def to_dict(self) -> dict:
+        """The fit as the JSON object of ``scheimpflug evaluate``.
+
+        Returns
+        -------
+        dict
+            ``axis``, ``centre_mm``, ``radius_mm``, ``diameter_mm``, ``height_mm``, ``rms_mm``, ``n_points``;
+            arrays as lists, residuals left out.
+        """
         return {"axis": self.axis.tolist(), "centre_mm": self.centre_mm.tolist(),
                 "radius_mm": self.radius_mm, "diameter_mm": self.diameter_mm,
                 "height_mm": self.height_mm, "rms_mm": self.rms_mm,
@@ -323,19 +426,28 @@ def _cylinder_from_axis(q: np.ndarray, axis: np.ndarray):
 
 
 def fit_cylinder(points: np.ndarray, axis_guess: np.ndarray | None = None) -> CylinderFit:
-    """Least-squares cylinder through ``points`` (n, 3) [mm] (n ≥ 6).
+    """Least-squares cylinder through points on its lateral surface.
 
     Parameters
     ----------
-    points : (n, 3) float
-        Points on the lateral surface [mm] (no end caps: select them first).
-    axis_guess : (3,) float, optional
+    points : (n, 3) array_like float
+        Points on the lateral surface [mm] (no end caps: select them first);
+        rows with a non-finite coordinate are dropped.  At least 6 finite
+        points spanning 3 dimensions.
+    axis_guess : (3,) array_like float, optional
         Approximate axis direction.  Without it the three principal directions
         of the points are each tried as start and the best fit is kept.
 
     Returns
     -------
     CylinderFit
+        Axis, centre, radius, height and radial residuals, in the points' frame.
+
+    Raises
+    ------
+    ValueError
+        If ``points`` is not (n, 3), has fewer than 6 finite points or they do
+        not span 3 dimensions, or ``axis_guess`` is not a non-zero 3-vector.
 
     Notes
     -----

@@ -38,11 +38,29 @@ __all__ = [
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
+    "sheet_from_pixels",
 ]
 
 
-class SheetCalibration(Protocol):
-    """What reconstruction needs of a calibration (``scheimpflug.calibration.Calibration`` has it)."""
+# A Protocol is never instantiated: its (*args, **kwargs) constructor has nothing to document.
+class SheetCalibration(Protocol):  # numpydoc ignore=PR01
+    """The paper form's constants (``scheimpflug.calibration.Calibration`` has them).
+
+    Reconstruction takes any object with a ``stage_from_pixel(u, v)`` method
+    (:class:`scheimpflug.sheet_model.SheetModel`: the paper form or the general
+    model); a bare set of these constants is mapped with paper Eqs. 11–12.
+
+    Attributes
+    ----------
+    hinge_u_px, hinge_v_px : float
+        Image hinge (u_h, v_h) [px].
+    F2_px_mm : float
+        Distance constant F² [px·mm].
+    d0_mm : float
+        Stage coordinate of the object hinge [mm].
+    C_mm : float
+        Height constant C [mm].
+    """
 
     hinge_u_px: float
     hinge_v_px: float
@@ -51,32 +69,67 @@ class SheetCalibration(Protocol):
     C_mm: float
 
 
+def sheet_from_pixels(u, v, calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Stage coordinate and height of pixels through any calibration.
+
+    Parameters
+    ----------
+    u, v : array_like float
+        Column and row [px].
+    calibration : SheetModel or SheetCalibration
+        An object with ``stage_from_pixel(u, v)`` (paper form or general model), or the
+        paper constants alone.
+
+    Returns
+    -------
+    stage_mm, h_mm : ndarray float64
+        [mm].
+    """
+    if hasattr(calibration, "stage_from_pixel"):
+        return calibration.stage_from_pixel(u, v)
+    return stage_from_pixel(u, v, calibration.hinge_u_px, calibration.hinge_v_px,
+                            calibration.F2_px_mm, calibration.d0_mm, calibration.C_mm)
+
+
 @dataclass(frozen=True)
 class PointCloud:
     """A reconstructed point cloud with per-point provenance.
 
-    Attributes
+    ``len(cloud)`` is the number of points n.
+
+    Parameters
     ----------
-    xyz_mm : (n, 3) float
+    xyz_mm : (n, 3) ndarray float
         Points in the part frame [mm].
-    angle_deg : (n,) float
+    angle_deg : (n,) ndarray float
         Rotary stage angle of the frame the point came from [deg].
-    row : (n,) int
+    row : (n,) ndarray int
         Sensor row v of the stripe sample [px].
-    intensity : (n,) float
+    intensity : (n,) ndarray float
         Stripe peak height above background [DN].
+    frame : (n,) ndarray int or None
+        Index of the frame the point came from, in the scan's frame order
+        (−1 or None when unknown).  With ``row`` it places every point on
+        the scan's grid (frame × row), which :mod:`scheimpflug.meshing` meshes.
+
+    Raises
+    ------
+    ValueError
+        If ``xyz_mm`` is not (n, 3) or another array is not (n,).
     """
 
     xyz_mm: np.ndarray
     angle_deg: np.ndarray
     row: np.ndarray
     intensity: np.ndarray
+    frame: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.xyz_mm).shape[0]
         if np.asarray(self.xyz_mm).shape != (n, 3):
             raise ValueError(f"xyz_mm must be (n, 3), got {np.asarray(self.xyz_mm).shape}")
-        for name in ("angle_deg", "row", "intensity"):
+        names = ("angle_deg", "row", "intensity") + (("frame",) if self.frame is not None else ())
+        for name in names:
             if np.asarray(getattr(self, name)).shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {np.asarray(getattr(self, name)).shape}")
 
@@ -90,16 +143,18 @@ def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
     Parameters
     ----------
     stage_mm, h_mm : array_like float
-        Stage coordinate along the sheet and height [mm].
+        Stage coordinate along the sheet and height above the meridian plane [mm].
     angle_deg : array_like float
-        Rotary stage angle θ of each point's frame [deg] (broadcast).
+        Rotary stage angle θ of each point's frame [deg]; the three inputs
+        broadcast together.
     axis_mm : float
         Stage coordinate of the rotary axis [mm].
 
     Returns
     -------
-    (n, 3) float
-        ``R_z(−θ) · (s − axis_mm, 0, h)`` [mm].
+    (n, 3) ndarray float64
+        ``R_z(−θ) · (s − axis_mm, 0, h)`` in the part frame [mm], n the size
+        of the broadcast inputs (flattened).
     """
     s, h, th = np.broadcast_arrays(np.asarray(stage_mm, np.float64), np.asarray(h_mm, np.float64),
                                    np.radians(np.asarray(angle_deg, np.float64)))
@@ -107,15 +162,37 @@ def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
     return np.stack([r * np.cos(th), -r * np.sin(th), h], axis=-1).reshape(-1, 3)
 
 
-def points_from_pixels(u, v, angle_deg, calibration: SheetCalibration, axis_mm: float) -> np.ndarray:
-    """Part-frame points (n, 3) [mm] of stripe pixels (u, v) [px] seen at angles [deg]."""
-    s, h = stage_from_pixel(u, v, calibration.hinge_u_px, calibration.hinge_v_px,
-                            calibration.F2_px_mm, calibration.d0_mm, calibration.C_mm)
+def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float) -> np.ndarray:
+    """Part-frame points of stripe pixels seen at rotary angles (the sheet mapping, then the stage).
+
+    Parameters
+    ----------
+    u, v : array_like float
+        Stripe column and row on the sensor [px].
+    angle_deg : array_like float
+        Rotary stage angle of each pixel's frame [deg]; ``u``, ``v`` and
+        ``angle_deg`` broadcast together.
+    calibration : SheetModel or SheetCalibration
+        Paper form or general model (:func:`sheet_from_pixels`).
+    axis_mm : float
+        Stage coordinate of the rotary axis [mm].
+
+    Returns
+    -------
+    (n, 3) ndarray float64
+        Points in the part frame [mm] (flattened); NaN for u = u_h.
+
+    Raises
+    ------
+    ValueError
+        If ``u`` and ``v`` do not broadcast together.
+    """
+    s, h = sheet_from_pixels(u, v, calibration)
     return part_from_sheet(s, h, angle_deg, axis_mm)
 
 
 def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
-                         angles_deg: Iterable[float], calibration: SheetCalibration,
+                         angles_deg: Iterable[float], calibration,
                          axis_mm: float, intensity: Sequence[np.ndarray] | None = None) -> PointCloud:
     """Point cloud of a rotary scan from per-frame stripe samples.
 
@@ -127,8 +204,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
         Stripe columns of each frame [px].
     angles_deg : iterable of float
         Rotary angle of each frame [deg].
-    calibration : SheetCalibration
-        Hinge, F², d0, C (e.g. ``Calibration.load(...)``).
+    calibration : SheetModel or SheetCalibration
+        Paper form or general model (``scheimpflug.sheet_model.load_sheet_model(...)``).
     axis_mm : float
         Stage coordinate of the rotary axis [mm].
     intensity : sequence of (n_i,) float, optional
@@ -137,7 +214,15 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     Returns
     -------
     PointCloud
-        Samples with a non-finite u (or u = u_h) are dropped.
+        Points in the part frame; samples with a non-finite u (or u = u_h)
+        are dropped.  Every point keeps its frame index and row (its place on
+        the scan's grid).
+
+    Raises
+    ------
+    ValueError
+        If ``rows``, ``u``, ``angles_deg`` (and ``intensity``) do not have one
+        entry per frame, or a frame's ``rows`` and ``u`` differ in size.
     """
     angles = np.asarray(list(angles_deg), dtype=np.float64)
     if not (len(rows) == len(u) == len(angles)) or (intensity is not None and len(intensity) != len(u)):
@@ -147,15 +232,18 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     sizes = [np.asarray(x).size for x in u]
     if any(np.asarray(r).size != n for r, n in zip(rows, sizes)):
         raise ValueError("each frame needs as many rows as u values")
-    cat = (lambda xs: np.concatenate([np.asarray(x, np.float64).ravel() for x in xs])
-           if len(xs) else np.zeros(0))
+
+    def cat(xs) -> np.ndarray:
+        return np.concatenate([np.asarray(x, np.float64).ravel() for x in xs]) if len(xs) else np.zeros(0)
+
     uu, vv = cat(u), cat(rows)
     ii = cat(intensity) if intensity is not None else np.full(uu.size, np.nan)
     aa = np.repeat(angles, sizes)
+    ff = np.repeat(np.arange(len(angles), dtype=np.int64), sizes)
     xyz = points_from_pixels(uu, vv, aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
-                      intensity=ii[ok])
+                      intensity=ii[ok], frame=ff[ok])
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
@@ -168,12 +256,12 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
     Parameters
     ----------
     folder : scheimpflug.io.frames.FrameFolder
-        The frames.
-    method : str
+        The frames (an opened folder, not a path).
+    method : str, default "cog"
         Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
-    min_snr : float
+    min_snr : float, default 6.0
         Detection threshold [-].
-    keep_saturated : bool
+    keep_saturated : bool, default False
         Keep rows whose stripe is saturated (dropped by default).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
@@ -183,9 +271,18 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
     Returns
     -------
     rows, u, peak : list of ndarray
-        One array per frame: rows [px], stripe columns [px], peak height [DN].
+        One array per frame, in manifest order: rows (int64) [px], stripe
+        columns (float64) [px], peak height above background (float64) [DN].
     stats : dict
-        Counters ``blank_frames`` and ``saturated_rows``.
+        Counters ``blank_frames`` (no stripe row) and ``saturated_rows``
+        (counted whether kept or not).
+
+    Raises
+    ------
+    FrameError
+        If a frame is missing or invalid.
+    ValueError
+        For an unknown ``method`` or a bad ``min_snr``.
     """
     def one(rec, frame):
         return extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,

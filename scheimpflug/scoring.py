@@ -8,6 +8,14 @@ material and negative inside, by the angle-weighted pseudo-normal of the
 nearest feature (face, edge or vertex) of the nearest triangle, which gives the
 correct sign for every point of a closed mesh (Bærentzen & Aanæs 2005).
 
+Two-sided scoring (a surface model against the truth) samples both surfaces
+area-uniformly with a seed and measures each set against the other mesh:
+the truth → model distances say how much of the true surface the model
+covers (``coverage``: the share within 0.1 mm), the model → truth distances
+how far the model strays; the symmetric Hausdorff distance is the larger of
+the two maxima over the samples, the symmetric mean the average of the two
+means.
+
 Statistics follow INTERFACE.md: ``n_points``, ``rms_mm``, ``mean_abs_mm``,
 ``p95_mm``, ``max_mm`` (all on the distance magnitude), plus the signed mean
 and standard deviation when the sign is known, and a per-body breakdown when
@@ -33,11 +41,14 @@ from scheimpflug.errors import MeshError
 __all__ = [
     "MeshDistance",
     "PointToMesh",
+    "TwoSidedDistance",
     "body_labels",
     "distance_stats",
     "is_closed_mesh",
     "point_to_mesh",
+    "sample_surface",
     "score_points",
+    "two_sided_distance",
 ]
 
 _LEAF_SIZE = 4          # triangles per BVH leaf: 4 balances box tests against triangle tests
@@ -300,11 +311,12 @@ def body_labels(faces: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    faces : (m, 3) int
+    faces : (m, 3) array_like int
+        Triangle vertex indices.
 
     Returns
     -------
-    (m,) int
+    (m,) ndarray int64
         Body index per face, 0 .. n_bodies - 1, numbered by first appearance.
     """
     from scipy.sparse import coo_matrix
@@ -324,16 +336,16 @@ def body_labels(faces: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class MeshDistance:
-    """Point-to-mesh distances of a set of points.
+    """Point-to-mesh distances of a set of points (:meth:`PointToMesh.query`).
 
-    Attributes
+    Parameters
     ----------
-    distance_mm : (n,) float
+    distance_mm : (n,) ndarray float64
         Distance to the mesh [mm]; signed (positive outside) when ``signed``.
-    face : (n,) int
+    face : (n,) ndarray int64
         Index of the nearest face.
-    closest_mm : (n, 3) float
-        Nearest point on the mesh [mm].
+    closest_mm : (n, 3) ndarray float64
+        Nearest point on the mesh, in the mesh's frame [mm].
     signed : bool
         Whether ``distance_mm`` carries a sign (mesh closed and consistently wound).
     """
@@ -349,12 +361,34 @@ class PointToMesh:
 
     Parameters
     ----------
-    vertices : (nv, 3) float
+    vertices : (nv, 3) array_like float
+        Vertex positions [mm], nv >= 3, all finite.
+    faces : (m, 3) array_like int
+        Triangles (vertex indices), m >= 1; counter-clockwise seen from outside
+        for a closed mesh (an inward-wound closed mesh is detected by its
+        negative volume and handled).
+    signed : bool
+        Sign the distances of a closed mesh (default); False skips the
+        closedness test and the pseudo-normals (unsigned distances, faster
+        to build).
+
+    Attributes
+    ----------
+    vertices : (nv, 3) ndarray float64
         Vertex positions [mm].
-    faces : (m, 3) int
-        Triangles (vertex indices); counter-clockwise seen from outside for a
-        closed mesh (an inward-wound closed mesh is detected by its negative
-        volume and handled).
+    faces : (m, 3) ndarray int64
+        Triangles.
+    triangles : (m, 3, 3) ndarray float64
+        Corner positions of every triangle [mm].
+    closed : bool
+        Whether the mesh is closed and consistently wound
+        (:func:`is_closed_mesh`): then distances are signed.
+
+    Raises
+    ------
+    MeshError
+        If the arrays have the wrong shape, faces index missing vertices or
+        are not integers, or a vertex is not finite.
 
     Notes
     -----
@@ -363,11 +397,11 @@ class PointToMesh:
     surface (see ``benchmarks/bench_scoring.py``).
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, signed: bool = True) -> None:
         v, f = _check_mesh(vertices, faces)
         self.vertices, self.faces = v, f
         self.triangles = np.ascontiguousarray(v[f])
-        self.closed = is_closed_mesh(f)
+        self.closed = bool(signed) and is_closed_mesh(f)
         lo, hi = self.triangles.min(axis=1), self.triangles.max(axis=1)
         (self._node_min, self._node_max, self._child, self._start, self._count,
          self._order) = _build_bvh(lo, hi, self.triangles.mean(axis=1), _LEAF_SIZE)
@@ -377,7 +411,23 @@ class PointToMesh:
             self._orientation = -1.0
 
     def query(self, points: np.ndarray) -> MeshDistance:
-        """Distances of ``points`` (n, 3) [mm] to the mesh; see :class:`MeshDistance`."""
+        """Exact distances of points to the mesh.
+
+        Parameters
+        ----------
+        points : (n, 3) array_like float
+            Query points in the mesh's frame [mm], all finite.
+
+        Returns
+        -------
+        MeshDistance
+            Distance (signed when the mesh is closed), nearest face and point.
+
+        Raises
+        ------
+        ValueError
+            If ``points`` is not (n, 3) or holds NaN or infinite coordinates.
+        """
         p = np.ascontiguousarray(points, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must be an (n, 3) array, got shape {p.shape}")
@@ -408,7 +458,10 @@ class PointToMesh:
 
 
 def _signed_volume(tri: np.ndarray) -> float:
-    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    det = (a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) - a[:, 1] * (b[:, 0] * c[:, 2] - b[:, 2] * c[:, 0])
+           + a[:, 2] * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]))
+    return float(det.sum() / 6.0)
 
 
 def point_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> MeshDistance:
@@ -416,16 +469,24 @@ def point_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -
 
     Parameters
     ----------
-    points : (n, 3) float
-        Query points [mm].
-    vertices : (nv, 3) float
+    points : (n, 3) array_like float
+        Query points in the mesh's frame [mm].
+    vertices : (nv, 3) array_like float
         Mesh vertices [mm].
-    faces : (m, 3) int
+    faces : (m, 3) array_like int
         Mesh triangles.
 
     Returns
     -------
     MeshDistance
+        Distance, nearest face and nearest point of every point.
+
+    Raises
+    ------
+    MeshError
+        For an invalid mesh (see :class:`PointToMesh`).
+    ValueError
+        For points not (n, 3) or not finite.
     """
     return PointToMesh(vertices, faces).query(points)
 
@@ -446,6 +507,11 @@ def distance_stats(distance_mm: np.ndarray, signed: bool) -> dict:
         ``n_points``, ``rms_mm``, ``mean_abs_mm``, ``p95_mm`` (95th percentile of
         |d|), ``max_mm`` (max |d|), and when signed ``mean_signed_mm``,
         ``std_signed_mm``, ``fraction_inside``.
+
+    Raises
+    ------
+    ValueError
+        If there are no distances.
     """
     d = np.asarray(distance_mm, dtype=np.float64)
     if d.size == 0:
@@ -470,11 +536,13 @@ def score_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
 
     Parameters
     ----------
-    points : (n, 3) float
-        Measured points in the mesh's frame [mm].
-    vertices, faces
-        The true surface (see :func:`point_to_mesh`).
-    face_object_id : (m,) int, optional
+    points : (n, 3) array_like float
+        Measured points in the mesh's frame (the part frame for a scan) [mm].
+    vertices : (nv, 3) array_like float
+        Vertices of the true surface [mm] (see :func:`point_to_mesh`).
+    faces : (m, 3) array_like int
+        Triangles of the true surface.
+    face_object_id : (m,) array_like int, optional
         Object id per face (the twin's ``truth/mesh.ply`` ``object_id``).  When
         absent, connected components of the mesh are the bodies.
 
@@ -482,8 +550,17 @@ def score_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     -------
     dict
         :func:`distance_stats` fields, ``distance_kind`` ("signed" or
-        "unsigned"), ``n_faces``, and ``regions``: {id: stats} over the points
-        whose nearest face belongs to that body (only when there are ≥ 2 bodies).
+        "unsigned"), ``n_faces``, and ``region_key`` ("object_id" or "body")
+        with ``regions``: {id: stats} over the points whose nearest face
+        belongs to that body (only when there are ≥ 2 bodies).
+
+    Raises
+    ------
+    ValueError
+        If ``points`` is not a non-empty (n, 3) array, or holds non-finite
+        coordinates.
+    MeshError
+        For an invalid mesh, or ``face_object_id`` not of one value per face.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
@@ -508,3 +585,152 @@ def score_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
         out["regions"] = {str(int(k)): distance_stats(res.distance_mm[labels == k], res.signed)
                           for k in unique if np.any(labels == k)}
     return out
+
+
+# --------------------------------------------------------------------------- two-sided scoring
+
+
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int,
+                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points drawn uniformly over the area of a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (nv, 3) float
+        Vertex positions [mm].
+    faces : (m, 3) int
+        Triangles.
+    n : int
+        Number of points [-].
+    seed : int
+        Seed of the generator (same seed, same points).
+
+    Returns
+    -------
+    points : (n, 3) float
+        Samples on the surface [mm].
+    face : (n,) int
+        The face each sample lies on.
+
+    Raises
+    ------
+    MeshError
+        A malformed mesh, a mesh of zero area or ``n`` < 1.
+    """
+    v, f = _check_mesh(vertices, faces)
+    if n < 1:
+        raise MeshError(f"number of surface samples = {n}: must be >= 1")
+    t = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    total = area.sum()
+    if not total > 0:
+        raise MeshError("the mesh has zero area: nothing to sample")
+    rng = np.random.default_rng(seed)
+    face = np.minimum(np.searchsorted(np.cumsum(area) / total, rng.random(n), side="right"), len(f) - 1)
+    r1, r2 = rng.random(n), rng.random(n)
+    s1 = np.sqrt(r1)
+    w = np.stack([1.0 - s1, s1 * (1.0 - r2), s1 * r2], axis=1)
+    return np.einsum("nk,nkj->nj", w, t[face]), face
+
+
+@dataclass(frozen=True)
+class TwoSidedDistance:
+    """Distances between a model surface and the true surface, both ways.
+
+    Parameters
+    ----------
+    truth_points_mm : (n, 3) float
+        Area-uniform samples of the true surface [mm].
+    truth_to_model_mm : (n,) float
+        Unsigned distance of each to the model [mm].
+    model_points_mm : (k, 3) float
+        Area-uniform samples of the model surface [mm].
+    model_face : (k,) int
+        Model face of each model sample.
+    model_to_truth_mm : (k,) float
+        Distance of each to the truth [mm], signed (+ outside the material)
+        when the truth is closed.
+    truth_face : (k,) int
+        Nearest truth face of each model sample.
+    signed : bool
+        Whether ``model_to_truth_mm`` carries a sign.
+    hausdorff_mm : float
+        Symmetric Hausdorff distance over the samples [mm] (a lower bound of
+        the exact one, within about the samples' spacing times the surface's
+        slope change).
+    coverage_mm : float
+        Distance under which a true point counts as covered [mm].
+    """
+
+    truth_points_mm: np.ndarray
+    truth_to_model_mm: np.ndarray
+    model_points_mm: np.ndarray
+    model_face: np.ndarray
+    model_to_truth_mm: np.ndarray
+    truth_face: np.ndarray
+    signed: bool
+    hausdorff_mm: float
+    coverage_mm: float
+
+    @property
+    def coverage(self) -> float:
+        """Share of the true surface within ``coverage_mm`` of the model [-]."""
+        return float(np.mean(self.truth_to_model_mm <= self.coverage_mm))
+
+    @property
+    def mean_mm(self) -> float:
+        """Symmetric mean distance: the average of the two one-sided means [mm]."""
+        return 0.5 * float(np.mean(self.truth_to_model_mm) + np.mean(np.abs(self.model_to_truth_mm)))
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary.
+
+        Returns
+        -------
+        dict
+            ``coverage``, ``coverage_mm``, ``hausdorff_mm``, ``mean_mm``, and the
+            :func:`distance_stats` of ``truth_to_model`` and ``model_to_truth``.
+        """
+        return {"coverage": self.coverage, "coverage_mm": self.coverage_mm,
+                "hausdorff_mm": self.hausdorff_mm, "mean_mm": self.mean_mm,
+                "truth_to_model": distance_stats(self.truth_to_model_mm, False),
+                "model_to_truth": distance_stats(self.model_to_truth_mm, self.signed)}
+
+
+def two_sided_distance(truth: PointToMesh, model: PointToMesh, n_samples: int = 200_000,
+                       seed: int = 0, coverage_mm: float = 0.1) -> TwoSidedDistance:
+    """Score a surface model against the true surface in both directions.
+
+    Parameters
+    ----------
+    truth : PointToMesh
+        The true surface, prepared for queries.
+    model : PointToMesh
+        The model surface, prepared for queries.
+    n_samples : int
+        Area-uniform samples drawn on each surface [-].
+    seed : int
+        Seed of the samples (truth: ``seed``, model: ``seed + 1``).
+    coverage_mm : float
+        A true point within this distance of the model is covered [mm].
+
+    Returns
+    -------
+    TwoSidedDistance
+        Samples, distances both ways, Hausdorff distance and coverage.
+
+    Raises
+    ------
+    MeshError
+        ``coverage_mm`` not > 0, or a mesh of zero area.
+    """
+    if not coverage_mm > 0:
+        raise MeshError(f"coverage distance = {coverage_mm!r} mm: must be > 0")
+    t_pts, _ = sample_surface(truth.vertices, truth.faces, n_samples, seed)
+    m_pts, m_face = sample_surface(model.vertices, model.faces, n_samples, seed + 1)
+    t_to_m = np.abs(model.query(t_pts).distance_mm)
+    m_res = truth.query(m_pts)
+    hausdorff = max(float(t_to_m.max()), float(np.abs(m_res.distance_mm).max()))
+    return TwoSidedDistance(truth_points_mm=t_pts, truth_to_model_mm=t_to_m, model_points_mm=m_pts,
+                            model_face=m_face, model_to_truth_mm=m_res.distance_mm, truth_face=m_res.face,
+                            signed=m_res.signed, hausdorff_mm=hausdorff, coverage_mm=float(coverage_mm))

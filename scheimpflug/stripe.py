@@ -102,7 +102,9 @@ __all__ = [
 ]
 
 METHODS = ("blais-rioux", "cog", "edge", "gaussian3")
+"""Sub-pixel methods of :func:`extract_stripes` (module docstring, step 6)."""
 MULTI_PEAK_RULES = ("nearest", "strongest", "track")
+"""Rules for rows with several peaks (module docstring, step 4)."""
 _METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3}
 
 
@@ -110,14 +112,27 @@ _METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3}
 class StripeProfile:
     """The stripe found in one frame, over the rows where it was detected.
 
-    rows : (n,) int64 — row index v [px].
-    u : (n,) float64 — column of the stripe centre (or edge, method "edge") [px].
-    score : (n,) float64 — signal-to-noise ratio of the peak [-].
-    peak : (n,) float64 — peak height above the local background [DN].
-    saturated : (n,) bool — the peak pixel reached the saturation level.
-    background : (n,) float64 — local background level [DN].
-    n_peaks : (n,) int8 — 2 if a second significant peak was seen in the row.
-    method : str — the sub-pixel method used.
+    ``len(profile)`` is the number of rows n.  Coordinates are sensor pixels,
+    column ``u = k`` at the centre of pixel ``k``.
+
+    Parameters
+    ----------
+    rows : (n,) ndarray int64
+        Row index v, increasing [px].
+    u : (n,) ndarray float64
+        Column of the stripe centre (or edge, method "edge") [px].
+    score : (n,) ndarray float64
+        Signal-to-noise ratio of the peak [-].
+    peak : (n,) ndarray float64
+        Peak height above the local background [DN].
+    saturated : (n,) ndarray bool
+        The peak pixel reached the saturation level.
+    background : (n,) ndarray float64
+        Local background level [DN].
+    n_peaks : (n,) ndarray int8
+        2 if a second significant peak was seen in the row, else 1.
+    method : str
+        The sub-pixel method used (one of :data:`METHODS`).
     """
 
     rows: np.ndarray
@@ -604,34 +619,53 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
 
     Parameters
     ----------
-    frame : (rows, columns) uint8, uint16 or float array — one camera frame [DN].
-    method : {"gaussian3", "cog", "blais-rioux", "edge"} — sub-pixel method
-        (module docstring).
-    min_snr : detection threshold on (peak − background) / noise [-].
-    window_px : half-width of the centre-of-gravity window and the inner edge of
-        the background flanks; use ≥ 3 σ of the stripe [px].
-    flank_px : width of each background flank [px].
-    multi_peak : {"nearest", "strongest", "track"} — rule for rows with several peaks
-        ("track": module docstring, item 4).
-    multi_peak_ratio : a nearer peak replaces the strongest when its height is
-        at least this fraction of the strongest's; for "track", candidates must reach
-        it [-].
-    prior_u : (rows,) float, optional — "track" only: the stripe expected in each row,
-        e.g. the previous frame's of a rotary scan (NaN where none) [px].
-    expected_u : (lo, hi) or (rows, 2) float, optional — "track" only: columns where the
-        stripe can be (the measuring range, a part's known envelope); peaks outside are
-        ignored [px].
-    saturation_dn : level at which a pixel counts as saturated [DN]; default
-        the dtype's maximum (255, 65535; none for floats).
-    edge_fraction : fraction of the peak height that defines the edge (method
-        "edge") [-].
-    hot_pixel_fraction : a peak whose neighbours are both below this fraction of
-        its height is rejected as a hot pixel [-].
+    frame : (rows, columns) array_like uint8, uint16 or float
+        One camera frame [DN]; other integer or float dtypes are converted to
+        float64.  At least 1 row and 8 columns.
+    method : {"gaussian3", "cog", "blais-rioux", "edge"}, default "gaussian3"
+        Sub-pixel method (module docstring).
+    min_snr : float, default 6.0
+        Detection threshold on (peak − background) / noise [-], > 0.
+    window_px : int, default 7
+        Half-width of the centre-of-gravity window and the inner edge of the
+        background flanks; use ≥ 3 σ of the stripe [px], >= 1.
+    flank_px : int, default 8
+        Width of each background flank [px], >= 2.
+    multi_peak : {"nearest", "strongest", "track"}, default "nearest"
+        Rule for rows with several peaks ("track": module docstring, step 4).
+    multi_peak_ratio : float, default 0.3
+        A nearer peak replaces the strongest when its height is at least this
+        fraction of the strongest's; for "track", candidates must reach it [-],
+        in (0, 1].
+    saturation_dn : float, optional
+        Level at which a pixel counts as saturated [DN]; default the dtype's
+        maximum (255, 65535; none for floats).
+    edge_fraction : float, default 0.5
+        Fraction of the peak height that defines the edge (method "edge") [-],
+        in (0, 1).
+    hot_pixel_fraction : float, default 0.1
+        A peak whose neighbours are both below this fraction of its height is
+        rejected as a hot pixel [-].
+    prior_u : (rows,) array_like float, optional
+        "track" only: the stripe expected in each row, e.g. the previous frame's of a
+        rotary scan (NaN where none) [px].
+    expected_u : (lo, hi) or (rows, 2) array_like float, optional
+        "track" only: columns where the stripe can be (the measuring range, a part's
+        known envelope); peaks outside are ignored [px].
 
     Returns
     -------
     StripeProfile
         Arrays over the rows where a stripe was detected, in increasing row order.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``method`` or ``multi_peak`` rule, or an option out of
+        its range.
+    FrameError
+        If ``frame`` is not 2-D, has fewer than 1 row or 8 columns, or does not
+        hold numbers.
     """
     if method not in _METHOD_CODE:
         raise ValueError(f"unknown stripe method {method!r} (known: {', '.join(METHODS)})")
@@ -697,7 +731,22 @@ def extract_stripes_batch(frames: Iterable, method: str = "gaussian3",
     """Extract the stripe of every frame of ``frames`` (lazily, in order).
 
     Each frame runs on all cores (rows in parallel), so frames are taken one
-    at a time; ``options`` are those of :func:`extract_stripes`.
+    at a time.
+
+    Parameters
+    ----------
+    frames : iterable of (rows, columns) array_like
+        Camera frames [DN], as :func:`extract_stripes` takes them.
+    method : str, default "gaussian3"
+        Sub-pixel method, one of :data:`METHODS`.
+    **options
+        Keyword options of :func:`extract_stripes`.
+
+    Yields
+    ------
+    StripeProfile
+        The stripe of each frame, in order; errors of
+        :func:`extract_stripes` are raised when that frame is reached.
     """
     for frame in frames:
         yield extract_stripes(frame, method, **options)

@@ -80,16 +80,34 @@ EDGE_10_90 = 2.5631031310892007  # 10–90 % width of an erf edge in units of it
 class LightSheet:
     """The laser sheet of a rig, in the rig frame.
 
-    origin_mm : (3,) laser origin O_l [mm].
-    prop_dir, normal, up : (3,) unit vectors e_p, n (sheet normal, toward +y), e_z.
-    power_w : total power in the fan [W].
-    wavelength_nm : [nm].
-    waist_mm : w0, 1/e² half-thickness at the waist [mm].
-    waist_distance_mm : r_w, in-sheet distance of the waist from O_l [mm].
-    divergence_rad : θ, far-field 1/e² half-angle of the thickness [rad].
-    fan_full_rad : F, full fan angle [rad].
-    edge_sigma_rad : σ_e of the soft fan edge [rad].
-    speckle_contrast : C [-].
+    Built from a rig by :func:`light_sheet`; the model is in the module docstring.
+
+    Parameters
+    ----------
+    origin_mm : (3,) float
+        Laser origin O_l, rig frame [mm].
+    prop_dir : (3,) float
+        Unit propagation direction e_p = (cos φ, −sin φ, 0), rig frame [-].
+    normal : (3,) float
+        Unit sheet normal n (toward +y), rig frame [-].
+    up : (3,) float
+        Unit in-sheet up direction e_z = (0, 0, 1), rig frame [-].
+    power_w : float
+        Total power in the fan P [W].
+    wavelength_nm : float
+        Laser wavelength λ [nm].
+    waist_mm : float
+        w0, 1/e² half-thickness at the waist [mm].
+    waist_distance_mm : float
+        r_w, in-sheet distance of the waist from O_l [mm].
+    divergence_rad : float
+        θ, far-field 1/e² half-angle of the thickness [rad].
+    fan_full_rad : float
+        F, full fan angle [rad].
+    edge_sigma_rad : float
+        σ_e of the soft fan edge [rad] (``fan_edge_deg`` / 2.563).
+    speckle_contrast : float
+        Speckle contrast C before pixel integration [-].
     """
 
     origin_mm: np.ndarray
@@ -107,7 +125,24 @@ class LightSheet:
 
 
 def light_sheet(rig: Rig) -> LightSheet:
-    """The :class:`LightSheet` of ``rig`` (rig.laser, geometry from :mod:`scheimpflug.model.hinge`)."""
+    """The light sheet of a rig.
+
+    The sheet's geometry (propagation direction, normal) comes from
+    :func:`scheimpflug.model.hinge.hinge_geometry`; power, wavelength,
+    thickness and fan from ``rig.laser``, converted to SI-like units
+    (mW → W, µm → mm, mrad → rad, deg → rad).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig; its laser origin sits at ``x = laser.origin_x_mm`` on the
+        sheet ``y = d − x·tan φ`` in the meridian plane ``z = 0``.
+
+    Returns
+    -------
+    LightSheet
+        The sheet in the rig frame.
+    """
     g = hinge_geometry(rig)
     las = rig.laser
     x = las.origin_x_mm
@@ -123,13 +158,49 @@ def light_sheet(rig: Rig) -> LightSheet:
 
 
 def beam_half_width_mm(sheet: LightSheet, r_mm) -> np.ndarray:
-    """1/e² half-thickness w(r) = √(w0² + θ²(r − r_w)²) at in-sheet distance r [mm]."""
+    """1/e² half-thickness of the sheet at an in-sheet distance.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    r_mm : float or array_like
+        In-sheet distance r from the laser origin [mm].
+
+    Returns
+    -------
+    ndarray
+        w(r) [mm], same shape as ``r_mm``.
+
+    Notes
+    -----
+    Gaussian-beam width law w(r) = √(w0² + θ²·(r − r_w)²).
+    """
     dr = np.asarray(r_mm, dtype=np.float64) - sheet.waist_distance_mm
     return np.sqrt(sheet.waist_mm**2 + (sheet.divergence_rad * dr) ** 2)
 
 
 def fan_profile(sheet: LightSheet, alpha_rad) -> np.ndarray:
-    """Relative fan profile g(α) ∈ [0, 1] (box of width F ⊗ Gaussian edge), ∫ g dα = F."""
+    """Relative fan profile of the sheet.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    alpha_rad : float or array_like
+        Fan angle α (0 along the propagation direction, positive toward +z) [rad].
+
+    Returns
+    -------
+    ndarray
+        g(α) ∈ [0, 1] [-], same shape as ``alpha_rad``.
+
+    Notes
+    -----
+    A box of full width F convolved with a Gaussian of standard deviation σ_e:
+    g(α) = ½·[erf((α + F/2)/(√2 σ_e)) − erf((α − F/2)/(√2 σ_e))], so that
+    ∫ g dα = F; a hard box (|α| ≤ F/2) when σ_e = 0.
+    """
     a = np.asarray(alpha_rad, dtype=np.float64)
     half = 0.5 * sheet.fan_full_rad
     if sheet.edge_sigma_rad == 0.0:
@@ -139,22 +210,70 @@ def fan_profile(sheet: LightSheet, alpha_rad) -> np.ndarray:
 
 
 def radiant_intensity_w_per_rad(sheet: LightSheet, alpha_rad) -> np.ndarray:
-    """Power per radian of fan angle I(α) = P·g(α)/F [W/rad]; integrates to P."""
+    """Power per radian of fan angle.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    alpha_rad : float or array_like
+        Fan angle α [rad].
+
+    Returns
+    -------
+    ndarray
+        I(α) = P·g(α)/F [W/rad], same shape as ``alpha_rad``; ∫ I dα = P.
+    """
     return sheet.power_w * fan_profile(sheet, alpha_rad) / sheet.fan_full_rad
 
 
 def sheet_coordinates(sheet: LightSheet, points_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """In-sheet distance r [mm], fan angle α [rad] and offset o [mm] of rig points (…, 3)."""
+    """Coordinates of points relative to the sheet.
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    points_mm : (..., 3) array_like
+        Points, rig frame [mm].
+
+    Returns
+    -------
+    r_mm : (...) ndarray
+        In-sheet distance from the laser origin (of the point's projection on
+        the sheet plane) [mm].
+    alpha_rad : (...) ndarray
+        Fan angle α [rad].
+    offset_mm : (...) ndarray
+        Signed offset o from the sheet plane along its normal [mm].
+    """
     rel = np.asarray(points_mm, dtype=np.float64) - sheet.origin_mm
     along, height, offset = rel @ sheet.prop_dir, rel @ sheet.up, rel @ sheet.normal
     return np.hypot(along, height), np.arctan2(height, along), offset
 
 
 def irradiance_w_mm2(sheet: LightSheet, points_mm, normals=None) -> np.ndarray:
-    """Laser irradiance at rig points (…, 3) [W/mm²], ignoring occlusion.
+    """Laser irradiance at points, ignoring occlusion.
 
-    ``normals`` (…, 3): surface normals (the cosine of incidence is applied);
-    None = surface perpendicular to the beam.  Small-angle model (θ, offsets ≪ 1).
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    points_mm : (..., 3) array_like
+        Points, rig frame [mm].
+    normals : (..., 3) array_like, optional
+        Surface normals at the points, rig frame (need not be unit); the
+        cosine of incidence is applied.  None: surface perpendicular to the beam.
+
+    Returns
+    -------
+    (...) ndarray
+        Irradiance E [W/mm²].
+
+    Notes
+    -----
+    E = I(α)/r · exp(−o²/2s²)/(√(2π)·s) · |cos θ_i| with s = w(r)/2, the
+    closed form of the module docstring.  Small-angle model (θ, offsets ≪ 1).
     """
     r, alpha, o = sheet_coordinates(sheet, points_mm)
     s = 0.5 * beam_half_width_mm(sheet, r)
@@ -168,10 +287,30 @@ def irradiance_w_mm2(sheet: LightSheet, points_mm, normals=None) -> np.ndarray:
 
 
 def conditional_angle(sheet: LightSheet, r_ref_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ray-ensemble factorisation at r_ref: (s_ref [mm], k [rad/mm], σ_a [rad]).
+    """Factorise the sheet's ray ensemble at a reference distance.
 
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    r_ref_mm : float or array_like
+        Reference in-sheet distance r_ref (where the fan ray hits the scene) [mm].
+
+    Returns
+    -------
+    s_ref_mm : ndarray
+        Standard deviation of the offset at r_ref [mm].
+    k_rad_per_mm : ndarray
+        Slope of the conditional mean angle [rad/mm].
+    sigma_a_rad : ndarray
+        Conditional standard deviation of the transverse angle [rad].
+
+    Notes
+    -----
     Offset at r_ref: δ ~ N(0, s_ref²); angle given δ: a ~ N(k·δ, σ_a²), where with
     Δ = r_ref − r_w: s_ref = w(r_ref)/2, k = θ²Δ/w(r_ref)², σ_a = (θ/2)·w0/w(r_ref).
+    This is the same joint Gaussian as offset at the waist x0 ~ N(0, (w0/2)²)
+    and angle a ~ N(0, (θ/2)²), independent.
     """
     w = beam_half_width_mm(sheet, r_ref_mm)
     delta = np.asarray(r_ref_mm, dtype=np.float64) - sheet.waist_distance_mm
@@ -180,10 +319,32 @@ def conditional_angle(sheet: LightSheet, r_ref_mm) -> tuple[np.ndarray, np.ndarr
 
 
 def visible_fan_interval(sheet: LightSheet, sheet_points_mm, margin_rad: float) -> tuple[float, float]:
-    """Fan-angle interval [rad] that covers the given rig points (e.g. the sensor border seen on
-    the sheet), widened by ``margin_rad`` and clipped to the fan (±(F/2 + 4σ_e)).
+    """Fan-angle interval that covers the given points.
 
-    Falls back to the whole fan when a point is NaN or behind the laser origin.
+    Used to aim the light rays at what the camera can see (e.g. the sensor
+    border imaged onto the sheet).
+
+    Parameters
+    ----------
+    sheet : LightSheet
+        The light sheet.
+    sheet_points_mm : (..., 3) array_like
+        Points, rig frame [mm].
+    margin_rad : float
+        Widening of the interval on both sides [rad].
+
+    Returns
+    -------
+    alpha_min_rad : float
+        Lower fan angle [rad].
+    alpha_max_rad : float
+        Upper fan angle [rad].
+
+    Notes
+    -----
+    The interval is clipped to the fan, ±(F/2 + 4σ_e); it is that whole
+    range when a point is not finite or lies at or behind the laser origin
+    along the propagation direction.
     """
     half = 0.5 * sheet.fan_full_rad + 4.0 * sheet.edge_sigma_rad
     pts = np.asarray(sheet_points_mm, dtype=np.float64).reshape(-1, 3)
@@ -196,26 +357,60 @@ def visible_fan_interval(sheet: LightSheet, sheet_points_mm, margin_rad: float) 
 
 
 def speckle_grain_um(wavelength_nm: float, f_number: float, magnification: float) -> float:
-    """Speckle grain on the sensor, 1.22·λ·N·(1 + m) (coherent Airy radius) [µm]."""
+    """Speckle grain on the sensor.
+
+    Parameters
+    ----------
+    wavelength_nm : float
+        Laser wavelength λ [nm].
+    f_number : float
+        Aperture N [-].
+    magnification : float
+        Lateral magnification m (its absolute value is used) [-].
+
+    Returns
+    -------
+    float
+        Grain 1.22·λ·N·(1 + |m|), the coherent Airy radius [µm].
+
+    References
+    ----------
+    .. [1] J. W. Goodman, *Speckle Phenomena in Optics*, §4.6 and §5.2.
+    """
     return 1.22 * wavelength_nm * 1e-3 * f_number * (1.0 + abs(magnification))
 
 
 def speckle_pattern(shape: tuple[int, int], contrast: float, grain_px: float,
                     seed: int) -> np.ndarray:
-    """Mean-1 multiplicative speckle pattern (rows, columns) float64, pixel-integrated.
+    """Mean-1 multiplicative speckle pattern, pixel-integrated.
 
     Parameters
     ----------
-    shape : (rows, columns)
-    contrast : C of the speckle before pixel integration, 0 … 1 [-].
-    grain_px : grain size 1.22·λ·N_eff on the sensor, in pixels [px].
+    shape : tuple of int
+        ``(rows, columns)`` of the pattern [px].
+    contrast : float
+        Speckle contrast C before pixel integration, 0 … 1 [-].
+    grain_px : float
+        Grain size 1.22·λ·N_eff on the sensor [px].
     seed : int
         Seed of the pattern (same seed → same pattern).
+
+    Returns
+    -------
+    (rows, columns) float64
+        1 + (C/√M)·(X − 1), X the low-passed speckle intensity normalised to
+        mean 1 (≥ 0 for C ≤ 1); all ones when ``contrast`` is 0.
 
     Notes
     -----
     See the module docstring: pixel-value contrast C/√M, M = 1 + 1/A_c,
-    A_c = (4/π)·(grain_px/1.22)² [px²].
+    A_c = (4/π)·(grain_px/1.22)² [px²].  The circular-complex Gaussian field
+    is low-passed by a disc of radius 1.22/grain_px [cycles/px] only when
+    that is below the pixel band (√2/2 cycles/px).
+
+    References
+    ----------
+    .. [1] J. W. Goodman, *Speckle Phenomena in Optics*, §4.6 and §5.2.
     """
     if contrast == 0.0:
         return np.ones(shape)

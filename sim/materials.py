@@ -192,21 +192,29 @@ TRANSLUCENT: dict[str, Translucent] = {
 class MaterialSettings:
     """Parameters of the material tags.
 
+    Frozen; the defaults are the tables of the module docstring (assumptions,
+    not measurements, except where a source is named).
+
     Parameters
     ----------
-    cardboard_albedo, tape_albedo : float
-        Lambertian albedo of opaque cardboard and tape at the laser wavelength [-].
-    metal_alpha, knurled_alpha : float
-        GGX roughness α (≈ RMS facet slope) of the two metals [-].
-    conductor : str
+    cardboard_albedo : float, default 0.35
+        Lambertian albedo of ``cardboard`` at the laser wavelength, in [0, 1] [-].
+    tape_albedo : float, default 0.55
+        Lambertian albedo of ``tape`` at the laser wavelength, in [0, 1] [-].
+    metal_alpha : float, default 0.25
+        GGX roughness α (≈ RMS facet slope) of ``metal``, in (0, 1] [-].
+    knurled_alpha : float, default 0.5
+        GGX roughness α of ``knurled-metal``, in (0, 1] [-].
+    conductor : str, default "Al"
         Mitsuba conductor name for both metals (``Al``, ``Cr``, ``Ni`` ...).
-    translucent : Mapping[str, Translucent]
-        Media of the translucent tags (default :data:`TRANSLUCENT`).
+    translucent : Mapping[str, Translucent], default TRANSLUCENT
+        Interior media of the translucent tags (:data:`TRANSLUCENT`).
 
     Raises
     ------
     ValueError
-        For an albedo outside [0, 1], α outside (0, 1] or an unknown translucent tag.
+        When an albedo is outside [0, 1], a roughness outside (0, 1] or a translucent
+        tag unknown.
     """
 
     cardboard_albedo: float = 0.35
@@ -303,7 +311,10 @@ def bsdf_dict(material: str, settings: MaterialSettings | None = None,
     Returns
     -------
     dict
-        A dictionary for ``mitsuba.load_dict``.
+        A dictionary for ``mitsuba.load_dict``: ``{"type": "twosided", "material":
+        {...}}`` with a grey ``diffuse`` BSDF for an opaque translucent tag or a GGX
+        ``roughconductor`` for ``metal``/``knurled-metal``; with ``subsurface``, a
+        one-sided ``roughdielectric`` (``null`` for η = 1) for a translucent tag.
 
     Raises
     ------
@@ -322,7 +333,9 @@ def bsdf_dict(material: str, settings: MaterialSettings | None = None,
 
 
 def channel_for_wavelength(wavelength_nm: float) -> int:
-    """RGB channel index (0 = R, 1 = G, 2 = B) whose band holds ``wavelength_nm``.
+    """RGB channel whose band holds a wavelength.
+
+    Bands: blue < 490 nm ≤ green < 580 nm ≤ red.
 
     Parameters
     ----------
@@ -332,7 +345,7 @@ def channel_for_wavelength(wavelength_nm: float) -> int:
     Returns
     -------
     int
-        2 below 490 nm, 1 below 580 nm, else 0.
+        Channel index (0 = R, 1 = G, 2 = B).
     """
     if wavelength_nm < 490.0:
         return 2

@@ -111,28 +111,52 @@ LIGHT_SPEED_M_S = 299792458.0
 class RenderSettings:
     """Sampling settings of :class:`Renderer`.
 
-    samples_per_row : laser samples (rays = splats) per sensor row: the laser pass shoots
+    Frozen; validated on construction.
+
+    Parameters
+    ----------
+    samples_per_row : int, default 32
+        Laser samples (rays = splats) per sensor row [-]: the laser pass shoots
         N = samples_per_row · rows rays over the visible fan, plus as many shadow rays and
         N/pilot_block pilot rays.  (This light tracer has no "band": every sample lands
         on the lit band, so this is the number of splats per lit row.)
-    pilot_block : samples sharing one pilot ray (a multiple of 4) [-].
-    fan_margin_deg : widening of the visible fan interval on each side [deg].
-    ambient : render the ambient pass (skipped anyway when E_amb = 0).
-    ambient_step_px : ambient chief rays every this many pixels in u and v [px].
-    ambient_bsdf_samples : BSDF samples per ambient chief ray (directional albedo).
-    speckle : apply speckle when the rig's speckle_contrast > 0.
-    seed : base seed, mixed with the per-frame seed of :meth:`Renderer.render`.
-    pixel_filter : how a splat lands in pixels: ``"box"`` — the pixel whose square holds
-        it (exact pixel-area integration); ``"tent"`` — bilinear weights over the four
-        nearest pixel centres, i.e. the pixel square convolved with a further 1-px box
+    pilot_block : int, default 8
+        Samples sharing one pilot ray, a multiple of 4 [-].
+    fan_margin_deg : float, default 0.25
+        Widening of the visible fan interval on each side [deg].
+    ambient : bool, default True
+        Render the ambient pass (skipped anyway when E_amb = 0).
+    ambient_step_px : int, default 8
+        Ambient chief rays every this many pixels in u and v [px].
+    ambient_bsdf_samples : int, default 1
+        BSDF samples per ambient chief ray (directional albedo) [-].
+    speckle : bool, default True
+        Apply speckle when the rig's ``speckle_contrast`` > 0.
+    seed : int, default 0
+        Base seed, mixed with the per-frame seed of :meth:`Renderer.render`.
+    pixel_filter : {"tent", "box"}
+        How a splat lands in pixels: ``"box"`` — the pixel whose square holds
+        it (exact pixel-area integration); ``"tent"`` (default) — bilinear weights over the
+        four nearest pixel centres, i.e. the pixel square convolved with a further 1-px box
         (adds 1/12 px² to the stripe's variance, like mild pixel crosstalk) but removes
         the quantisation noise of the box, so the stripe centre converges much faster.
-    rr_depth : path depth up to which no Russian roulette is played (multi-bounce, rig key
+    rr_depth : int, default 3
+        Path depth up to which no Russian roulette is played (multi-bounce, rig key
         ``[twin] bounces``) [-].
-    secondary_thinning : one laser path in this many (random within each block, its power
-        multiplied accordingly) continues beyond the first surface; 4 = 8 of the default 32
-        samples per row carry the inter-reflected light [-].
-    subsurface_max_steps : events after which a subsurface random walk is abandoned [-].
+    secondary_thinning : int, default 4
+        One laser path in this many (random within each block, its power multiplied
+        accordingly) continues beyond the first surface; 4 = 8 of the default 32 samples
+        per row carry the inter-reflected light [-].
+    subsurface_max_steps : int, default 512
+        Events after which a subsurface random walk is abandoned [-].
+
+    Raises
+    ------
+    RenderError
+        When ``pixel_filter`` is not ``"box"`` or ``"tent"``, ``pilot_block`` is not
+        a multiple of 4, or a count (``samples_per_row``, ``pilot_block``,
+        ``ambient_step_px``, ``ambient_bsdf_samples``, ``rr_depth``,
+        ``secondary_thinning``, ``subsurface_max_steps``) is not an integer ≥ 1.
     """
 
     samples_per_row: int = 32
@@ -208,14 +232,35 @@ def _border_pixels(pose: SensorPose, n: int = 33) -> np.ndarray:
 class Renderer:
     """Renders frames of a :class:`~sim.scene.SimScene` as seen by a rig.
 
+    The algorithm (light tracing of the laser, chief-ray ambient pass) is
+    described in the module docstring.  Images are expected photo-electrons per
+    pixel, before sensor noise (:mod:`sim.sensor`).
+
     Parameters
     ----------
     rig : Rig
+        The rig: lens, sensor (exposure, quantum efficiency), laser, ambient light.
     sim_scene : SimScene
+        The parts; its Mitsuba variant must be a JIT variant.
     settings : RenderSettings, optional
+        Sampling settings; default ``RenderSettings()``.
     pose : SensorPose, optional
         Sensor pose; default :func:`scheimpflug.model.camera.sensor_pose` (rig).  A custom pose
         (e.g. an untilted sensor) changes where light lands, not the lens.
+
+    Attributes
+    ----------
+    shape : tuple of int
+        ``(rows, columns)`` of the rendered images [px].
+    sheet : LightSheet
+        The rig's light sheet (:func:`sim.lightsheet.light_sheet`).
+    aperture_radius_mm : float
+        Radius of the entrance pupil, f/(2N) [mm].
+    electrons_per_watt : float
+        Photo-electrons per watt of flux on a pixel over the exposure,
+        t_exp · QE · λ/(h·c) [e⁻/W].
+    fan_interval_rad : tuple of float
+        Fan-angle interval that the sensor sees on the sheet, with margins [rad].
 
     Raises
     ------
@@ -266,7 +311,6 @@ class Renderer:
 
     # ------------------------------------------------------------ setup
     def _setup_laser(self) -> None:
-        mi = self._mi
         pts = sheet_point_from_pixel(self.rig, _border_pixels(self.pose), self.pose)
         lo, hi = visible_fan_interval(self.sheet, pts, math.radians(self.settings.fan_margin_deg))
         self.fan_interval_rad = (lo, hi)
@@ -291,19 +335,31 @@ class Renderer:
 
     # ------------------------------------------------------------ public
     def render(self, rig_from_part, seed: int) -> np.ndarray:
-        """Expected photo-electrons per pixel of one frame.
+        """Expected photo-electrons per pixel of one frame (laser + ambient).
+
+        Sets the scene's pose (:meth:`SimScene.set_pose`), then renders the
+        ambient pass and the laser pass (all bounces and subsurface light of the
+        rig's ``[twin]`` table, speckle on the laser part when enabled).
 
         Parameters
         ----------
         rig_from_part : (4, 4) or (n_parts, 4, 4) float
             Pose of the parts in the rig frame [mm].
         seed : int
-            Frame seed (≥ 0): same seed, same image, bit for bit.
+            Frame seed (≥ 0), mixed with ``settings.seed``: same seeds, same
+            image, bit for bit.
 
         Returns
         -------
         (rows, columns) float32
             Laser (all bounces, subsurface light, speckle) + ambient [e⁻].
+
+        Raises
+        ------
+        RenderError
+            When ``seed`` < 0.
+        ValueError
+            When ``rig_from_part`` has neither shape ``(4, 4)`` nor ``(n_parts, 4, 4)``.
         """
         return self.render_light(rig_from_part, seed).image
 
@@ -315,7 +371,7 @@ class Renderer:
         rig_from_part : (4, 4) or (n_parts, 4, 4) float
             Pose of the parts in the rig frame [mm].
         seed : int
-            Frame seed (≥ 0).
+            Frame seed (≥ 0), as in :meth:`render`.
 
         Returns
         -------
@@ -339,19 +395,29 @@ class Renderer:
         return light
 
     def render_components(self, rig_from_part, seed: int) -> tuple[np.ndarray, np.ndarray]:
-        """The laser and ambient parts of :meth:`render`.
+        """Expected electrons of one frame, laser and ambient light apart.
 
         Parameters
         ----------
         rig_from_part : (4, 4) or (n_parts, 4, 4) float
             Pose of the parts in the rig frame [mm].
         seed : int
-            Frame seed (≥ 0).
+            Frame seed (≥ 0), as in :meth:`render`.
 
         Returns
         -------
-        laser, ambient : (rows, columns) float32
-            Expected electrons; their sum is :meth:`render` up to float32 rounding [e⁻].
+        laser : (rows, columns) float32
+            Laser light, speckle applied when enabled [e⁻].
+        ambient : (rows, columns) float32
+            Ambient light [e⁻].  ``laser + ambient`` is :meth:`render` (up to
+            float32 rounding of the sum).
+
+        Raises
+        ------
+        RenderError
+            When ``seed`` < 0.
+        ValueError
+            When ``rig_from_part`` has neither shape ``(4, 4)`` nor ``(n_parts, 4, 4)``.
         """
         self.scene.set_pose(rig_from_part)
         key = self._key(seed)
@@ -362,7 +428,16 @@ class Renderer:
         return laser, self._ambient_image(key)
 
     def speckle_grain_px(self) -> float:
-        """Speckle grain 1.22·λ·N·(1 + m) on the sensor, m at the sensor centre [px]."""
+        """Speckle grain on the sensor, in pixels.
+
+        Returns
+        -------
+        float
+            1.22·λ·N·(1 + m) divided by the pixel pitch [px], with m = f/(x − f)
+            the magnification of the sheet point imaged at the sensor centre
+            (x its rig-frame distance along the optical axis); m = 0 when that
+            point is not finite or not beyond the focal length.
+        """
         centre = np.array([0.5 * (self.pose.columns - 1), 0.5 * (self.pose.rows - 1)])
         x = sheet_point_from_pixel(self.rig, centre, self.pose)[0]
         f = self.rig.lens.focal_length_mm
@@ -372,24 +447,34 @@ class Renderer:
 
     def render_point_source(self, point_mm, intensity_w_sr: float, n_samples: int = 65536,
                             seed: int = 0) -> np.ndarray:
-        """Expected electrons (rows, columns) float32 of an isotropic point emitter seen directly.
+        """Expected electrons of an isotropic point emitter.
 
         Parameters
         ----------
         point_mm : (3,) float
-            Rig position [mm] (x > f).
+            Emitter position, rig frame [mm] (x > f).
         intensity_w_sr : float
             Radiant intensity [W/sr].
-        n_samples : int
-            Aperture samples (randomly shifted R2 low-discrepancy sequence).
-        seed : int
-            Seed of the shift.
+        n_samples : int, default 65536
+            Aperture samples (randomly shifted R2 low-discrepancy sequence) [-].
+        seed : int, default 0
+            Seed of the sequence's shift (≥ 0).
 
         Returns
         -------
         (rows, columns) float32
-            The thin-lens blur of the point on the sensor [e⁻]; parts between the point
-            and the aperture shadow it (same camera-side code as the laser pass).
+            Expected electrons per pixel [e⁻].
+
+        Raises
+        ------
+        RenderError
+            When ``seed`` < 0.
+
+        Notes
+        -----
+        The spot is the thin-lens blur of the point on the sensor (same camera-side code
+        as the laser pass); parts between the point and the aperture, in their
+        current pose, shadow it.
         """
         mi, dr = self._mi, self._dr
         s = dr.opaque(mi.UInt32, self._key(seed))

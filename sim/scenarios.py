@@ -7,7 +7,8 @@ and the frame's noise seed).  Three scenarios (INTERFACE.md):
 ``calibration``
     The calibration plate (:func:`scenes.generators.plate`, height
     ``plate_height_mm``) on the translation stage at s = start + i·step
-    (:func:`sim.stages.rig_from_plate`).  Defaults: 27 steps of 10 mm from −10 mm (s = −10 … 250, all inside the paper rig's −18.8 … 255.5 mm view).
+    (:func:`sim.stages.rig_from_plate`).  Defaults: 27 steps of 10 mm from −10 mm
+    (s = −10 … 250, all inside the paper rig's −18.8 … 255.5 mm view).
     The paper used 27 × 20 mm, but that spans 520 mm while its depth range is
     only ≈ 277 mm, so half of those frames would be empty; ``step_mm=20``
     reproduces the paper literally and the out-of-view frames are listed in
@@ -54,7 +55,26 @@ SCENARIOS = ("blocker", "calibration", "rotary")
 
 
 def frame_seed(seed: int, index: int) -> int:
-    """The 32-bit seed of frame ``index`` of a run seeded with ``seed``."""
+    """The 32-bit seed of one frame of a run.
+
+    Parameters
+    ----------
+    seed : int
+        Run seed (≥ 0).
+    index : int
+        Frame index (≥ 0).
+
+    Returns
+    -------
+    int
+        The frame's seed in [0, 2**32): the first 32-bit word of
+        ``numpy.random.SeedSequence((seed, index))``.
+
+    Raises
+    ------
+    ValueError
+        When ``seed`` or ``index`` is negative.
+    """
     if seed < 0 or index < 0:
         raise ValueError(f"seed and frame index must be >= 0, got {seed}, {index}")
     return int(np.random.SeedSequence((int(seed), int(index))).generate_state(1, np.uint32)[0])
@@ -64,13 +84,21 @@ def frame_seed(seed: int, index: int) -> int:
 class FrameSpec:
     """One frame to render.
 
-    index : frame number (file ``frames/{index:05d}.png``).
-    rig_from_part : (4, 4) float, pose of the assembly (part frame) in the rig frame.
-    ref_from_part : (4, 4) float, part frame → truth reference frame (the stage frame
-        with the part at θ = 0 for the rotary stage; the stage frame for the plate).
-    seed : 32-bit frame seed (renderer and sensor noise).
-    stage_mm : translation-stage coordinate s [mm] (calibration), else None.
-    angle_deg : rotary-stage angle θ [deg] (blocker, rotary), else None.
+    Parameters
+    ----------
+    index : int
+        Frame number (file ``frames/{index:05d}.png``).
+    rig_from_part : (4, 4) float
+        Pose of the assembly (part frame) in the rig frame [mm].
+    ref_from_part : (4, 4) float
+        Part frame → truth reference frame [mm] (the stage frame with the part
+        at θ = 0 for the rotary stage; the stage frame for the plate).
+    seed : int
+        32-bit frame seed (renderer and sensor noise).
+    stage_mm : float or None, default None
+        Translation-stage coordinate s [mm] (calibration), else None.
+    angle_deg : float or None, default None
+        Rotary-stage angle θ [deg] (blocker, rotary), else None.
     """
 
     index: int
@@ -81,7 +109,14 @@ class FrameSpec:
     angle_deg: float | None = None
 
     def stage_entry(self) -> dict:
-        """The manifest's stage key of this frame: ``{"stage_mm": s}`` or ``{"angle_deg": θ}``."""
+        """The manifest's stage entry of this frame.
+
+        Returns
+        -------
+        dict
+            ``{"stage_mm": s}`` [mm] when the frame has a translation-stage
+            coordinate, else ``{"angle_deg": θ}`` [deg].
+        """
         if self.stage_mm is not None:
             return {"stage_mm": float(self.stage_mm)}
         return {"angle_deg": float(self.angle_deg)}
@@ -91,14 +126,24 @@ class FrameSpec:
 class Scenario:
     """A scenario ready to render.
 
-    name : one of :data:`SCENARIOS`.
-    params : JSON-ready scenario parameters (written to the manifest).
-    assembly : the parts, in the part frame.
-    frames : tuple of :class:`FrameSpec`.
-    mesh_ref_from_part : (4, 4) pose of ``truth/mesh.ply`` (the assembly in the reference frame).
-    truth_pixels_every : per-pixel truth every N-th frame (0 = never).
-    warnings : human-readable warnings (e.g. frames predicted to hold no stripe).
-    expected_empty : indices of the frames predicted to hold no stripe (already warned about).
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCENARIOS`.
+    params : dict
+        JSON-ready scenario parameters (written to the manifest).
+    assembly : scenes.Assembly
+        The parts, in the part frame.
+    frames : tuple of FrameSpec
+        The frames, in order.
+    mesh_ref_from_part : (4, 4) float
+        Pose of ``truth/mesh.ply``: the assembly in the reference frame [mm].
+    truth_pixels_every : int, default 1
+        Per-pixel truth every N-th frame (0 = never).
+    warnings : tuple of str, default ()
+        Human-readable warnings (e.g. frames predicted to hold no stripe).
+    expected_empty : frozenset of int, default frozenset()
+        Indices of the frames predicted to hold no stripe (already warned about).
     """
 
     name: str
@@ -111,7 +156,18 @@ class Scenario:
     expected_empty: frozenset = frozenset()
 
     def wants_pixel_truth(self, index: int) -> bool:
-        """Whether frame ``index`` gets per-pixel truth maps."""
+        """Whether a frame gets per-pixel truth maps.
+
+        Parameters
+        ----------
+        index : int
+            Frame index.
+
+        Returns
+        -------
+        bool
+            True when ``truth_pixels_every`` > 0 and divides ``index``.
+        """
         return self.truth_pixels_every > 0 and index % self.truth_pixels_every == 0
 
 
@@ -119,10 +175,29 @@ class Scenario:
 
 
 def load_assembly(name_or_path: str, seed: int = 0, **overrides):
-    """An :class:`~scenes.part.Assembly` from a scenes preset name, mesh file or scene file.
+    """An assembly from a scenes preset name, mesh file or scene file.
 
-    Thin wrapper of :func:`scenes.load_part`; an unknown part raises
-    :class:`~scheimpflug.errors.MeshError` listing the known names.
+    Thin wrapper of :func:`scenes.load_part`.
+
+    Parameters
+    ----------
+    name_or_path : str
+        A preset name of :data:`scenes.PART_NAMES`, or the path of a mesh file
+        (.stl/.ply/.obj) or scene file (.toml).
+    seed : int, default 0
+        Seed of the part's random variations.
+    **overrides
+        Preset parameters (e.g. ``height_mm`` for the plate), passed on.
+
+    Returns
+    -------
+    scenes.Assembly
+        The parts, in the part frame.
+
+    Raises
+    ------
+    MeshError
+        For an unknown part (the message lists the known names) or a bad file.
     """
     from scenes import load_part
 
@@ -145,7 +220,38 @@ def _positive(name: str, value: float) -> None:
 def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: float = 10.0,
                          start_mm: float = -10.0, plate_height_mm: float = 89.0,
                          truth_pixels_every: int = 1) -> Scenario:
-    """The calibration plate on the translation stage at s = start + i·step [mm]."""
+    """The calibration plate on the translation stage at s = start + i·step.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+    seed : int, default 0
+        Run seed (frame seeds by :func:`frame_seed`).
+    steps : int, default 27
+        Number of frames (≥ 1).
+    step_mm : float, default 10.0
+        Stage step (> 0) [mm].
+    start_mm : float, default -10.0
+        Stage coordinate of the first frame [mm].
+    plate_height_mm : float, default 89.0
+        Height of the plate (> 0) [mm].
+    truth_pixels_every : int, default 1
+        Per-pixel truth every N-th frame (0 = never).
+
+    Returns
+    -------
+    Scenario
+        Frames with ``stage_mm``; the reference frame is the stage frame;
+        frames whose plate lies outside the view (closed form) are listed in
+        ``warnings`` and ``expected_empty``.
+
+    Raises
+    ------
+    ScheimpflugError
+        When ``steps`` is not an integer ≥ 1, ``step_mm`` or
+        ``plate_height_mm`` is not > 0, or ``start_mm`` is not finite.
+    """
     _positive_int("steps", steps)
     _positive("step_mm", step_mm)
     _positive("plate_height_mm", plate_height_mm)
@@ -191,7 +297,32 @@ def _rotary_frames(rig: Rig, seed: int, angles) -> tuple:
 
 def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: float = 2.0,
                      truth_pixels_every: int = 1) -> Scenario:
-    """The blocker on the rotary stage at θ = 0, ``frames`` times (different noise seeds)."""
+    """The blocker on the rotary stage at θ = 0, several times with different noise seeds.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+    seed : int, default 0
+        Run seed (frame seeds by :func:`frame_seed`).
+    frames : int, default 1
+        Number of identical poses (≥ 1).
+    thickness_mm : float, default 2.0
+        Blocker thickness (> 0) [mm].
+    truth_pixels_every : int, default 1
+        Per-pixel truth every N-th frame (0 = never).
+
+    Returns
+    -------
+    Scenario
+        Frames with ``angle_deg`` = 0; the reference frame is the stage frame
+        with the part at θ = 0.
+
+    Raises
+    ------
+    ScheimpflugError
+        When ``frames`` is not an integer ≥ 1 or ``thickness_mm`` is not > 0.
+    """
     _positive_int("frames", frames)
     _positive("blocker_thickness_mm", thickness_mm)
     assembly = load_assembly("blocker", thickness_mm=thickness_mm)
@@ -204,7 +335,36 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
 
 def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: float = 0.5,
                     frames: int | None = None, truth_pixels_every: int = 30) -> Scenario:
-    """A part on the rotary stage at θ_i = i·step_deg over one turn (or the first ``frames``)."""
+    """A part on the rotary stage at θ_i = i·step_deg over one turn.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (stage pose, axis tilt and runout).
+    seed : int, default 0
+        Run seed: frame seeds (:func:`frame_seed`) and the part's random variations.
+    part : str, default "cylinder"
+        A scenes preset name, mesh file or scene file (:func:`load_assembly`).
+    step_deg : float, default 0.5
+        Stage step (> 0) [deg]; one turn is round(360/step_deg) frames (at least 1).
+    frames : int, optional
+        Render only the first ``frames`` (≥ 1) of the turn.
+    truth_pixels_every : int, default 30
+        Per-pixel truth every N-th frame (0 = never).
+
+    Returns
+    -------
+    Scenario
+        Frames with ``angle_deg``; the reference frame is the stage frame with
+        the part at θ = 0.
+
+    Raises
+    ------
+    ScheimpflugError
+        When ``step_deg`` is not > 0 or ``frames`` is not an integer ≥ 1.
+    MeshError
+        For an unknown part or a bad mesh or scene file.
+    """
     _positive("step_deg", step_deg)
     n_turn = max(1, int(round(360.0 / step_deg)))
     if frames is not None:
@@ -220,7 +380,31 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
 
 
 def build_scenario(name: str, rig: Rig, seed: int = 0, **options) -> Scenario:
-    """Dispatch by scenario name; unknown names raise listing :data:`SCENARIOS`."""
+    """Build a scenario by name.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCENARIOS`: ``blocker``, ``calibration``, ``rotary``.
+    rig : Rig
+        The rig.
+    seed : int, default 0
+        Run seed.
+    **options
+        Keyword arguments of :func:`blocker_scenario`,
+        :func:`calibration_scenario` or :func:`rotary_scenario`.
+
+    Returns
+    -------
+    Scenario
+        The scenario ready to render.
+
+    Raises
+    ------
+    ScheimpflugError
+        For an unknown scenario name (the message lists :data:`SCENARIOS`), or
+        an invalid option value (see the builders).
+    """
     table = {"blocker": blocker_scenario, "calibration": calibration_scenario,
              "rotary": rotary_scenario}
     if name not in table:

@@ -38,13 +38,23 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Hits:
-    """First hits of n rays (numpy, float64 unless stated).
+    """First hits of n rays, as returned by :meth:`SimScene.intersect`.
 
-    t : (n,) ray parameter of the hit [mm] (rays are normalised), ``inf`` where nothing is hit.
-    point_mm : (n, 3) rig-frame hit point [mm] (NaN where no hit).
-    normal : (n, 3) unit geometric normal of the hit triangle as wound (outward for a closed,
-        consistently wound mesh; not flipped toward the ray); NaN where no hit.
-    object_id : (n,) int32 object id of the hit part (0 = no hit).
+    Numpy arrays, float64 unless stated.
+
+    Parameters
+    ----------
+    t : (n,) float
+        Ray parameter of the hit [mm] (rays are normalised, so this is the
+        distance from the origin); ``inf`` where nothing is hit.
+    point_mm : (n, 3) float
+        Hit point, rig frame [mm]; NaN where no hit.
+    normal : (n, 3) float
+        Unit geometric normal of the hit triangle as wound, rig frame [-]
+        (outward for a closed, consistently wound mesh; not flipped toward the
+        ray); NaN where no hit.
+    object_id : (n,) int32
+        Object id of the hit part (0 = no hit).
     """
 
     t: np.ndarray
@@ -105,6 +115,31 @@ class SimScene:
     subsurface : bool
         Translucent tags get their dielectric boundary and interior medium
         (:mod:`sim.materials`, rig key ``[twin] subsurface``) instead of an opaque surface.
+
+    Attributes
+    ----------
+    variant : str
+        The active Mitsuba variant.
+    specs : list
+        The validated parts (vertices (m, 3) float64 in the part frame [mm],
+        faces (k, 3) uint32, material tag, object id, name).
+    materials : MaterialSettings
+        The material parameters in use.
+    scene : mitsuba.Scene
+        The loaded Mitsuba scene.
+    rig_from_part : list of (4, 4) float
+        The current pose of each part (rig from part frame) [mm].
+    scene_from_rig : (4, 4) float
+        Rig frame → Mitsuba scene coordinates: the inverse of the common pose
+        when all parts move rigidly together, the identity when the vertex
+        buffers carry per-part poses.
+
+    Raises
+    ------
+    MeshError
+        When ``parts`` is empty, a mesh has fewer than 3 finite vertices
+        ``(m, 3)`` or no triangle ``(k, 3)``, a face index is out of range, or
+        an object id is < 1 (0 means "no hit"); or for an unknown material tag.
 
     Notes
     -----
@@ -195,7 +230,24 @@ class SimScene:
 
     # ------------------------------------------------------------ pose
     def set_pose(self, rig_from_part) -> None:
-        """Place all parts: one (4, 4) rig_from_part transform, or one per part (n, 4, 4)."""
+        """Place all parts for the next ray queries.
+
+        One transform for all parts moves the rays instead of the meshes (no
+        vertex upload, no BVH rebuild); different transforms per part rewrite
+        the vertex buffers (Mitsuba rebuilds the BVH) and make the scene frame
+        the rig frame.
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) or (n_parts, 4, 4) float
+            Rig from part frame [mm]: one homogeneous transform for all parts,
+            or one per part in the order of ``parts``.
+
+        Raises
+        ------
+        ValueError
+            When the shape is neither ``(4, 4)`` nor ``(n_parts, 4, 4)``.
+        """
         mats = _as_transforms(rig_from_part, len(self.specs))
         rigid = all(np.array_equal(m, mats[0]) for m in mats[1:])
         if rigid:
@@ -216,7 +268,18 @@ class SimScene:
         self.params.update()
 
     def transforms_dr(self):
-        """(scene_from_rig, rig_from_scene) as opaque ``mi.Transform4f`` (no recompilation per frame)."""
+        """The current scene ↔ rig transforms as Dr.Jit values.
+
+        The matrices are made opaque (``dr.opaque``) so that a new pose per
+        frame does not recompile the kernels that use them.
+
+        Returns
+        -------
+        scene_from_rig : mitsuba.Transform4f
+            Rig frame → Mitsuba scene coordinates (float32).
+        rig_from_scene : mitsuba.Transform4f
+            Its inverse.
+        """
         import drjit as dr
 
         mi = self._mi
@@ -231,7 +294,18 @@ class SimScene:
                               f"active: {self.variant}; install libllvm19 (apt-get install libllvm19)")
 
     def object_ids(self, si) -> np.ndarray:
-        """(n,) int32 object ids of Mitsuba SurfaceInteraction hits (0 = none)."""
+        """Object ids of the shapes hit by Mitsuba surface interactions.
+
+        Parameters
+        ----------
+        si : mitsuba.SurfaceInteraction3f
+            Result of a ray query on :attr:`scene` with n lanes (JIT variant).
+
+        Returns
+        -------
+        (n,) int32
+            Object id of the hit part per lane (0 = none).
+        """
         import drjit as dr
 
         reg = np.asarray(dr.reinterpret_array(self._mi.UInt32, si.shape), np.int64)
@@ -240,14 +314,28 @@ class SimScene:
     def intersect(self, origins, directions) -> Hits:
         """First hits of rays ``origins + t·directions`` (directions need not be unit).
 
+        Mitsuba intersects in float32; the hit point is recomputed in float64
+        from the float32 distance along the rig-frame ray.
+
         Parameters
         ----------
-        origins, directions : (n, 3) float
-            Rig frame [mm].
+        origins : (n, 3) float
+            Ray origins, rig frame [mm]; a single ``(3,)`` ray is accepted.
+        directions : (n, 3) float
+            Ray directions, rig frame [-] (normalised internally).
 
         Returns
         -------
         Hits
+            Distance, point and normal in the rig frame, and object id of the
+            first hit of each ray (``inf``/NaN/0 where nothing is hit).
+
+        Raises
+        ------
+        RenderError
+            When the active variant is not a JIT variant (``llvm_*``/``cuda_*``).
+        ValueError
+            When the two arrays are not of the same ``(n, 3)`` shape.
         """
         self._require_jit()
         mi = self._mi
@@ -301,7 +389,31 @@ class SimScene:
         return t, idx, np.where((idx >= 0)[:, None], n, np.nan)
 
     def occluded(self, origins, targets, eps_mm: float = 1e-3) -> np.ndarray:
-        """(n,) bool: is the open segment origin→target blocked (endpoints excluded by ``eps_mm``)?"""
+        """Whether the open segments origin → target are blocked by a part.
+
+        Parameters
+        ----------
+        origins : (n, 3) float
+            Segment starts, rig frame [mm]; a single ``(3,)`` point is accepted.
+        targets : (n, 3) float
+            Segment ends, rig frame [mm].
+        eps_mm : float, default 1e-3
+            Length excluded at both ends, so that a segment starting or ending
+            on a surface is not blocked by that surface [mm].
+
+        Returns
+        -------
+        (n,) bool
+            True where a part lies on the segment between the excluded ends
+            (always False for segments no longer than ``2·eps_mm``).
+
+        Raises
+        ------
+        RenderError
+            When the active variant is not a JIT variant (``llvm_*``/``cuda_*``).
+        ValueError
+            When the two arrays are not of the same ``(n, 3)`` shape.
+        """
         self._require_jit()
         mi = self._mi
         o, q = _rays(origins, targets)

@@ -60,7 +60,29 @@ _STREAM_SENSOR = 0x5E45  # distinguishes the sensor-noise stream from other seed
 
 
 def frame_rng(seed: int, frame_index: int, stream: int = _STREAM_SENSOR) -> np.random.Generator:
-    """The seeded generator of one frame: PCG64 from SeedSequence((seed, frame_index, stream))."""
+    """The seeded random generator of one frame.
+
+    Parameters
+    ----------
+    seed : int
+        Run seed (≥ 0).
+    frame_index : int
+        Frame index (≥ 0).
+    stream : int, default 0x5E45
+        Stream tag that separates independent uses of the same (seed, frame);
+        the default is the sensor-noise stream.
+
+    Returns
+    -------
+    numpy.random.Generator
+        PCG64 seeded by ``SeedSequence((seed, frame_index, stream))``: the same
+        arguments always give the same stream, whatever was drawn before.
+
+    Raises
+    ------
+    ValueError
+        When ``seed`` or ``frame_index`` is negative.
+    """
     if seed < 0 or frame_index < 0:
         raise ValueError(f"seed and frame_index must be >= 0, got {seed}, {frame_index}")
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence((int(seed), int(frame_index),
@@ -291,8 +313,9 @@ def _dr_streams(llvm, n: int, key: np.uint64):
 
 
 def _dr_poisson(llvm, lam, rng):
-    """Exact Poisson counts (Float64) of means ``lam`` (Float64): inversion below
-    _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; ``rng`` is advanced.
+    """Exact Poisson counts (Float64) of means ``lam`` (Float64).
+
+    Inversion below _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; ``rng`` is advanced.
     """
     import drjit as dr
 
@@ -345,13 +368,43 @@ def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel) -> np
 
 
 def poisson_counts(lam, rng: np.random.Generator, backend: str | None = None) -> np.ndarray:
-    """Poisson-distributed counts with means ``lam`` (any shape), float32.
+    """Poisson-distributed counts with given means.
 
+    Parameters
+    ----------
+    lam : array_like
+        Means λ ≥ 0, any shape (converted to float32) [-].
+    rng : numpy.random.Generator
+        Generator of the frame (:func:`frame_rng`); one 64-bit key is drawn from it.
+    backend : {None, "drjit", "numba"}, optional
+        Dr.Jit's LLVM kernel (per-pixel PCG32 streams; the default when usable)
+        or the numba kernel (per-pixel SplitMix64 streams).  The two are exact
+        in distribution but give different numbers.
+
+    Returns
+    -------
+    ndarray of float32
+        Counts, same shape as ``lam``.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``backend``, or ``"drjit"`` when Dr.Jit's LLVM backend
+        is not usable.
+
+    Notes
+    -----
     Exact in distribution.  λ < 10: CDF inversion with one uniform per pixel;
-    λ ≥ 10: PTRS trials with two fresh uniforms each until one is accepted.
-    The uniforms come from a counter-based SplitMix64 stream per pixel keyed by
+    λ ≥ 10: PTRS transformed rejection (Hörmann 1993, the algorithm of numpy's
+    ``Generator.poisson``) with two fresh uniforms per trial until one is
+    accepted.  The uniforms come from a counter-based stream per pixel keyed by
     one draw of ``rng``, so the kernel is parallel over pixels and deterministic
     whatever the thread count: same generator state → same counts.
+
+    References
+    ----------
+    .. [1] W. Hörmann, "The transformed rejection method for generating Poisson
+       random variables", Insurance: Mathematics and Economics 12, 1993.
     """
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
     llvm = _backend(backend)
@@ -365,12 +418,37 @@ def poisson_counts(lam, rng: np.random.Generator, backend: str | None = None) ->
 
 
 def full_scale_dn(sensor: Sensor) -> int:
-    """Largest ADC code, 2**adc_bits − 1 [DN]."""
+    """Largest ADC code of a sensor.
+
+    Parameters
+    ----------
+    sensor : Sensor
+        The rig's sensor (``adc_bits``).
+
+    Returns
+    -------
+    int
+        2**adc_bits − 1 [DN].
+    """
     return (1 << sensor.adc_bits) - 1
 
 
 def conversion_gain_e_per_dn(sensor: Sensor) -> float:
-    """Conversion gain g [e⁻/DN]; gain_e_per_dn = 0 → full well + dark offset = full scale."""
+    """Conversion gain of a sensor.
+
+    Parameters
+    ----------
+    sensor : Sensor
+        The rig's sensor (``gain_e_per_dn``, ``full_well_e``,
+        ``dark_offset_dn``, ``adc_bits``).
+
+    Returns
+    -------
+    float
+        g [e⁻/DN]: ``sensor.gain_e_per_dn`` when > 0; when 0, the gain at which
+        a full pixel reads exactly full scale,
+        g = full_well_e / (2**adc_bits − 1 − dark_offset_dn).
+    """
     if sensor.gain_e_per_dn > 0:
         return float(sensor.gain_e_per_dn)
     return sensor.full_well_e / (full_scale_dn(sensor) - sensor.dark_offset_dn)
@@ -380,11 +458,20 @@ def conversion_gain_e_per_dn(sensor: Sensor) -> float:
 class SensorModel:
     """Noise and ADC parameters of one sensor, taken from ``rig.sensor``.
 
-    full_well_e : saturation charge [e⁻].
-    read_noise_e : RMS read noise [e⁻].
-    dark_offset_dn : black level [DN].
-    gain_e_per_dn : conversion gain actually used (> 0) [e⁻/DN].
-    adc_bits : ADC depth [bit].
+    Build it with :meth:`from_rig`; the model is in the module docstring.
+
+    Parameters
+    ----------
+    full_well_e : float
+        Saturation charge [e⁻].
+    read_noise_e : float
+        RMS read noise [e⁻].
+    dark_offset_dn : float
+        Black level [DN].
+    gain_e_per_dn : float
+        Conversion gain actually used (> 0) [e⁻/DN].
+    adc_bits : int
+        ADC depth [bit].
     """
 
     full_well_e: float
@@ -395,6 +482,19 @@ class SensorModel:
 
     @classmethod
     def from_rig(cls, rig: Rig) -> SensorModel:
+        """The sensor model of a rig.
+
+        Parameters
+        ----------
+        rig : Rig
+            The rig; ``rig.sensor`` gives the parameters, the gain through
+            :func:`conversion_gain_e_per_dn` (0 in the rig file → full scale).
+
+        Returns
+        -------
+        SensorModel
+            The model.
+        """
         s = rig.sensor
         return cls(s.full_well_e, s.read_noise_e, s.dark_offset_dn,
                    conversion_gain_e_per_dn(s), s.adc_bits)
@@ -405,11 +505,34 @@ class SensorModel:
         return (1 << self.adc_bits) - 1
 
     def expected_dn(self, electrons) -> np.ndarray:
-        """Noise-free mean DN of expected electrons (no clipping, no rounding) [DN]."""
+        """Noise-free mean DN of expected electrons.
+
+        Parameters
+        ----------
+        electrons : array_like
+            Expected photo-electrons λ [e⁻].
+
+        Returns
+        -------
+        ndarray
+            dark_offset_dn + λ/g [DN] (float64, no clipping, no rounding).
+        """
         return self.dark_offset_dn + np.asarray(electrons, dtype=np.float64) / self.gain_e_per_dn
 
     def variance_dn2(self, electrons) -> np.ndarray:
-        """Var[DN] = (λ + σ_read²)/g² + 1/12 for unsaturated pixels [DN²]."""
+        """Variance of the DN of unsaturated pixels.
+
+        Parameters
+        ----------
+        electrons : array_like
+            Expected photo-electrons λ [e⁻].
+
+        Returns
+        -------
+        ndarray
+            Var[DN] = (λ + σ_read²)/g² + 1/12 [DN²] (float64); the 1/12 is the
+            ADC rounding of a distribution wide compared to 1 DN.
+        """
         lam = np.asarray(electrons, dtype=np.float64)
         return (lam + self.read_noise_e**2) / self.gain_e_per_dn**2 + 1.0 / 12.0
 
@@ -435,8 +558,10 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
     electrons : (rows, columns) float
         Expected photo-electrons per pixel, ≥ 0 [e⁻]; NaN or negative values raise.
     model : SensorModel
+        Noise and ADC parameters (:meth:`SensorModel.from_rig`).
     rng : numpy.random.Generator
-        Use :func:`frame_rng` for reproducible frames.
+        Generator of the frame; one 64-bit key is drawn from it.  Use
+        :func:`frame_rng` for reproducible frames.
     backend : {None, "drjit", "numba"}
         Dr.Jit's vectorised LLVM kernel (default when usable) or the numba
         kernel; both sample the same model exactly, with different streams.
@@ -445,6 +570,17 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
     -------
     (rows, columns) uint16
         Raw ADC codes in ``[0, 2**adc_bits − 1]`` [DN] (not shifted to 16 bit).
+
+    Raises
+    ------
+    ValueError
+        When ``electrons`` is not 2-D, holds NaN or negative values; for an
+        unknown ``backend``, or ``"drjit"`` when Dr.Jit's LLVM backend is not usable.
+
+    Notes
+    -----
+    Shot noise (Poisson), full-well clip, Gaussian read noise, conversion gain
+    and black level, rounding and ADC clip, in that order (module docstring).
     """
     lam = np.asarray(electrons)
     if lam.ndim != 2:

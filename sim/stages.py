@@ -62,14 +62,36 @@ __all__ = [
 
 
 def translation(t_mm) -> np.ndarray:
-    """4×4 translation by (3,) t [mm]."""
+    """Homogeneous translation.
+
+    Parameters
+    ----------
+    t_mm : (3,) array_like
+        Translation vector [mm].
+
+    Returns
+    -------
+    (4, 4) float64
+        T(t).
+    """
     m = np.eye(4)
     m[:3, 3] = np.asarray(t_mm, dtype=np.float64)
     return m
 
 
 def rotation_z(angle_deg: float) -> np.ndarray:
-    """4×4 rotation about +z by ``angle_deg`` (counter-clockwise seen from above) [deg]."""
+    """Homogeneous rotation about +z.
+
+    Parameters
+    ----------
+    angle_deg : float
+        Rotation angle, counter-clockwise seen from above (+z) [deg].
+
+    Returns
+    -------
+    (4, 4) float64
+        R_z(angle).
+    """
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
     m = np.eye(4)
     m[:2, :2] = [[c, -s], [s, c]]
@@ -87,7 +109,24 @@ def _rotation_axis_angle(axis, angle_rad: float) -> np.ndarray:
 
 
 def invert(b_from_a: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4×4 transform (a_from_b)."""
+    """Inverse of a rigid transform.
+
+    Parameters
+    ----------
+    b_from_a : (4, 4) array_like
+        Rigid homogeneous transform (rotation + translation) [mm].
+
+    Returns
+    -------
+    (4, 4) float64
+        a_from_b = [Rᵀ | −Rᵀ·t]; exact only for a rigid transform (the
+        rotation block is transposed, not inverted).
+
+    Raises
+    ------
+    ValueError
+        When ``b_from_a`` is not 4×4.
+    """
     m = np.asarray(b_from_a, dtype=np.float64)
     if m.shape != (4, 4):
         raise ValueError(f"a transform must be 4×4, got shape {m.shape}")
@@ -98,7 +137,25 @@ def invert(b_from_a: np.ndarray) -> np.ndarray:
 
 
 def transform_points(b_from_a: np.ndarray, points_mm) -> np.ndarray:
-    """Apply a 4×4 transform to points (…, 3) [mm] → (…, 3) float64."""
+    """Apply a homogeneous transform to points.
+
+    Parameters
+    ----------
+    b_from_a : (4, 4) ndarray
+        Transform from frame a to frame b [mm].
+    points_mm : (..., 3) array_like
+        Points in frame a [mm].
+
+    Returns
+    -------
+    (..., 3) float64
+        The points in frame b [mm].
+
+    Raises
+    ------
+    ValueError
+        When the points' last axis is not of length 3.
+    """
     p = np.asarray(points_mm, dtype=np.float64)
     if p.shape[-1] != 3:
         raise ValueError(f"points must have shape (..., 3), got {p.shape}")
@@ -106,7 +163,18 @@ def transform_points(b_from_a: np.ndarray, points_mm) -> np.ndarray:
 
 
 def axis_distance_mm(rig: Rig) -> float:
-    """D_axis = axis_mm − d0_mm: the rotary axis' distance from the object hinge along the sheet [mm]."""
+    """Distance of the rotary axis from the object hinge along the sheet.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``stage.axis_mm``, ``stage.d0_mm``).
+
+    Returns
+    -------
+    float
+        D_axis = axis_mm − d0_mm [mm].
+    """
     return rig.stage.axis_mm - rig.stage.d0_mm
 
 
@@ -119,16 +187,45 @@ def _sheet_frame(rig: Rig, origin_mm) -> np.ndarray:
 
 
 def rig_from_stage(rig: Rig) -> np.ndarray:
-    """4×4 rig_from_stage: columns [e_p, n_sheet, e_z], origin H + D_axis·e_p."""
+    """Pose of the stage frame in the rig frame.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (hinge geometry, ``stage.axis_mm``, ``stage.d0_mm``).
+
+    Returns
+    -------
+    (4, 4) float64
+        rig_from_stage: rotation columns [e_p, n, e_z] (propagation direction,
+        sheet normal, up), origin H + D_axis·e_p on the rotary axis at the
+        height of the optical axis (H the object hinge) [mm].
+    """
     g = hinge_geometry(rig)
     return _sheet_frame(rig, g.object_hinge_mm + axis_distance_mm(rig) * g.propagation_dir)
 
 
 def stage_from_part(rig: Rig, angle_deg: float) -> np.ndarray:
-    """4×4 stage_from_part of a part on the rotary stage at angle θ [deg].
+    """Pose of a part on the rotary stage, in the stage frame.
 
-    ``T(0, 0, z_t) · R_tilt · R_z(θ) · T(runout/2, 0, 0)`` (module docstring);
-    the ideal stage gives ``R_z(θ)·T(0, 0, rotary_table_z_mm)``.
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``stage.rotary_table_z_mm``, ``axis_tilt_deg``,
+        ``axis_tilt_azimuth_deg``, ``runout_um``).
+    angle_deg : float
+        Stage angle θ, counter-clockwise seen from above [deg].
+
+    Returns
+    -------
+    (4, 4) float64
+        stage_from_part [mm].
+
+    Notes
+    -----
+    ``T(0, 0, z_t) · R_tilt · R_z(θ) · T(runout/2, 0, 0)`` (module docstring),
+    R_tilt the rotation by τ that turns e_z onto the bearing axis; the ideal
+    stage (τ = 0, no runout) gives ``R_z(θ)·T(0, 0, rotary_table_z_mm)``.
     """
     st = rig.stage
     tau, psi = math.radians(st.axis_tilt_deg), math.radians(st.axis_tilt_azimuth_deg)
@@ -138,7 +235,21 @@ def stage_from_part(rig: Rig, angle_deg: float) -> np.ndarray:
 
 
 def rig_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
-    """4×4 rig_from_plate of the calibration plate at translation-stage coordinate s [mm]."""
+    """Pose of the calibration plate in the rig frame.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (hinge geometry, ``stage.d0_mm``, ``stage.calibration_table_z_mm``).
+    stage_mm : float
+        Translation-stage coordinate s of the plate's measured face [mm].
+
+    Returns
+    -------
+    (4, 4) float64
+        rig_from_plate: rotation columns [e_p, n, e_z], origin
+        H + (s − d0)·e_p + calibration_table_z_mm·e_z [mm].
+    """
     g = hinge_geometry(rig)
     D = stage_mm - rig.stage.d0_mm
     return _sheet_frame(rig, g.object_hinge_mm + D * g.propagation_dir
@@ -146,5 +257,19 @@ def rig_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
 
 
 def stage_from_plate(rig: Rig, stage_mm: float) -> np.ndarray:
-    """4×4 stage_from_plate: a pure translation (s − axis_mm, 0, calibration_table_z_mm)."""
+    """Pose of the calibration plate in the stage frame.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+    stage_mm : float
+        Translation-stage coordinate s of the plate's measured face [mm].
+
+    Returns
+    -------
+    (4, 4) float64
+        stage_from_plate: a pure translation (s − axis_mm, 0,
+        calibration_table_z_mm) [mm].
+    """
     return invert(rig_from_stage(rig)) @ rig_from_plate(rig, stage_mm)

@@ -95,7 +95,19 @@ __all__ = [
 
 @dataclass(frozen=True)
 class TruthTolerances:
-    """Numerical tolerances of the truth (one place, one reason each)."""
+    """Numerical tolerances of the truth (one place, one reason each).
+
+    Parameters
+    ----------
+    visibility_mm : float, default 0.005
+        A surface closer than this to a point along its camera/laser ray does
+        not hide it [mm]: ≫ float32 rounding of rig-frame vertices (≈ 3e-5 mm
+        at 600 mm), ≪ any real occluder.
+    row_residual_px : float, default 1e-9
+        Stop refining a row crossing when |v − r| is below this [px].
+    max_iterations : int, default 30
+        At most this many secant steps per crossing [-].
+    """
 
     #: a surface closer than this to a point along its camera/laser ray does not hide it [mm]:
     #: ≫ float32 rounding of rig-frame vertices (≈ 3e-5 mm at 600 mm), ≪ any real occluder.
@@ -107,11 +119,35 @@ class TruthTolerances:
 
 
 class RayCaster(Protocol):
-    """First-hit ray queries in the rig frame, for the scene posed for the current frame."""
+    """First-hit ray queries in the rig frame, for the scene posed for the current frame.
+
+    A structural type (:class:`typing.Protocol`): any object with a matching
+    :meth:`first_hit` is a caster (:class:`SceneCaster`, :class:`BruteForceCaster`).
+
+    Parameters
+    ----------
+    *args, **kwargs
+        None: a protocol is a type to implement, not a class to instantiate.
+    """
 
     def first_hit(self, origins_mm: np.ndarray, directions: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
-        """(n,) distance to the first hit [mm] (inf = none) and (n,) object id (0 = none)."""
+        """First surface met by each ray.
+
+        Parameters
+        ----------
+        origins_mm : (n, 3) ndarray
+            Ray origins, rig frame [mm].
+        directions : (n, 3) ndarray
+            Unit ray directions, rig frame [-].
+
+        Returns
+        -------
+        t_mm : (n,) ndarray
+            Distance to the first hit [mm]; ``inf`` where nothing is hit.
+        object_id : (n,) ndarray of int
+            Object id of the hit part (0 = none).
+        """
 
 
 # ------------------------------------------------------------------ sheet section
@@ -123,16 +159,23 @@ def sheet_section(vertices_mm, faces, face_ids, plane_point_mm, plane_normal
 
     Parameters
     ----------
-    vertices_mm : (n, 3) float [mm]
+    vertices_mm : (n, 3) float
+        Mesh vertices, in any frame [mm].
     faces : (m, 3) int
-    face_ids : (m,) int, object id per face
-    plane_point_mm : (3,) float, a point of the plane [mm]
-    plane_normal : (3,) float, its normal
+        Vertex indices of the triangles.
+    face_ids : (m,) int
+        Object id per face.
+    plane_point_mm : (3,) float
+        A point of the plane, same frame as the vertices [mm].
+    plane_normal : (3,) float
+        The plane's normal (need not be unit), same frame.
 
     Returns
     -------
-    segments : (k, 2, 3) float64 [mm]
-    segment_ids : (k,) int, object id of each segment's face
+    segments : (k, 2, 3) float64
+        One segment per cut face, same frame as the vertices [mm].
+    segment_ids : (k,) int
+        Object id of each segment's face.
 
     Notes
     -----
@@ -183,14 +226,26 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
 
     Parameters
     ----------
-    segments_mm : (k, 2, 3) float, rig-frame segments [mm] (in front of the lens)
+    rig : Rig
+        The rig; its camera model (:func:`scheimpflug.model.camera.project_points`)
+        defines the projection.
+    segments_mm : (k, 2, 3) float
+        Segments, rig frame [mm] (in front of the lens).
+    tol : TruthTolerances, optional
+        Residual and iteration limit of the secant solve.
+    pose : SensorPose, optional
+        Sensor pose; default :func:`scheimpflug.model.camera.sensor_pose` (rig).
 
     Returns
     -------
-    rows : (c,) int, row index of each crossing
-    u_px : (c,) float64, column of the crossing [px]
-    points_mm : (c, 3) float64, rig-frame point of the crossing [mm]
-    segment_index : (c,) int, which segment it lies on
+    rows : (c,) int64
+        Row index of each crossing.
+    u_px : (c,) float64
+        Column of the crossing [px].
+    points_mm : (c, 3) float64
+        Point of the crossing, rig frame [mm].
+    segment_index : (c,) int
+        Which segment it lies on.
 
     Notes
     -----
@@ -237,7 +292,20 @@ def _solve_rows(rig, pose, seg, v_end, target, tol) -> np.ndarray:
 
 
 def laser_origin_mm(rig: Rig) -> np.ndarray:
-    """Rig position (3,) of the laser origin: on the sheet at x = origin_x_mm, z = 0 [mm]."""
+    """Position of the laser origin.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``laser.origin_x_mm``, ``laser.scheimpflug_distance_mm``,
+        ``laser.tan_phi``).
+
+    Returns
+    -------
+    (3,) float64
+        The origin, rig frame [mm]: on the sheet ``y = d − x·tan φ`` at
+        ``x = origin_x_mm``, ``z = 0``.
+    """
     x = rig.laser.origin_x_mm
     return np.array([x, rig.laser.scheimpflug_distance_mm - x * rig.laser.tan_phi, 0.0])
 
@@ -266,8 +334,16 @@ def _in_fan(rig: Rig, points) -> np.ndarray:
 class StripeTruth:
     """Per-row stripe truth of one frame (see the module docstring for the meaning).
 
-    stripe_u : (rows,) float64 [px]; stripe_point_mm : (rows, 3) float64 [mm, reference frame];
-    stripe_object_id : (rows,) int16; stripe_count : (rows,) uint8.
+    Parameters
+    ----------
+    stripe_u : (rows,) float64
+        Exact stripe-centre column per row [px]; NaN = none.
+    stripe_point_mm : (rows, 3) float64
+        Its 3-D point, reference frame [mm]; NaN = none.
+    stripe_object_id : (rows,) int16
+        Object id of that point (0 = none).
+    stripe_count : (rows,) uint8
+        Number of visible, lit crossings in the row (capped at 255).
     """
 
     stripe_u: np.ndarray
@@ -276,6 +352,14 @@ class StripeTruth:
     stripe_count: np.ndarray
 
     def arrays(self) -> dict:
+        """The four arrays by their truth-file keys.
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``stripe_u``, ``stripe_point_mm``, ``stripe_object_id``,
+            ``stripe_count`` (the arrays themselves, not copies).
+        """
         return {"stripe_u": self.stripe_u, "stripe_point_mm": self.stripe_point_mm,
                 "stripe_object_id": self.stripe_object_id, "stripe_count": self.stripe_count}
 
@@ -284,12 +368,35 @@ def stripe_truth(rig: Rig, vertices_part_mm, faces, face_ids, rig_from_part, ref
                  caster: RayCaster, tol: TruthTolerances = TruthTolerances()) -> StripeTruth:
     """Exact stripe centre per row of one frame.
 
+    The sheet's mid-plane cuts the mesh (in the part frame), the cut is
+    moved to the rig frame, its crossings with the row centre lines are
+    solved (:func:`row_crossings`), and those on the sensor, inside the fan,
+    seen from the lens centre and lit from the laser origin are kept; per row
+    the one with the smallest u is the primary (module docstring).
+
     Parameters
     ----------
-    vertices_part_mm, faces, face_ids : the scene mesh in the part frame [mm]
-        ((n, 3) float, (m, 3) int, (m,) int object ids).
-    rig_from_part, ref_from_part : (4, 4) poses of this frame.
-    caster : first-hit queries in the rig frame for the scene posed by ``rig_from_part``.
+    rig : Rig
+        The rig.
+    vertices_part_mm : (n, 3) float
+        Scene mesh vertices, part frame [mm].
+    faces : (m, 3) int
+        Vertex indices of the triangles.
+    face_ids : (m,) int
+        Object id per face.
+    rig_from_part : (4, 4) float
+        Pose of the part in the rig frame for this frame [mm].
+    ref_from_part : (4, 4) float
+        Pose of the part in the truth's reference frame [mm].
+    caster : RayCaster
+        First-hit queries in the rig frame for the scene posed by ``rig_from_part``.
+    tol : TruthTolerances, optional
+        Visibility and row-solve tolerances.
+
+    Returns
+    -------
+    StripeTruth
+        Per-row stripe truth; points in the reference frame.
     """
     g = hinge_geometry(rig)
     part_from_rig = invert(rig_from_part)
@@ -327,9 +434,20 @@ def _primary_per_row(n_rows, rows, u, pts_ref, ids) -> StripeTruth:
 
 
 def pixel_directions(rig: Rig) -> np.ndarray:
-    """Unit chief-ray directions of every pixel centre, (rows·columns, 3) float64, row-major.
+    """Unit chief-ray directions of every pixel centre.
 
     They depend on the rig only: compute once per run and pass to :func:`pixel_truth`.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (camera model and sensor size).
+
+    Returns
+    -------
+    (rows·columns, 3) float64
+        Directions from the lens centre, rig frame [-], row-major (pixel
+        (u, v) at index v·columns + u).
     """
     n_r, n_c = rig.sensor.rows, rig.sensor.columns
     uv = np.stack(np.meshgrid(np.arange(n_c, dtype=np.float64),
@@ -343,13 +461,28 @@ def pixel_truth(rig: Rig, caster: RayCaster, ref_from_rig, directions=None,
 
     Parameters
     ----------
+    rig : Rig
+        The rig.
+    caster : RayCaster
+        First-hit queries in the rig frame for the scene posed for this frame.
+    ref_from_rig : (4, 4) float
+        Rig frame → truth reference frame [mm].
     directions : (rows·columns, 3) float, optional
         :func:`pixel_directions` of ``rig`` (computed here when not given).
+    rows_per_batch : int, default 256
+        Sensor rows whose rays are cast in one query (bounds memory) [-].
 
     Returns
     -------
-    point_mm : (rows, columns, 3) float32, hit point in the reference frame [mm]; NaN = none
-    object_id : (rows, columns) uint16, 0 = none
+    point_mm : (rows, columns, 3) float32
+        Hit point, reference frame [mm]; NaN = none.
+    object_id : (rows, columns) uint16
+        Object id of the hit part, 0 = none.
+
+    Raises
+    ------
+    ValueError
+        When ``directions`` is not of shape ``(rows·columns, 3)``.
     """
     n_r, n_c = rig.sensor.rows, rig.sensor.columns
     w_all = pixel_directions(rig) if directions is None else directions
@@ -374,11 +507,25 @@ def pixel_truth(rig: Rig, caster: RayCaster, ref_from_rig, directions=None,
 
 
 def rig_truth(rig: Rig) -> dict:
-    """Closed-form constants of ``rig`` (:mod:`scheimpflug.model.hinge`), JSON-ready.
+    """Closed-form constants of a rig, JSON-ready.
 
-    ``hinge_px`` [u_h, v_h] (also as ``hinge_u_px``, ``hinge_v_px``) [px],
-    ``F2_px_mm`` [px·mm], ``C_mm`` [mm], ``d0_mm`` [mm],
-    ``axis_mm`` [mm] and ``D_axis_mm`` = axis_mm − d0_mm [mm], ``tilt_deg`` [deg].
+    Parameters
+    ----------
+    rig : Rig
+        The rig; constants from :func:`scheimpflug.model.hinge.hinge_geometry`.
+
+    Returns
+    -------
+    dict
+        ``hinge_px`` [u_h, v_h] (also as ``hinge_u_px``, ``hinge_v_px``) [px],
+        ``F2_px_mm`` [px·mm], ``C_mm`` [mm], ``d0_mm`` [mm],
+        ``axis_mm`` [mm] and ``D_axis_mm`` = axis_mm − d0_mm [mm], ``tilt_deg`` [deg],
+        ``tan_beta`` [-], and ``ideal`` (bool): True when the rig has no sensor
+        misalignment (roll, tilt error, offsets), no lens distortion (k1, k2)
+        and no stage axis tilt or runout.
+
+    Notes
+    -----
     These describe the *ideal* rig: misalignments and distortion are not in them.
     """
     g = hinge_geometry(rig)
@@ -400,7 +547,13 @@ class SceneCaster:
     """:class:`RayCaster` over a :class:`sim.scene.SimScene` (Mitsuba BVH, float32 geometry).
 
     The scene must already be posed for the frame (``SimScene.set_pose``).
-    Rays are sent in batches of ``batch`` to bound memory.
+
+    Parameters
+    ----------
+    scene : SimScene
+        The posed scene (a JIT variant: :meth:`SimScene.intersect`).
+    batch : int, default 1 << 20
+        Rays per Mitsuba query (bounds memory) [-].
     """
 
     def __init__(self, scene, batch: int = 1 << 20) -> None:
@@ -408,6 +561,27 @@ class SceneCaster:
         self.batch = batch
 
     def first_hit(self, origins_mm, directions) -> tuple[np.ndarray, np.ndarray]:
+        """First surface met by each ray.
+
+        Parameters
+        ----------
+        origins_mm : (n, 3) array_like
+            Ray origins, rig frame [mm].
+        directions : (n, 3) array_like
+            Ray directions, rig frame [-] (normalised by the scene).
+
+        Returns
+        -------
+        t_mm : (n,) float64
+            Distance to the first hit [mm]; ``inf`` where nothing is hit.
+        object_id : (n,) int64
+            Object id of the hit part (0 = none).
+
+        Raises
+        ------
+        RenderError
+            When the scene's variant is not a JIT variant.
+        """
         o = np.asarray(origins_mm, dtype=np.float64)
         d = np.asarray(directions, dtype=np.float64)
         t = np.full(len(o), np.inf)
@@ -427,7 +601,14 @@ class BruteForceCaster:
 
     Parameters
     ----------
-    vertices_mm : (n, 3) float, rig frame [mm]; faces : (m, 3) int; face_ids : (m,) int.
+    vertices_mm : (n, 3) float
+        Mesh vertices, rig frame (the frame of the rays) [mm].
+    faces : (m, 3) int
+        Vertex indices of the triangles.
+    face_ids : (m,) int
+        Object id per face.
+    chunk : int, default 2_000_000
+        Ray × triangle pairs tested at once (bounds memory) [-].
     """
 
     def __init__(self, vertices_mm, faces, face_ids, chunk: int = 2_000_000) -> None:
@@ -438,6 +619,23 @@ class BruteForceCaster:
         self.chunk = chunk
 
     def first_hit(self, origins_mm, directions) -> tuple[np.ndarray, np.ndarray]:
+        """First triangle met by each ray (Möller–Trumbore, float64).
+
+        Parameters
+        ----------
+        origins_mm : (n, 3) array_like
+            Ray origins, rig frame [mm].
+        directions : (n, 3) array_like
+            Unit ray directions, rig frame [-] (t is in units of their length).
+
+        Returns
+        -------
+        t_mm : (n,) float64
+            Distance to the first hit, hits at t ≤ 1e-9 ignored [mm]; ``inf``
+            where nothing is hit.
+        object_id : (n,) int64
+            Object id of the hit face (0 = none).
+        """
         o = np.asarray(origins_mm, dtype=np.float64)
         d = np.asarray(directions, dtype=np.float64)
         t_best = np.full(len(o), np.inf)

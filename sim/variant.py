@@ -51,11 +51,23 @@ _GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/
 
 
 def llvm_version_from_path(path: str) -> int | None:
-    """Major version of a libLLVM file from its (resolved) name or folder [-].
+    """Major version of a libLLVM file from its (resolved) name or folder.
 
     ``libLLVM-19.so`` → 19, ``libLLVM.so.19.1`` → 19, ``/usr/lib/llvm-17/lib/libLLVM.so.1``
     → 17 (the folder wins over a bare soname number), ``libLLVM.17.dylib`` → 17.
-    Returns None when neither name nor folder carries a version.
+    The path is tried as given, then with its symbolic links resolved.
+
+    Parameters
+    ----------
+    path : str
+        Path of a libLLVM shared library (need not exist).
+
+    Returns
+    -------
+    int or None
+        The LLVM major version [-]; None when neither name nor folder carries
+        a version (a ``.so.1``/``.so.2`` suffix is a soname counter and is not
+        taken for a version).
     """
     for candidate in (path, os.path.realpath(path)):
         base = os.path.basename(candidate)
@@ -79,11 +91,21 @@ def _ldconfig_paths() -> list[str]:
 
 
 def find_libllvm() -> tuple[str | None, int | None]:
-    """The newest libLLVM shared library on this machine: ``(path, major_version)``.
+    """Find the newest libLLVM shared library on this machine.
 
     ``DRJIT_LIBLLVM_PATH`` wins when set (its version is read from the name,
     None if unreadable).  Otherwise ``ldconfig -p`` and the usual library
-    folders are searched.  ``(None, None)`` when nothing is found.
+    folders are searched; among the existing files whose version can be read,
+    the highest version wins (ties broken by the resolved path).
+
+    Returns
+    -------
+    path : str or None
+        Resolved path of the library (as given for ``DRJIT_LIBLLVM_PATH``);
+        None when nothing is found.
+    major_version : int or None
+        Its LLVM major version [-]; None when nothing is found or (for
+        ``DRJIT_LIBLLVM_PATH``) when the name carries no version.
     """
     forced = os.environ.get("DRJIT_LIBLLVM_PATH")
     if forced:
@@ -100,7 +122,18 @@ def find_libllvm() -> tuple[str | None, int | None]:
 
 
 def is_jit_variant(variant: str) -> bool:
-    """True for the vectorised JIT variants (``llvm_*``, ``cuda_*``)."""
+    """Whether a Mitsuba variant is one of the vectorised JIT variants.
+
+    Parameters
+    ----------
+    variant : str
+        Mitsuba variant name, e.g. ``llvm_ad_rgb`` or ``scalar_rgb``.
+
+    Returns
+    -------
+    bool
+        True for ``llvm_*`` and ``cuda_*`` variants.
+    """
     return variant.startswith(("llvm_", "cuda_"))
 
 
@@ -128,20 +161,33 @@ def _set(variant: str) -> str:
 def select_variant(prefer: str = "llvm_ad_rgb") -> str:
     """Set and return the Mitsuba variant to render with.
 
+    The order of precedence is in the module docstring: the
+    ``SCHEIMPFLUG_VARIANT`` environment variable, then ``prefer`` when its
+    backend is usable, then ``scalar_rgb``.  For an ``llvm_*`` variant this
+    may set ``DRJIT_LIBLLVM_PATH`` (only when ``drjit`` is not yet imported).
+
     Parameters
     ----------
-    prefer : str
-        Variant wanted when its backend works (``llvm_ad_rgb`` by default).
+    prefer : str, default "llvm_ad_rgb"
+        Variant wanted when its backend works.
 
     Returns
     -------
     str
         The variant now active in ``mitsuba``.
 
+    Raises
+    ------
+    RenderError
+        When the wanted variant (``SCHEIMPFLUG_VARIANT`` or ``prefer``) is not
+        among the variants this Mitsuba build provides.
+
     Warns
     -----
     RuntimeWarning
-        When falling back to ``scalar_rgb`` (no libLLVM ≥ 17), naming the reason.
+        When falling back to ``scalar_rgb`` (no libLLVM ≥ 17, or the variant
+        failed to load), naming the reason; or when ``SCHEIMPFLUG_VARIANT``
+        forces an ``llvm_*`` variant although no usable libLLVM was found.
     """
     import mitsuba as mi
 

@@ -80,13 +80,44 @@ _IDENTITY_KEYS = ("format", "rig", "scenario", "scenario_params", "seed", "rende
 
 
 class Twin(Protocol):
-    """What the frame loop needs from the renderer (:class:`MitsubaTwin`, or a test double)."""
+    """What the frame loop needs from the renderer (:class:`MitsubaTwin`, or a test double).
+
+    A structural type (:class:`typing.Protocol`): any object with matching
+    :meth:`render` and :meth:`caster` methods is a twin.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        None: a protocol is a type to implement, not a class to instantiate.
+    """
 
     def render(self, frame: FrameSpec) -> np.ndarray:
-        """Expected photo-electrons (rows, columns) float32 of the scene posed for ``frame``."""
+        """Expected photo-electrons of the scene posed for a frame.
+
+        Parameters
+        ----------
+        frame : FrameSpec
+            The frame (pose of the parts, seed).
+
+        Returns
+        -------
+        (rows, columns) float32
+            Expected electrons per pixel [e⁻], before sensor noise.
+        """
 
     def caster(self, frame: FrameSpec) -> RayCaster:
-        """First-hit ray queries (rig frame) for the scene posed for ``frame``."""
+        """First-hit ray queries for the scene posed for a frame.
+
+        Parameters
+        ----------
+        frame : FrameSpec
+            The frame (pose of the parts).
+
+        Returns
+        -------
+        RayCaster
+            Queries in the rig frame [mm].
+        """
 
 
 def _twin_light(twin, frame: FrameSpec):
@@ -100,17 +131,42 @@ _SPP_FIELDS = ("samples_per_row", "samples_per_fan_ray", "spp")
 
 
 class MitsubaTwin:
-    """The Mitsuba digital twin behind the frame loop: :class:`sim.scene.SimScene` +
-    :class:`sim.render.Renderer`, one scene for the whole run (posed per frame).
+    """The Mitsuba digital twin behind the frame loop.
+
+    A :class:`sim.scene.SimScene` and a :class:`sim.render.Renderer`, one scene
+    for the whole run (posed per frame).  Implements :class:`Twin`.
 
     Parameters
     ----------
     rig : Rig
-    assembly : scenes.Assembly (part frame)
-    spp : int or None
+        The rig.
+    assembly : scenes.Assembly
+        The parts, in the part frame.
+    spp : int or None, optional
         Laser samples of the light tracer (``RenderSettings.samples_per_row``: splats per
         lit sensor row); None = the renderer's default.
-    settings : sim.render.RenderSettings, optional (``spp`` overrides its samples).
+    settings : sim.render.RenderSettings, optional
+        Render settings; ``spp`` overrides its samples.
+
+    Attributes
+    ----------
+    scene : SimScene
+        The Mitsuba scene.
+    renderer : Renderer
+        The renderer.
+    settings : RenderSettings
+        The settings in use (with ``spp`` applied).
+    variant : str
+        The Mitsuba variant in use.
+    spp : int
+        Laser samples per lit sensor row in use.
+
+    Raises
+    ------
+    RenderError
+        When no JIT variant of Mitsuba (``llvm_*``/``cuda_*``) is usable.
+    MeshError
+        For an invalid part mesh or material.
     """
 
     def __init__(self, rig: Rig, assembly, spp: int | None = None, settings=None) -> None:
@@ -140,24 +196,31 @@ class MitsubaTwin:
         self._light = (None, None)
 
     def describe(self) -> dict:
-        """JSON-ready render description for the manifest (part of a run's identity)."""
+        """Render description for the manifest (part of a run's identity).
+
+        Returns
+        -------
+        dict
+            JSON-ready: ``spp``, ``spp_means`` (the settings field it sets),
+            ``variant`` and ``settings`` (every RenderSettings field).
+        """
         import dataclasses
 
         return {"spp": self.spp, "spp_means": f"RenderSettings.{self.spp_field}",
                 "variant": self.variant, "settings": dataclasses.asdict(self.settings)}
 
     def render(self, frame: FrameSpec) -> np.ndarray:
-        """Expected electrons (rows, columns) float32 of ``frame`` (poses the scene).
+        """Expected electrons of a frame; poses the scene for it.
 
         Parameters
         ----------
         frame : FrameSpec
-            The frame.
+            The frame (``rig_from_part``, ``seed``).
 
         Returns
         -------
         (rows, columns) float32
-            Expected electrons [e⁻].
+            Expected electrons per pixel [e⁻] (:meth:`Renderer.render_light`).
         """
         light = self.renderer.render_light(frame.rig_from_part, frame.seed)
         self._posed = frame.index
@@ -181,7 +244,20 @@ class MitsubaTwin:
         return light if index == frame.index else None
 
     def caster(self, frame: FrameSpec) -> RayCaster:
-        """Ray queries on the scene posed for ``frame``."""
+        """Ray queries on the scene posed for a frame.
+
+        Poses the scene only if the last frame rendered or posed was another one.
+
+        Parameters
+        ----------
+        frame : FrameSpec
+            The frame (``rig_from_part``).
+
+        Returns
+        -------
+        SceneCaster
+            First-hit queries in the rig frame [mm].
+        """
         from .truth import SceneCaster
 
         if self._posed != frame.index:
@@ -194,7 +270,22 @@ class MitsubaTwin:
 
 
 def frame_paths(out: Path, index: int) -> tuple[Path, Path]:
-    """(PNG path, truth path) of frame ``index``."""
+    """Paths of one frame's files in a frame folder.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The frame folder.
+    index : int
+        Frame index.
+
+    Returns
+    -------
+    png : pathlib.Path
+        ``out/frames/NNNNN.png``.
+    truth : pathlib.Path
+        ``out/truth/NNNNN.npz``.
+    """
     return out / "frames" / f"{index:05d}.png", out / "truth" / f"{index:05d}.npz"
 
 
@@ -230,14 +321,34 @@ def _deflate_parallel(raw: memoryview, level: int, parts: int) -> bytes:
 
 
 def encode_png16(image: np.ndarray, compression: int = PNG_COMPRESSION, parts: int = 2) -> bytes:
-    """A (rows, columns) uint16 image as 16-bit grayscale PNG bytes (ISO/IEC 15948).
+    """Encode an image as 16-bit grayscale PNG bytes (ISO/IEC 15948).
 
     Filter type 0 (none) on every row and one zlib stream at ``compression``:
     on noise-dominated frames the PNG filters and zlib levels > 1 buy little
     size for a lot of time (see :data:`PNG_COMPRESSION`).  The stream comes
     from libdeflate (the ``deflate`` package: 17 ms and 0.97 MB for a full
-    noisy frame at level 1, against zlib's 42 ms and 1.05 MB); without it, from
-    zlib in ``parts`` slices on threads (:func:`_deflate_parallel`).
+    noisy frame at level 1, against zlib's 42 ms and 1.05 MB) for levels
+    1–12; without it, from zlib in ``parts`` slices on threads for images
+    over 1 MiB, else from one zlib call.
+
+    Parameters
+    ----------
+    image : (rows, columns) uint16
+        The image [DN].
+    compression : int, default PNG_COMPRESSION
+        zlib/libdeflate level.
+    parts : int, default 2
+        Slices compressed in parallel when zlib is used (1 = one stream).
+
+    Returns
+    -------
+    bytes
+        The PNG file's content (IHDR, one IDAT, IEND).
+
+    Raises
+    ------
+    ValueError
+        When ``image`` is not a 2-D uint16 array.
     """
     import struct
     import zlib
@@ -266,7 +377,24 @@ def encode_png16(image: np.ndarray, compression: int = PNG_COMPRESSION, parts: i
 
 
 def write_png(path, image: np.ndarray, compression: int = PNG_COMPRESSION) -> None:
-    """Write a (rows, columns) uint16 image as a 16-bit grayscale PNG, atomically."""
+    """Write an image as a 16-bit grayscale PNG, atomically.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Destination file (written to a temporary name, then renamed).
+    image : (rows, columns) uint16
+        The image [DN].
+    compression : int, default PNG_COMPRESSION
+        zlib/libdeflate level (:func:`encode_png16`).
+
+    Raises
+    ------
+    RenderError
+        When the file cannot be written.
+    ValueError
+        When ``image`` is not a 2-D uint16 array.
+    """
     data = encode_png16(image, compression)
     try:
         with atomic_path(path) as tmp:
@@ -276,7 +404,23 @@ def write_png(path, image: np.ndarray, compression: int = PNG_COMPRESSION) -> No
 
 
 def read_png(path) -> np.ndarray:
-    """Read a 16-bit grayscale PNG as (rows, columns) uint16."""
+    """Read a 16-bit grayscale PNG.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The PNG file.
+
+    Returns
+    -------
+    (rows, columns) uint16
+        The image as stored [DN] (OpenCV, unchanged depth).
+
+    Raises
+    ------
+    RenderError
+        When the file cannot be read or decoded.
+    """
     import cv2
 
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -286,8 +430,10 @@ def read_png(path) -> np.ndarray:
 
 
 def _write_npz(path: Path, arrays: dict) -> None:
-    """A compressed ``.npz`` (what ``np.savez_compressed`` writes, read with ``np.load``) at
-    zlib level 1: for the per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB.
+    """Write a compressed ``.npz`` at zlib level 1, atomically.
+
+    The format ``np.savez_compressed`` writes (read with ``np.load``); for the
+    per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB.
     """
     import zipfile
 
@@ -304,7 +450,15 @@ def _write_npz(path: Path, arrays: dict) -> None:
 
 
 def generator_info() -> dict:
-    """Program and library versions, for the manifest's ``generator`` key."""
+    """Program and library versions, for the manifest's ``generator`` key.
+
+    Returns
+    -------
+    dict
+        ``program``, ``python`` (version) and ``versions``: the installed
+        version of scheimpflug, numpy, mitsuba, drjit, opencv-python-headless
+        and trimesh (None when not installed).
+    """
     import platform
     from importlib import metadata
 
@@ -322,8 +476,29 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
                    generator: dict | None = None, render: dict | None = None) -> dict:
     """The manifest of a run (``"complete": false``).
 
-    ``render`` (e.g. :meth:`MitsubaTwin.describe`) replaces the default
-    ``{"spp": spp, "variant": variant}`` render description.
+    Parameters
+    ----------
+    rig : Rig
+        The rig (written with ``rig_to_dict``).
+    scenario : Scenario
+        The scenario (name, parameters, frames).
+    seed : int
+        Run seed.
+    spp : int
+        Laser samples per lit sensor row (default render description).
+    variant : str
+        Mitsuba variant (default render description).
+    generator : dict, optional
+        Program and library versions (:func:`generator_info`).
+    render : dict, optional
+        Render description (e.g. :meth:`MitsubaTwin.describe`); replaces the
+        default ``{"spp": spp, "variant": variant}``.
+
+    Returns
+    -------
+    dict
+        JSON-ready manifest with the keys of the module docstring, one entry
+        per frame.
     """
     frames = [{"file": f"frames/{f.index:05d}.png", "truth": f"truth/{f.index:05d}.npz",
                **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms, "seed": f.seed,
@@ -374,10 +549,29 @@ def _first_difference(old: dict, new: dict) -> str:
 
 
 def prepare_folder(out, manifest: dict) -> set[int]:
-    """Create or reopen the frame folder; return the indices of frames already complete.
+    """Create or reopen the frame folder.
 
-    Raises :class:`RenderError` if ``out`` cannot be written, is a non-empty folder
-    without a manifest, or holds a different run.
+    Removes stale temporary files and writes ``manifest`` (atomically).
+
+    Parameters
+    ----------
+    out : str or pathlib.Path
+        The frame folder (created with its ``frames/`` and ``truth/`` subfolders).
+    manifest : dict
+        The run's manifest (:func:`build_manifest`).
+
+    Returns
+    -------
+    set of int
+        Indices of the frames already complete (PNG and truth file present)
+        when resuming the same run; empty for a new folder.
+
+    Raises
+    ------
+    RenderError
+        If ``out`` cannot be written, is a non-empty folder without a
+        manifest, holds an unreadable manifest, or holds a different run
+        (the message names the first differing key).
     """
     out = Path(out)
     try:
@@ -429,7 +623,24 @@ def _remove_stale_temporaries(out: Path) -> None:
 
 @dataclass
 class RenderStats:
-    """What a run did and where the time went [s]."""
+    """What a run did and where the time went.
+
+    Parameters
+    ----------
+    frames_total : int, default 0
+        Frames in the scenario.
+    frames_rendered : int, default 0
+        Frames rendered by this run.
+    frames_skipped : int, default 0
+        Frames already complete in the folder (resumed run).
+    frames_without_stripe : list of int
+        Indices of the rendered frames whose truth holds no stripe.
+    seconds : dict of str to float
+        Time per stage [s]: ``render``, ``noise``, ``png``, ``truth``,
+        ``truth_pixels``, ``truth_write``.
+    wall_s : float, default 0.0
+        Wall time of the frame loop [s].
+    """
 
     frames_total: int = 0
     frames_rendered: int = 0
@@ -472,8 +683,10 @@ def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None) -> dict:
 
 
 def _scene_arrays(scenario: Scenario) -> dict:
-    """Per-run truth inputs: vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,), part frame
-    (plus ``directions``, the pixel chief rays, added on first use).
+    """Per-run truth inputs, part frame.
+
+    Vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,) (plus ``directions``,
+    the pixel chief rays, added on first use).
     """
     m = scenario.assembly.combined_mesh()
     return {"vertices": np.asarray(m.vertices, dtype=np.float64),
@@ -484,7 +697,7 @@ def _scene_arrays(scenario: Scenario) -> dict:
 def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dict,
                     progress: ProgressCallback | None = None,
                     warn: Callable[[str], None] | None = None, overlap: bool = False) -> RenderStats:
-    """Render every frame of ``scenario`` not yet complete in ``out``; return timings.
+    """Render every frame of a scenario not yet complete in a frame folder.
 
     Per frame: render, sensor noise, geometric truth (these use the posed scene),
     truth file, PNG.  With ``overlap=True`` the two writes (libdeflate/zlib
@@ -496,6 +709,38 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     called after each frame written (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the
     ``png``/``truth_write`` entries of ``RenderStats.seconds`` are
     background-thread time and do not add up to the wall time.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+    scenario : Scenario
+        The scenario to render.
+    out : str or pathlib.Path
+        The frame folder (created, or resumed when it holds the same run).
+    twin : Twin
+        The renderer and ray caster (:class:`MitsubaTwin`, or a test double).
+    manifest : dict
+        The run's manifest (:func:`build_manifest`); rewritten with
+        ``"complete": true`` and ``frames_without_stripe`` at the end.
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` after each frame written.
+    warn : callable, optional
+        Receives each warning as one line; default: print to stderr.
+    overlap : bool, default False
+        Write each frame's files in a background thread while the next frame
+        is rendered.
+
+    Returns
+    -------
+    RenderStats
+        Frame counts and timings.
+
+    Raises
+    ------
+    RenderError
+        When the folder is unusable (:func:`prepare_folder`), a file cannot be
+        written, or frames are missing at the end.
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
@@ -593,8 +838,9 @@ def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
 
 
 def _finish_frame(out, model, frame, electrons, image, arrays, stats) -> None:
-    """Sensor noise (unless ``image`` is given), truth file, then PNG (its presence marks
-    the frame complete).
+    """Finish one frame: sensor noise (unless ``image`` is given), truth file, then PNG.
+
+    The PNG's presence marks the frame complete.
     """
     png, npz = frame_paths(out, frame.index)
     if image is None:
@@ -659,7 +905,8 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     stats : RenderStats
         Frame counts and timings.
     manifest : dict
-        The manifest as written (``complete`` false until the end).
+        The manifest as first written (``complete`` false; the file on disk
+        is rewritten with ``complete`` true at the end).
 
     Raises
     ------

@@ -17,7 +17,9 @@ from scheimpflug.errors import ScheimpflugError
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
-COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "demo")
+COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "acceptance", "import",
+            "demo")
+_MODULES = {"import": "import_frames"}   # command name → module (``import`` is a keyword)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"scheimpflug.app.commands.{name}").add_parser(sub)
+        importlib.import_module(f"scheimpflug.app.commands.{_MODULES.get(name, name)}").add_parser(sub)
     return parser
 
 

@@ -10,6 +10,8 @@ import numpy as np
 from scheimpflug.io.atomic import atomic_path
 
 __all__ = [
+    "plot_model_distance",
+    "plot_sections",
     "plot_circle_fit",
     "plot_cloud_views",
     "plot_error_histograms",
@@ -152,4 +154,103 @@ def plot_error_histograms(errors: dict[str, np.ndarray], path, title: str) -> No
         ax.set_ylabel("points")
     fig.suptitle(title)
     fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_sections(vertices_mm: np.ndarray, faces: np.ndarray, z_mm, path, title: str = "cross-sections",
+                  n_curve: int = 400) -> None:
+    """Outlines of a closed mesh's sections at heights ``z_mm`` (top view) and its area over height."""
+    from scheimpflug.volumetry import section, section_areas_mm2
+
+    plt = _plt()
+    z = vertices_mm[:, 2]
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 5.4))
+    colours = plt.cm.viridis(np.linspace(0, 1, max(len(z_mm), 1)))
+    for zk, c in zip(z_mm, colours):
+        s = section(vertices_mm, faces, zk)
+        for seg in s.segments_mm:
+            ax0.plot(seg[:, 0], seg[:, 1], "-", color=c, lw=0.8)
+        ax0.plot([], [], "-", color=c, label=f"z = {zk:.2f} mm: A = {s.area_mm2:.1f} mm², Ø_eq {s.diameter_mm:.3f} mm")
+    ax0.set_aspect("equal", adjustable="datalim")
+    ax0.set_xlabel("x [mm]")
+    ax0.set_ylabel("y [mm]")
+    ax0.legend(fontsize=7, loc="center")    # outlines ring the centre: the legend fits inside
+    ax0.set_title("section outlines, top view", fontsize=9)
+    ax0.grid(alpha=0.3)
+    zz = np.linspace(z.min(), z.max(), n_curve + 2)[1:-1]
+    ax1.plot(section_areas_mm2(vertices_mm, faces, zz), zz, "k-", lw=1)
+    for zk, c in zip(z_mm, colours):
+        ax1.axhline(zk, color=c, lw=0.8, ls="--")
+    ax1.set_xlabel("section area A(z) [mm²]")
+    ax1.set_ylabel("height z [mm]")
+    ax1.set_title("area over height (its integral is the volume)", fontsize=9)
+    ax1.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _view_basis(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """Rows: screen right, screen up, toward the viewer (a camera looking at the origin)."""
+    az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
+    back = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    return np.stack([right, np.cross(back, right), back])
+
+
+def _zbuffer(points: np.ndarray, values: np.ndarray, shade: np.ndarray, basis: np.ndarray, px: int,
+             spacing_mm: float):
+    """Nearest sample per pixel of an orthographic view: (image of values, image of shading, extent).
+
+    Each sample covers a square of about twice ``spacing_mm`` (the samples' mean spacing): random
+    samples leave gaps, through which the far side would show.
+    """
+    uvw = points @ basis.T
+    lo, hi = uvw[:, :2].min(axis=0), uvw[:, :2].max(axis=0)
+    scale = (px - 1) / max(hi - lo)
+    ij0 = np.floor((uvw[:, :2] - lo) * scale).astype(np.int64)
+    k = int(np.clip(np.ceil(2.0 * spacing_mm * scale), 1, 5))   # random samples: twice the mean spacing
+    offsets = np.array([(a, b) for a in range(k) for b in range(k)]) - (k - 1) // 2
+    ij = np.clip((ij0[None] + offsets[:, None]).reshape(-1, 2), 0, px - 1)
+    depth, values, shade = (np.tile(a, len(offsets)) for a in (uvw[:, 2], values, shade))
+    uvw = np.column_stack([ij, depth])
+    key = ij[:, 1] * px + ij[:, 0]
+    order = np.lexsort((-uvw[:, 2], key))
+    first = np.ones(len(order), bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    pick = order[first]
+    img = np.full(px * px, np.nan)
+    sh = np.full(px * px, np.nan)
+    img[key[pick]], sh[key[pick]] = values[pick], shade[pick]
+    extent = [lo[0], lo[0] + (px - 1) / scale, lo[1], lo[1] + (px - 1) / scale]
+    return img.reshape(px, px), sh.reshape(px, px), extent
+
+
+def plot_model_distance(points_mm: np.ndarray, normals: np.ndarray, distance_mm: np.ndarray, path,
+                        title: str, views=((-60.0, 20.0), (30.0, 60.0)), px: int = 700,
+                        limit_mm: float | None = None, spacing_mm: float = 0.3) -> None:
+    """Rendered views of a surface (dense samples with normals) coloured by signed distance to the truth.
+
+    Orthographic views with a z-buffer; Lambert shading from the sample normals darkens the colour
+    so that the shape reads; the colour scale is symmetric (blue inside, red outside the material).
+    """
+    plt = _plt()
+    lim = limit_mm or float(np.percentile(np.abs(distance_mm), 98)) or 1.0
+    fig, axes = plt.subplots(1, len(views), figsize=(6.4 * len(views), 6.2), squeeze=False)
+    cmap = plt.get_cmap("coolwarm")
+    for ax, (az, el) in zip(axes[0], views):
+        basis = _view_basis(az, el)
+        shade = 0.35 + 0.65 * np.abs(normals @ basis[2])
+        img, sh, extent = _zbuffer(points_mm, distance_mm, shade, basis, px, spacing_mm)
+        rgba = cmap(np.clip((img + lim) / (2 * lim), 0, 1))
+        rgba[..., :3] *= np.nan_to_num(sh, nan=1.0)[..., None]
+        rgba[np.isnan(img)] = [1.0, 1.0, 1.0, 1.0]
+        ax.imshow(rgba, origin="lower", extent=extent, interpolation="nearest")
+        ax.set_title(f"view from azimuth {az:.0f}°, elevation {el:.0f}°", fontsize=9)
+        ax.set_xlabel("screen x [mm]")
+        ax.set_ylabel("screen y [mm]")
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(-lim, lim))
+    fig.colorbar(sm, ax=axes[0].tolist(), fraction=0.025, label="signed distance to the true surface [mm]")
+    fig.suptitle(title)
     _save(fig, path)

@@ -4,3 +4,5 @@
 (binary point clouds with provenance, meshes with per-face object ids) and
 :mod:`.atomic` (write to a temporary name, then rename).
 """
+
+__all__ = ["atomic", "frames", "ply"]

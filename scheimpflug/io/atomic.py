@@ -23,6 +23,20 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     The temporary file keeps ``path``'s suffix (or ``suffix``) so that writers
     that choose the format from the extension (OpenCV, trimesh) still work.
     On an exception the temporary file is removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The final file; its parent folders are created.
+    suffix : str, optional
+        Suffix of the temporary name; default ``path``'s own suffix.
+
+    Yields
+    ------
+    Path
+        An empty temporary file in ``path``'s folder (mode as the umask gives
+        a new file) to write; it is renamed over ``path`` when the ``with``
+        block ends without an exception.
     """
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -50,16 +64,49 @@ _UMASK = _read_umask()  # read once at import: os.umask is process-wide, not thr
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically."""
+    """Write bytes to a file atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+    data : bytes
+        The content.
+    """
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    """Write text to a file atomically, encoded as UTF-8.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+    text : str
+        The content.
+    """
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def write_json_atomic(path: str | os.PathLike, obj, indent: int = 2) -> None:
-    """Write ``obj`` as JSON to ``path`` atomically (NaN is refused: it is not JSON)."""
+    """Write an object as JSON to a file atomically, with a final newline.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The destination file.
+    obj : object
+        Anything :func:`json.dumps` serialises.
+    indent : int, default 2
+        Indentation of the JSON text.
+
+    Raises
+    ------
+    ValueError
+        If ``obj`` holds NaN or ±inf (not JSON); nothing is written.
+    TypeError
+        If ``obj`` holds something JSON cannot represent; nothing is written.
+    """
     write_text_atomic(path, json.dumps(obj, indent=indent, allow_nan=False) + "\n")

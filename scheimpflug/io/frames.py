@@ -35,12 +35,20 @@ __all__ = ["FrameFolder", "FrameRecord", "open_frame_folder", "read_frame"]
 class FrameRecord:
     """One entry of the manifest's ``frames`` list.
 
-    file : path relative to the folder (``frames/00000.png``).
-    stage_mm : translation stage coordinate [mm] or None.
-    angle_deg : rotary stage angle [deg] or None.
-    exposure_ms : exposure [ms] or None.
-    seed : render seed or None.
-    extra : every other key of the entry.
+    Parameters
+    ----------
+    file : str
+        Path relative to the folder (``frames/00000.png``).
+    stage_mm : float or None, optional
+        Translation stage coordinate [mm].
+    angle_deg : float or None, optional
+        Rotary stage angle [deg].
+    exposure_ms : float or None, optional
+        Exposure [ms].
+    seed : int or None, optional
+        Render seed.
+    extra : dict, optional
+        Every other key of the entry.
     """
 
     file: str
@@ -55,13 +63,25 @@ class FrameRecord:
 class FrameFolder:
     """A validated frame folder; frames are read lazily.
 
-    path : the folder.
-    rig : the manifest's rig tables, or None (real frames without a rig).
-    scenario : the manifest's scenario name or None.
-    scenario_params : the manifest's ``scenario_params`` (may be empty).
-    frames : one :class:`FrameRecord` per frame, in manifest order.
-    rows, columns : the expected frame shape [px].
-    adc_bits : ADC depth from the rig (None if unknown) [bit].
+    Build it with :func:`open_frame_folder`.  ``len(folder)`` is the number of
+    frames; iterating yields ``(record, frame)`` pairs in manifest order.
+
+    Parameters
+    ----------
+    path : Path
+        The folder.
+    rig : dict or None
+        The manifest's rig tables, or None (real frames without a rig).
+    scenario : str or None
+        The manifest's scenario name.
+    scenario_params : dict
+        The manifest's ``scenario_params`` (may be empty).
+    frames : tuple of FrameRecord
+        One record per frame, in manifest order.
+    rows, columns : int
+        The expected frame shape [px].
+    adc_bits : int or None, optional
+        ADC depth from the rig (None if unknown) [bit].
     """
 
     path: Path
@@ -77,10 +97,39 @@ class FrameFolder:
         return len(self.frames)
 
     def frame_path(self, i: int) -> Path:
+        """Path of a frame's PNG file.
+
+        Parameters
+        ----------
+        i : int
+            Frame index in manifest order.
+
+        Returns
+        -------
+        Path
+            ``path / frames[i].file``.
+        """
         return self.path / self.frames[i].file
 
     def read(self, i: int) -> np.ndarray:
-        """Frame ``i`` as a (rows, columns) uint8/uint16 array [DN]."""
+        """Read one frame.
+
+        Parameters
+        ----------
+        i : int
+            Frame index in manifest order.
+
+        Returns
+        -------
+        (rows, columns) ndarray uint8 or uint16
+            The frame as stored [DN].
+
+        Raises
+        ------
+        FrameError
+            If the file is missing, unreadable, corrupt, not grayscale, not 8-
+            or 16-bit, or not of the folder's shape (see :func:`read_frame`).
+        """
         return read_frame(self.frame_path(i), (self.rows, self.columns))
 
     def __iter__(self) -> Iterator[tuple[FrameRecord, np.ndarray]]:
@@ -92,8 +141,23 @@ class FrameFolder:
         """Yield ``fn(record, frame)`` for every frame, in order, decoding on threads.
 
         PNG decoding (OpenCV) and the numba stripe kernels release the GIL, so
-        ``workers`` threads (default: the CPU count, at most 4) overlap them.
-        At most ``2 × workers`` frames are in flight, which bounds memory.
+        ``workers`` threads overlap them.  At most ``2 × workers`` frames are
+        in flight, which bounds memory.
+
+        Parameters
+        ----------
+        fn : callable
+            ``fn(record, frame)`` with a :class:`FrameRecord` and the frame
+            (as :meth:`read` returns it); called on worker threads.
+        workers : int, optional
+            Number of threads; default the CPU count, at most 4; 1 runs in the
+            calling thread.
+
+        Yields
+        ------
+        object
+            ``fn``'s result for each frame, in manifest order; an exception in
+            reading or in ``fn`` is raised here.
         """
         n = workers or min(4, os.cpu_count() or 1)
         work = lambda i: fn(self.frames[i], self.read(i))  # noqa: E731
@@ -110,8 +174,18 @@ class FrameFolder:
                 yield pending.popleft().result()
 
     def saturation_dn(self, frame: np.ndarray) -> float:
-        """Saturation level of ``frame`` [DN]: ``2**adc_bits − 1`` when the rig gives the
-        ADC depth and the frame stays within it, else the dtype's maximum.
+        """Saturation level of a frame of this folder.
+
+        Parameters
+        ----------
+        frame : ndarray uint8 or uint16
+            A frame read from this folder [DN].
+
+        Returns
+        -------
+        float
+            ``2**adc_bits − 1`` when the rig gives the ADC depth, the frame is
+            16-bit and stays within it, else the dtype's maximum [DN].
         """
         top = float(np.iinfo(frame.dtype).max)
         if self.adc_bits is not None and frame.dtype == np.uint16:
@@ -124,9 +198,23 @@ class FrameFolder:
 def read_frame(path: str | Path, expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """Read one grayscale PNG frame unchanged (8- or 16-bit).
 
-    Raises :class:`FrameError` naming the file for a missing, unreadable or
-    corrupt file, a colour image, another dtype, or a shape other than
-    ``expected_shape`` (rows, columns).
+    Parameters
+    ----------
+    path : str or Path
+        The PNG file.
+    expected_shape : tuple of int, optional
+        (rows, columns) the frame must have [px]; not checked if None.
+
+    Returns
+    -------
+    (rows, columns) ndarray uint8 or uint16
+        The frame as stored [DN] (a single-channel 3-D image is squeezed).
+
+    Raises
+    ------
+    FrameError
+        Naming the file, for a missing, unreadable or corrupt file, a colour
+        image, another dtype, or a shape other than ``expected_shape``.
     """
     p = Path(path)
     if not p.is_file():
@@ -207,6 +295,25 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
 
     Every listed frame must exist; the first one is decoded to check (or, with
     no rig in the manifest, to set) the frame size.
+
+    Parameters
+    ----------
+    path : str or Path
+        The folder holding ``manifest.json`` and ``frames/`` (INTERFACE.md).
+
+    Returns
+    -------
+    FrameFolder
+        The validated folder.
+
+    Raises
+    ------
+    FrameError
+        Naming the file and the reason: a missing folder or manifest, bad JSON,
+        a missing or empty ``frames`` list, a malformed entry or non-finite
+        number, a missing frame file, a rig without integer sensor rows and
+        columns, a non-object ``scenario_params``, or a bad first frame
+        (:func:`read_frame`).
     """
     folder = Path(path)
     data = _load_manifest(folder)
@@ -221,6 +328,9 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     params = data.get("scenario_params") or {}
     if not isinstance(params, dict):
         raise FrameError(f"{str(mpath)!r}: 'scenario_params' must be an object")
+    bits = shape[2] if shape else None
+    if bits is None and isinstance(data.get("adc_bits"), int) and not isinstance(data.get("adc_bits"), bool):
+        bits = int(data["adc_bits"])        # real frames imported without a rig (scheimpflug import)
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
-                       adc_bits=shape[2] if shape else None)
+                       adc_bits=bits)

@@ -7,21 +7,29 @@ Point clouds are binary little-endian PLY with one ``vertex`` element::
     property float angle_deg          rotary angle of the frame [deg]
     property int row                  sensor row [px]
     property float intensity          stripe peak above background [DN]
+    property int frame                frame index in the scan (−1: unknown)
 
 which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and whose
 extra properties those tools keep as scalar fields.  The reader accepts any
 PLY whose vertex element has x, y, z (ascii or binary, either byte order);
 missing extras come back as NaN / −1.
 
-Meshes for ``evaluate`` are read with trimesh (PLY, STL, OBJ, ...); a PLY
-face property ``object_id`` (the twin's ``truth/mesh.ply``) is returned per
-face, and a multi-object file (an OBJ with several objects) gets one id per
+Meshes (the twin's ``truth/mesh.ply``: double vertices and an ``object_id``
+per face; a surface model's ``fill`` and ``body`` per face,
+:mod:`scheimpflug.meshing`) are written by :func:`write_mesh_ply`, the one
+writer whose exact header matters.  Every file is read by one path, trimesh's
+loader (:func:`read_point_cloud`, :func:`read_triangle_mesh` and its
+shorthand :func:`read_mesh`; PLY, STL, OBJ, …; 18 ms for the 31 MB,
+1.09 M-triangle cylinder mesh), with a header check that turns a non-PLY into
+one clear error; a PLY's scalar face properties are returned per face, and a
+multi-object file (an OBJ with several objects) gets one ``object_id`` per
 object.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,15 +38,19 @@ from scheimpflug.errors import MeshError
 from scheimpflug.io.atomic import atomic_path
 from scheimpflug.reconstruct import PointCloud
 
-__all__ = ["height_colors", "read_mesh", "read_point_cloud", "write_point_cloud"]
+__all__ = [
+    "TriangleMesh",
+    "height_colors",
+    "read_mesh",
+    "read_point_cloud",
+    "read_triangle_mesh",
+    "write_mesh_ply",
+    "write_point_cloud",
+]
 
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
 _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
-                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4")])
+                         ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4"),
+                         ("frame", "<i4")])
 _PLY_NAME = {"f4": "float", "u1": "uchar", "i4": "int"}
 
 
@@ -79,16 +91,19 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
 
     Parameters
     ----------
-    path : path-like
-        Destination ``.ply``.
+    path : str or os.PathLike
+        Destination ``.ply``; written to a temporary name, then renamed.
     cloud : PointCloud
-        Points [mm] with angle, row and intensity.
-    comment : str
-        Extra header comment (one line; e.g. the command that made it).
+        Points in the part frame [mm] with angle, row, intensity and frame
+        index (stored as float32 / int32; frame −1 when unknown).
+    comment : str, optional
+        Extra header comment (one line: whitespace runs are collapsed; e.g.
+        the command that made it).
 
     Returns
     -------
     Path
+        ``path``.
     """
     data = np.empty(len(cloud), dtype=_CLOUD_DTYPE)
     for k, name in enumerate("xyz"):
@@ -96,6 +111,7 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     rgb = height_colors(cloud.xyz_mm[:, 2])
     data["red"], data["green"], data["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     data["angle_deg"], data["row"], data["intensity"] = cloud.angle_deg, cloud.row, cloud.intensity
+    data["frame"] = cloud.frame if cloud.frame is not None else -1
     lines = ["ply", "format binary_little_endian 1.0",
              "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
     lines += [f"comment {' '.join(comment.split())}"] if comment else []
@@ -108,104 +124,199 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     return Path(path)
 
 
-def _parse_header(fh, path: Path) -> tuple[str, list]:
-    if fh.readline().strip() != b"ply":
+def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id=None,
+                   comments: tuple[str, ...] = (), face_properties: dict | None = None) -> Path:
+    """Write a triangle mesh with per-face properties as binary PLY, atomically.
+
+    The layout (the twin's ``truth/mesh.ply``) is ``element vertex`` with
+    ``double x, y, z`` and ``element face`` with ``list uchar int
+    vertex_indices`` and ``int object_id``: doubles keep the exact geometry
+    that was rendered, and the object id says which part each face belongs
+    to.  Further scalar face properties (a surface model's ``uchar fill`` and
+    ``int body``) follow.  :func:`read_triangle_mesh` reads them back (as does
+    any PLY reader).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination ``.ply``; written to a temporary name, then renamed.
+    vertices_mm : (nv, 3) array_like float
+        Vertex positions [mm].
+    faces : (m, 3) array_like int
+        Vertex indices of each triangle.
+    face_object_id : (m,) array_like int or None
+        Object id of each face (None: no ``object_id`` property).
+    comments : tuple of str, optional
+        Header comment lines (newlines are replaced by spaces).
+    face_properties : dict of str to (m,) array_like, optional
+        More scalar face properties, written as ``uchar`` (uint8 arrays),
+        ``int`` (other integers) or ``double``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match, or face indices outside the vertex list.
+    """
+    v = np.ascontiguousarray(vertices_mm, dtype="<f8")
+    f = np.asarray(faces)
+    props = {} if face_object_id is None else {"object_id": np.asarray(face_object_id)}
+    props.update({k: np.asarray(a) for k, a in (face_properties or {}).items()})
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"need vertices (nv, 3) and faces (m, 3), got {v.shape} and {f.shape}")
+    bad = [k for k, a in props.items() if a.shape != (len(f),)]
+    if bad:
+        raise ValueError(f"face property {bad[0]!r} must have shape ({len(f)},), got {props[bad[0]].shape}")
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError(f"face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+    kinds = {k: ("u1" if a.dtype == np.uint8 else "<i4" if a.dtype.kind in "iub" else "<f8")
+             for k, a in props.items()}
+    table = np.empty(len(f), dtype=np.dtype([("n", "u1"), ("v", "<i4", (3,))] + list(kinds.items())))
+    table["n"], table["v"] = 3, f
+    for k, a in props.items():
+        table[k] = a
+    names = {"u1": "uchar", "<i4": "int", "<f8": "double"}
+    lines = ["ply", "format binary_little_endian 1.0"]
+    lines += [f"comment {' '.join(str(c).split())}" for c in comments]
+    lines += [f"element vertex {len(v)}", "property double x", "property double y", "property double z",
+              f"element face {len(f)}", "property list uchar int vertex_indices"]
+    lines += [f"property {names[kind]} {k}" for k, kind in kinds.items()] + ["end_header"]
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(("\n".join(lines) + "\n").encode("ascii"))
+        fh.write(v.tobytes())
+        fh.write(table.tobytes())
+    return Path(path)
+
+
+def _check_ply_header(path: Path) -> list[tuple[str, int]]:
+    """The (element, count) list of a PLY header; MeshError for a file that is not a PLY."""
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply"):
         raise MeshError(f"{str(path)!r} is not a PLY file (no 'ply' magic line)")
-    fmt, elements = None, []
-    while True:
-        line = fh.readline()
-        if not line:
-            raise MeshError(f"{str(path)!r}: PLY header has no 'end_header'")
-        words = line.decode("ascii", "replace").split()
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
-        if words[0] == "end_header":
-            break
-        if words[0] == "format" and len(words) >= 2:
-            fmt = words[1]
-        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
-            elements.append((words[1], int(words[2]), []))
-        elif words[0] == "property" and elements and len(words) >= 3:
-            elements[-1][2].append(words[1:])
-        else:
-            raise MeshError(f"{str(path)!r}: malformed PLY header line {line.strip()!r}")
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise MeshError(f"{str(path)!r}: unknown PLY format {fmt!r}")
-    return fmt, elements
+    if end < 0:
+        raise MeshError(f"{str(path)!r}: PLY header has no 'end_header'")
+    elements = []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if len(words) == 3 and words[0] == "element":
+            if not words[2].isdigit():
+                raise MeshError(f"{str(path)!r}: malformed PLY header line {line.strip()!r}")
+            elements.append((words[1], int(words[2])))
+    return elements
 
 
-def _vertex_dtype(props: list, fmt: str, path: Path) -> np.dtype:
-    order = ">" if fmt == "binary_big_endian" else "<"
-    fields = []
-    for p in props:
-        if p[0] == "list" or p[0] not in _PLY_TYPES or len(p) != 2:
-            raise MeshError(f"{str(path)!r}: unsupported vertex property {' '.join(p)!r}")
-        fields.append((p[1], order + _PLY_TYPES[p[0]]))
-    return np.dtype(fields)
+def _load(path: str | os.PathLike, what: str):
+    """Read ``path`` with trimesh's loader (the one reader of this module), errors as MeshError."""
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise MeshError(f"{what} {str(p)!r} does not exist")
+    elements = _check_ply_header(p) if p.suffix.lower() == ".ply" else None
+    try:
+        loaded = trimesh.load(str(p), process=False)
+    except Exception as exc:  # trimesh raises many kinds on corrupt input
+        if "unexpected length" in str(exc):
+            raise MeshError(f"{what} {str(p)!r} is truncated or corrupt: the PLY body does not match "
+                            "its header") from None
+        raise MeshError(f"{what} {str(p)!r} is unreadable: {type(exc).__name__}: {exc}") from None
+    return loaded, elements
+
+
+def _ply_raw(loaded, element: str) -> dict[str, np.ndarray] | None:
+    """The properties of a PLY element as trimesh read it, name → (n,) array, or None.
+
+    trimesh keeps binary elements as one structured array and ascii ones as a
+    dict of (n, 1) arrays; both come back as a dict of flat arrays.
+    """
+    meta = getattr(loaded, "metadata", None)
+    raw = meta.get("_ply_raw") if isinstance(meta, dict) else None
+    if raw is None or element not in raw:
+        return None
+    data = raw[element]["data"]
+    names = data.keys() if isinstance(data, dict) else (data.dtype.names or ())
+    return {name: np.asarray(data[name]).reshape(len(np.asarray(data[name])), -1)[:, 0] for name in names}
 
 
 def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     """Read a point cloud PLY (the vertex element; any faces after it are ignored).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A PLY file (ascii or binary, either byte order) whose vertex element
+        has scalar properties x, y, z.
+
+    Returns
+    -------
+    PointCloud
+        Points (n, 3) float64 [mm] (part frame for the clouds this toolkit
+        writes); ``angle_deg`` and ``intensity`` NaN and ``row`` and
+        ``frame`` −1 where the file lacks them.
 
     Raises
     ------
     MeshError
         Missing, non-PLY, truncated or malformed file, or no x, y, z.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"point cloud {str(p)!r} does not exist")
-    with open(p, "rb") as fh:
-        fmt, elements = _parse_header(fh, p)
-        if not elements or elements[0][0] != "vertex":
-            raise MeshError(f"{str(p)!r}: the first PLY element must be 'vertex'")
-        _, n, props = elements[0]
-        dtype = _vertex_dtype(props, fmt, p)
-        if not {"x", "y", "z"} <= set(dtype.names):
-            raise MeshError(f"{str(p)!r}: PLY vertices lack x, y, z")
-        data = _read_body(fh, fmt, dtype, n, p)
-    get = (lambda name, fill: data[name].astype(np.float64) if name in dtype.names
-           else np.full(n, fill, np.float64))
-    xyz = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
+    loaded, elements = _load(path, "point cloud")
+    if elements is None:
+        raise MeshError(f"point cloud {str(path)!r} must be a .ply file")
+    if dict(elements).get("vertex") == 0:
+        return PointCloud(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
+    data = _ply_raw(loaded, "vertex") or {}
+    if not {"x", "y", "z"} <= set(data):
+        raise MeshError(f"{str(path)!r}: PLY vertices lack x, y, z")
+    n = len(data["x"])
+
+    def get(name: str, fill: float) -> np.ndarray:
+        return data[name].astype(np.float64) if name in data else np.full(n, fill)
+
+    xyz = np.column_stack([get("x", 0), get("y", 0), get("z", 0)])
     return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
-                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan))
+                      row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan),
+                      frame=get("frame", -1).astype(np.int64))
 
 
-def _read_body(fh, fmt: str, dtype: np.dtype, n: int, path: Path) -> np.ndarray:
-    if fmt == "ascii":
-        rows = [fh.readline().split() for _ in range(n)]
-        if any(len(r) < len(dtype.names) for r in rows):
-            raise MeshError(f"{str(path)!r}: truncated or malformed ascii PLY vertex data")
-        try:
-            table = np.array([r[:len(dtype.names)] for r in rows], dtype=np.float64).reshape(n, -1)
-        except ValueError:
-            raise MeshError(f"{str(path)!r}: non-numeric ascii PLY vertex data") from None
-        out = np.empty(n, dtype=dtype)
-        for k, name in enumerate(dtype.names):
-            out[name] = table[:, k]
-        return out
-    raw = fh.read(n * dtype.itemsize)
-    if len(raw) != n * dtype.itemsize:
-        raise MeshError(f"{str(path)!r}: truncated PLY ({len(raw)} of {n * dtype.itemsize} bytes of "
-                        f"vertex data)")
-    return np.frombuffer(raw, dtype=dtype)
-
-
-def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Read a triangle mesh for scoring (coincident vertices welded, faces kept in file order).
+@dataclass(frozen=True)
+class TriangleMesh:
+    """A triangle mesh as read from a file, with its per-face properties.
 
     Parameters
     ----------
-    path : path-like
+    vertices : (nv, 3) ndarray float64
+        Vertex positions, in the file's frame and units [mm].
+    faces : (m, 3) ndarray int64
+        Vertex indices of each triangle, in file order.
+    face_properties : dict of str to (m,) ndarray
+        Scalar face properties of a PLY (``object_id``, a surface model's
+        ``fill`` and ``body``, ...); for a file with several objects (a
+        trimesh Scene), ``object_id`` = the object's index + 1.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_properties: dict
+
+
+def read_triangle_mesh(path: str | os.PathLike) -> TriangleMesh:
+    """Read a triangle mesh and its face properties (coincident vertices welded, faces in file order).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
         PLY, STL, OBJ or any format trimesh reads.
 
     Returns
     -------
-    vertices : (nv, 3) float [mm]
-    faces : (m, 3) int
-    face_object_id : (m,) int or None
-        PLY ``object_id`` face property; for a file with several objects
-        (a trimesh Scene), the object's index + 1; else None.
+    TriangleMesh
+        Vertices [mm], faces and the scalar face properties.
 
     Raises
     ------
@@ -214,27 +325,56 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """
     import trimesh
 
+    loaded, elements = _load(path, "mesh")
     p = Path(path)
-    if not p.is_file():
-        raise MeshError(f"mesh {str(p)!r} does not exist")
-    try:
-        loaded = trimesh.load(str(p), process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise MeshError(f"mesh {str(p)!r} is unreadable: {type(exc).__name__}: {exc}") from None
-    ids = None
+    props = {}
     if isinstance(loaded, trimesh.Scene):
         geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         if not geoms:
             raise MeshError(f"{str(p)!r} holds no triangles (not a mesh)")
-        ids = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
+        props["object_id"] = np.concatenate([np.full(len(g.faces), k + 1) for k, g in enumerate(geoms)])
         loaded = trimesh.util.concatenate(geoms)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise MeshError(f"{str(p)!r} holds no triangles (not a mesh: {type(loaded).__name__})")
-    n_faces = len(loaded.faces)
-    loaded.merge_vertices()          # STL stores each face's own vertices: weld them (face order kept)
-    if len(loaded.faces) != n_faces:
-        raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
-    raw = loaded.metadata.get("_ply_raw") if isinstance(loaded.metadata, dict) else None
-    if raw is not None and "face" in raw and "object_id" in (raw["face"]["data"].dtype.names or ()):
-        ids = np.asarray(raw["face"]["data"]["object_id"]).astype(np.int64).ravel()
-    return np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), ids
+    if elements is None:             # STL, OBJ: faces may carry their own vertices; weld them
+        n_faces = len(loaded.faces)
+        loaded.merge_vertices()
+        if len(loaded.faces) != n_faces:
+            raise MeshError(f"{str(p)!r}: internal error, welding vertices changed the face count")
+    nv = len(loaded.vertices)
+    if loaded.faces.min() < 0 or loaded.faces.max() >= nv:
+        raise MeshError(f"{str(p)!r}: face indices outside the {nv} vertices (corrupt mesh)")
+    raw = _ply_raw(loaded, "face") or {}
+    props.update({k: a for k, a in raw.items() if k not in ("vertex_indices", "vertex_index")
+                  and a.shape == (len(loaded.faces),)})
+    return TriangleMesh(vertices=np.asarray(loaded.vertices, np.float64),
+                        faces=np.asarray(loaded.faces, np.int64), face_properties=props)
+
+
+def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read a triangle mesh for scoring (:func:`read_triangle_mesh`, object ids only).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        PLY, STL, OBJ or any format trimesh reads.
+
+    Returns
+    -------
+    vertices : (nv, 3) ndarray float64
+        Vertex positions, in the file's frame and units [mm] (the part frame
+        for the twin's truth meshes).
+    faces : (m, 3) ndarray int64
+        Vertex indices of each triangle, in file order.
+    face_object_id : (m,) ndarray int64 or None
+        PLY ``object_id`` face property; for a file with several objects
+        (a trimesh Scene), the object's index + 1; else None.
+
+    Raises
+    ------
+    MeshError
+        Missing, unreadable or empty file, or a file without triangles.
+    """
+    mesh = read_triangle_mesh(path)
+    ids = mesh.face_properties.get("object_id")
+    return mesh.vertices, mesh.faces, None if ids is None else np.asarray(ids).astype(np.int64)

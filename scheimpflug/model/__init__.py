@@ -8,3 +8,5 @@ distorting sensor), :mod:`.design` (forward and inverse design) and
 :mod:`.binning` (binned read-out with the same geometry).  Pure numpy; no I/O
 beyond reading rig files.
 """
+
+__all__ = ["binning", "camera", "design", "hinge", "rig"]

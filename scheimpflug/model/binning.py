@@ -10,6 +10,27 @@ __all__ = ["binned_rig"]
 def binned_rig(rig: Rig, k: int) -> Rig:
     """The same rig read out with k × k binning (a reduced-resolution sensor, same geometry).
 
+    Parameters
+    ----------
+    rig : Rig
+        The instrument at full resolution.
+    k : int
+        Binning factor, >= 1 [-].
+
+    Returns
+    -------
+    Rig
+        ``rig`` itself for k = 1, else a copy with the sensor table rescaled
+        (see Notes).
+
+    Raises
+    ------
+    ValueError
+        If ``k`` is not an integer >= 1 (booleans refused), or if the sensor
+        has fewer than ``k`` columns or rows.
+
+    Notes
+    -----
     A binned pixel j covers original pixels k·j … k·j + k − 1, so its centre is at
     original coordinate u = k·j + (k − 1)/2.  Hence: pitch × k; columns and rows
     // k (a remainder at the far edge is dropped); hinge_column, axis_row →

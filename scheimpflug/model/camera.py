@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scheimpflug.model._checks import check_last_dim
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
@@ -50,10 +51,19 @@ __all__ = [
 class SensorPose:
     """Pose of the sensor plane in the rig frame.
 
-    origin_mm : (3,) rig position of the centre of pixel (0, 0) [mm].
-    u_dir, v_dir : (3,) unit vectors of increasing column and row.
-    pitch_mm : pixel pitch [mm].
-    columns, rows : sensor size [px].
+    Build it with :func:`sensor_pose`.  Pixel (u, v) sits at
+    ``origin_mm + u·pitch_mm·u_dir + v·pitch_mm·v_dir``.
+
+    Parameters
+    ----------
+    origin_mm : (3,) ndarray float
+        Rig-frame position of the centre of pixel (0, 0) [mm].
+    u_dir, v_dir : (3,) ndarray float
+        Rig-frame unit vectors of increasing column and row [-].
+    pitch_mm : float
+        Pixel pitch [mm].
+    columns, rows : int
+        Sensor size [px].
     """
 
     origin_mm: np.ndarray
@@ -65,13 +75,19 @@ class SensorPose:
 
     @property
     def normal(self) -> np.ndarray:
-        """Unit normal e_u × e_v (points toward the lens for the Scheimpflug pose), (3,)."""
+        """Unit normal e_u × e_v in the rig frame, (3,) float [-].
+
+        It points toward the lens for the Scheimpflug pose.
+        """
         n = np.cross(self.u_dir, self.v_dir)
         return n / np.linalg.norm(n)
 
     @property
     def rig_from_sensor(self) -> np.ndarray:
-        """4×4 transform from sensor coordinates (a, b, c) [mm] (a = u·p, b = v·p, c along the normal)."""
+        """Homogeneous (4, 4) float transform from sensor coordinates to the rig frame [mm].
+
+        Sensor coordinates (a, b, c): a = u·p, b = v·p, c along :attr:`normal`.
+        """
         m = np.eye(4)
         m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = self.u_dir, self.v_dir, self.normal, self.origin_mm
         return m
@@ -85,8 +101,21 @@ def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
 
 
 def sensor_pose(rig: Rig) -> SensorPose:
-    """The sensor pose of ``rig``: the Scheimpflug pose plus the rig's misalignments.
+    """The sensor pose of a rig: the Scheimpflug pose plus the rig's misalignments.
 
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (its ``[sensor]`` table gives size, pitch, hinge pixel
+        and misalignments).
+
+    Returns
+    -------
+    SensorPose
+        The sensor plane in the rig frame.
+
+    Notes
+    -----
     Ideal pose: pixel (u_h, v_h) at the image hinge H' = (−f, f·tan φ, 0),
     e_u = (sin β, cos β, 0) (parallel to O→H, paper Eq. 6), e_v = +z.
     Roll (about the normal) and tilt error (about the row direction, i.e. a
@@ -130,12 +159,33 @@ def _undistort_tan(td2, k1: float, k2: float, iters: int = 20):
 
 
 def conjugate_point(rig: Rig, points_mm) -> np.ndarray:
-    """Image-side conjugate P' of rig points (…, 3) [mm], distortion included.
+    """Image-side conjugate P' of rig points, distortion included.
 
-    P' = −f/(x − f)·P, its lateral part scaled by the distortion factor.
-    Points at x = f (the front focal plane) have no finite image: NaN.
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (focal length and distortion k1, k2 of its lens).
+    points_mm : (..., 3) array_like float
+        Object points P in the rig frame [mm].
+
+    Returns
+    -------
+    (..., 3) ndarray float64
+        P' = −f/(x − f)·P in the rig frame [mm], its lateral part (y, z)
+        scaled by the distortion factor 1 + k1·t² + k2·t⁴ (t = tan θ).
+        Points at x = f (the front focal plane) have no finite image: NaN.
+
+    Raises
+    ------
+    ValueError
+        If ``points_mm`` is not of shape ``(..., 3)``.
+
+    Notes
+    -----
+    The Gaussian lens equation; Newton's x·x' = −f² with x, x' measured from
+    the focal planes (paper Eq. 1).
     """
-    p = np.asarray(points_mm, dtype=np.float64)
+    p = check_last_dim("points_mm", points_mm, 3)
     f = rig.lens.focal_length_mm
     x = p[..., 0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -167,28 +217,71 @@ def _hit_plane(pose: SensorPose, start: np.ndarray, direction: np.ndarray) -> np
 
 
 def pixel_from_sensor_point(pose: SensorPose, q_mm) -> np.ndarray:
-    """Pixel coordinates (…, 2) [px] of points (…, 3) lying in the sensor plane."""
-    rel = np.asarray(q_mm, dtype=np.float64) - pose.origin_mm
+    """Pixel coordinates of rig-frame points lying in the sensor plane.
+
+    Parameters
+    ----------
+    pose : SensorPose
+        The sensor plane.
+    q_mm : (..., 3) array_like float
+        Points in the rig frame [mm]; their component along the sensor
+        normal is ignored (orthogonal projection onto the plane).
+
+    Returns
+    -------
+    (..., 2) ndarray float64
+        Pixel coordinates (u, v) [px].
+
+    Raises
+    ------
+    ValueError
+        If ``q_mm`` is not of shape ``(..., 3)``.
+    """
+    rel = check_last_dim("q_mm", q_mm, 3) - pose.origin_mm
     return np.stack([rel @ pose.u_dir, rel @ pose.v_dir], axis=-1) / pose.pitch_mm
 
 
 def sensor_point_from_pixel(pose: SensorPose, uv_px) -> np.ndarray:
-    """Rig position (…, 3) [mm] of pixel coordinates (…, 2)."""
-    uv = np.asarray(uv_px, dtype=np.float64)
+    """Rig-frame position of pixel coordinates on the sensor plane.
+
+    Parameters
+    ----------
+    pose : SensorPose
+        The sensor plane.
+    uv_px : (..., 2) array_like float
+        Pixel coordinates (u, v) [px].
+
+    Returns
+    -------
+    (..., 3) ndarray float64
+        ``origin + u·p·e_u + v·p·e_v`` in the rig frame [mm].
+
+    Raises
+    ------
+    ValueError
+        If ``uv_px`` is not of shape ``(..., 2)``.
+    """
+    uv = check_last_dim("uv_px", uv_px, 2)
     return (pose.origin_mm + uv[..., :1] * pose.pitch_mm * pose.u_dir
             + uv[..., 1:2] * pose.pitch_mm * pose.v_dir)
 
 
 @dataclass(frozen=True)
 class Projection:
-    """Result of :func:`project_points` (all arrays share the points' leading shape).
+    """Result of :func:`project_points` (all arrays share the points' leading shape ``...``).
 
-    uv_px : (…, 2) pixel where the chief ray meets the sensor [px].
-    image_point_mm : (…, 3) conjugate point P' [mm].
-    defocus_mm : signed distance from the sensor plane to P' along the sensor normal [mm]
-        (0 for points on the sheet of an ideal rig).
-    blur_diameter_mm : diameter of the thin-lens circle of confusion, i.e. the cone's
-        section by the plane parallel to the lens through the chief-ray hit:
+    Parameters
+    ----------
+    uv_px : (..., 2) ndarray float64
+        Pixel where the (distorted) chief ray meets the sensor [px].
+    image_point_mm : (..., 3) ndarray float64
+        Conjugate point P' in the rig frame [mm].
+    defocus_mm : (...) ndarray float64
+        Signed distance from the sensor plane to P' along the sensor normal
+        [mm] (0 for points on the sheet of an ideal rig).
+    blur_diameter_mm : (...) ndarray float64
+        Diameter of the thin-lens circle of confusion, i.e. the cone's section
+        by the plane parallel to the lens through the chief-ray hit:
         A·|x_hit − x'|/|x'| with A = f/N [mm].
     """
 
@@ -199,13 +292,32 @@ class Projection:
 
 
 def project_points(rig: Rig, points_mm, pose: SensorPose | None = None) -> Projection:
-    """Project rig-frame points (…, 3) [mm] (x > f) onto the tilted sensor.
+    """Project rig-frame points onto the tilted sensor.
 
     Works for any point, on the sheet or off it; for sheet points of an ideal
     rig the result equals the closed forms of :mod:`scheimpflug.model.hinge`.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+    points_mm : (..., 3) array_like float
+        Object points in the rig frame, in front of the lens (x > f) [mm].
+    pose : SensorPose, optional
+        Sensor pose; default :func:`sensor_pose` of ``rig``.
+
+    Returns
+    -------
+    Projection
+        Pixel, conjugate point, defocus and blur diameter of each point.
+
+    Raises
+    ------
+    ValueError
+        If ``points_mm`` is not of shape ``(..., 3)``.
     """
     pose = sensor_pose(rig) if pose is None else pose
-    p = np.asarray(points_mm, dtype=np.float64)
+    p = check_last_dim("points_mm", points_mm, 3)
     img = conjugate_point(rig, p)
     hit = _hit_plane(pose, np.zeros(3), _chief_dir_image(rig, p))
     aperture = rig.lens.focal_length_mm / rig.lens.f_number
@@ -217,11 +329,32 @@ def project_points(rig: Rig, points_mm, pose: SensorPose | None = None) -> Proje
 
 def blur_footprint_px(rig: Rig, points_mm, pose: SensorPose | None = None,
                       n_angles: int = 72) -> tuple[np.ndarray, np.ndarray]:
-    """Full extent (Δu, Δv) [px] of the blur spot on the sensor for points (…, 3).
+    """Full extent of the blur spot on the sensor, along columns and rows.
 
     Marginal rays from ``n_angles`` points on the aperture rim through the
     conjugate point P' are intersected with the (tilted) sensor plane; the
     extents of that section along the columns and rows are returned.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (focal length, f-number and distortion of its lens).
+    points_mm : (..., 3) array_like float
+        Object points in the rig frame [mm].
+    pose : SensorPose, optional
+        Sensor pose; default :func:`sensor_pose` of ``rig``.
+    n_angles : int, default 72
+        Number of rim points sampled on the aperture [-].
+
+    Returns
+    -------
+    du_px, dv_px : (...) ndarray float64
+        Peak-to-peak extent Δu, Δv of the blur spot [px].
+
+    Raises
+    ------
+    ValueError
+        If ``points_mm`` is not of shape ``(..., 3)``.
     """
     pose = sensor_pose(rig) if pose is None else pose
     img = conjugate_point(rig, points_mm)[..., None, :]
@@ -233,7 +366,28 @@ def blur_footprint_px(rig: Rig, points_mm, pose: SensorPose | None = None,
 
 
 def chief_ray_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.ndarray:
-    """Unit object-side direction (…, 3) of the chief ray of pixels (…, 2); it starts at the lens centre."""
+    """Object-side direction of the chief ray of pixels (distortion undone).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (distortion k1, k2 of its lens).
+    uv_px : (..., 2) array_like float
+        Pixel coordinates (u, v) [px].
+    pose : SensorPose, optional
+        Sensor pose; default :func:`sensor_pose` of ``rig``.
+
+    Returns
+    -------
+    (..., 3) ndarray float64
+        Unit direction in the rig frame [-]; the ray starts at the lens centre
+        (the rig origin).
+
+    Raises
+    ------
+    ValueError
+        If ``uv_px`` is not of shape ``(..., 2)``.
+    """
     pose = sensor_pose(rig) if pose is None else pose
     q = sensor_point_from_pixel(pose, uv_px)
     lat2 = (q[..., 1] ** 2 + q[..., 2] ** 2) / (q[..., 0] ** 2)  # distorted tan² of the field angle
@@ -243,9 +397,27 @@ def chief_ray_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.
 
 
 def sheet_point_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.ndarray:
-    """Rig point (…, 3) [mm] where the chief ray of pixels (…, 2) meets the laser sheet.
+    """Rig-frame point where the chief ray of pixels meets the laser sheet.
 
-    Rays parallel to the sheet, or meeting it behind the lens, give NaN.
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (lens distortion; the sheet ``y = d − x·tan φ``).
+    uv_px : (..., 2) array_like float
+        Pixel coordinates (u, v) [px].
+    pose : SensorPose, optional
+        Sensor pose; default :func:`sensor_pose` of ``rig``.
+
+    Returns
+    -------
+    (..., 3) ndarray float64
+        Sheet points in the rig frame [mm]; NaN for rays parallel to the
+        sheet or meeting it behind the lens.
+
+    Raises
+    ------
+    ValueError
+        If ``uv_px`` is not of shape ``(..., 2)``.
     """
     w = chief_ray_from_pixel(rig, uv_px, pose)
     d, t = rig.laser.scheimpflug_distance_mm, rig.laser.tan_phi

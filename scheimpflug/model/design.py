@@ -49,8 +49,8 @@ def coverage(hinge_u_px: float, hinge_v_px: float, F2_px_mm: float, C_mm: float,
         object hinge), ``depth_range_mm``, ``height_range_near_mm`` and
         ``height_range_far_mm`` (the full sensor height mapped at the outer
         edges of the first and last columns), ``distance_resolution_center_mm``
-        and ``height_resolution_center_mm`` (at column ``columns // 2``) [mm],
-        ``center_column_px``.
+        and ``height_resolution_center_mm`` (at column ``columns // 2``, per
+        pixel) [mm], ``center_column_px`` [px].
     """
     k = (hinge_u_px, hinge_v_px, F2_px_mm, 0.0, C_mm)
     D, _ = stage_from_pixel(np.array([0.0, columns - 1.0]), hinge_v_px, *k)
@@ -71,12 +71,30 @@ def coverage(hinge_u_px: float, hinge_v_px: float, F2_px_mm: float, C_mm: float,
 
 
 def design_report(rig: Rig) -> dict:
-    """The design figures of ``rig`` as a JSON-ready dict (INTERFACE.md fields and more).
+    """The design figures of a rig as a JSON-ready dict (INTERFACE.md fields and more).
 
     Distances D are measured along the sheet from the object hinge [mm].
     The distance range is D at the centres of the first and last columns; the
     height ranges are the sensor's full height (rows × pitch) mapped at the
     outer edges of the first (near) and last (far) columns.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (ideal geometry: misalignments ignored).
+
+    Returns
+    -------
+    dict
+        ``tilt_deg`` [deg], ``tan_beta`` [-], ``hinge_px`` [u_h, v_h] [px],
+        ``F2_px_mm`` [px·mm], ``C_mm`` [mm], the fields of :func:`coverage`,
+        ``object_hinge_mm`` and ``image_hinge_mm`` (rig frame) [mm],
+        ``sensor_distance_to_lens_mm`` (sensor centre, in the meridian plane)
+        [mm], ``stage_range_mm`` (stage coordinates of the distance range)
+        [mm], ``axis_distance_mm`` (rotary axis from the object hinge) [mm],
+        ``axis_column_px`` and ``stage_zero_column_px`` (columns that see the
+        rotary axis and stage coordinate 0) [px], ``focal_length_check_mm``
+        (:func:`focal_length_from_endpoint` at stage 0) [mm].
     """
     g = hinge_geometry(rig)
     s = rig.sensor
@@ -110,10 +128,28 @@ def _sensor_centre_distance(rig: Rig, g: HingeGeometry) -> float:
 
 
 def focal_length_from_endpoint(g: HingeGeometry, u_px: float, distance_mm: float) -> float:
-    """The paper's check, Eqs. 13–14 and 1: f = √(−x_M'·x_M) [mm].
+    """The paper's focal-length check from one calibrated point (paper Eqs. 13–14 and 1).
 
-    x_M' = (u − u_h)·sin β·p and x_M = D·cos φ for a point at column ``u`` and
-    distance ``D`` from the object hinge.
+    Parameters
+    ----------
+    g : HingeGeometry
+        The rig's ideal geometry (β, φ, p, u_h).
+    u_px : float
+        Column of the point [px].
+    distance_mm : float
+        Its distance D along the sheet from the object hinge [mm].
+
+    Returns
+    -------
+    float
+        f = √(−x_M'·x_M) [mm], with x_M' = (u − u_h)·sin β·p and
+        x_M = D·cos φ (Newton's x·x' = −f², Eq. 1).
+
+    Raises
+    ------
+    ValueError
+        If x_M'·x_M > 0 (``math.sqrt`` of a negative number: the point and its
+        column are on the same side of their focal planes).
     """
     x_img = (u_px - g.hinge_column) * math.sin(g.beta_rad) * g.pixel_pitch_mm
     x_obj = distance_mm * math.cos(g.phi_rad)
@@ -121,11 +157,20 @@ def focal_length_from_endpoint(g: HingeGeometry, u_px: float, distance_mm: float
 
 
 def resolution_maps(rig: Rig) -> dict[str, np.ndarray]:
-    """Per-pixel resolution over the sensor.
+    """Per-pixel resolution over the sensor (paper Eqs. 11–12 differentiated).
 
-    Returns ``distance_mm_per_px`` = |dD/du| and ``height_mm_per_px`` = |dh/dv|,
-    each (rows, columns) float64, and ``distance_mm`` (columns,) [mm].
-    For the ideal rig both depend on the column only (paper Eqs. 11–12).
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (ideal geometry: misalignments ignored).
+
+    Returns
+    -------
+    dict of str to ndarray
+        ``distance_mm`` (columns,) float64: D of each column [mm];
+        ``distance_mm_per_px`` = |dD/du| and ``height_mm_per_px`` = |dh/dv|,
+        each a read-only (rows, columns) float64 broadcast view [mm/px].
+        For the ideal rig both depend on the column only.
     """
     g = hinge_geometry(rig)
     u = np.arange(rig.sensor.columns, dtype=np.float64)
@@ -139,13 +184,22 @@ def resolution_maps(rig: Rig) -> dict[str, np.ndarray]:
 
 @dataclass(frozen=True)
 class DesignChoice:
-    """One rig layout that images a wanted working range onto the sensor.
+    """One rig layout that images a wanted working range onto the sensor (:func:`inverse_design`).
 
-    tan_phi : sheet angle to the optical axis [-].
-    scheimpflug_distance_mm : d, lens centre to the Scheimpflug line [mm].
-    tilt_deg : sensor tilt β [deg].
-    hinge_column : u_h, where to place the sensor relative to the image hinge [px].
-    F2_px_mm, C_mm : calibration constants of that layout.
+    Parameters
+    ----------
+    tan_phi : float
+        tan φ, sheet angle to the optical axis [-].
+    scheimpflug_distance_mm : float
+        d, lens centre to the Scheimpflug line [mm].
+    tilt_deg : float
+        Sensor tilt β [deg].
+    hinge_column : float
+        u_h, where to place the sensor relative to the image hinge [px].
+    F2_px_mm : float
+        Calibration constant F² of that layout [px·mm].
+    C_mm : float
+        Calibration constant C of that layout [mm].
     """
 
     tan_phi: float
@@ -161,9 +215,35 @@ def inverse_design(focal_length_mm: float, pixel_pitch_um: float, columns: int,
                    scheimpflug_distance_mm: float | None = None) -> DesignChoice:
     """Tilt, baseline and sensor placement that map ``near..far`` onto columns 0..N−1.
 
-    ``near_mm`` and ``far_mm`` are distances along the sheet from the
-    Scheimpflug line (where the laser sits) [mm].  Give exactly one of
-    ``tan_phi`` or ``scheimpflug_distance_mm``; the other is solved for.
+    Parameters
+    ----------
+    focal_length_mm : float
+        Focal length f [mm].
+    pixel_pitch_um : float
+        Pixel pitch p [µm].
+    columns : int
+        Number of columns N [px], > 1.
+    near_mm, far_mm : float
+        Wanted range, distances along the sheet from the Scheimpflug line
+        (where the laser sits) [mm], 0 < near < far.
+    tan_phi : float, optional
+        Sheet angle tan φ [-]; give exactly one of ``tan_phi`` or
+        ``scheimpflug_distance_mm``, the other is solved for.
+    scheimpflug_distance_mm : float, optional
+        Baseline d [mm].
+
+    Returns
+    -------
+    DesignChoice
+        The layout: tan φ, d, β, u_h, F² and C.
+
+    Raises
+    ------
+    RigError
+        If both or neither of ``tan_phi`` and ``scheimpflug_distance_mm`` are
+        given, the inputs are out of range, ``near`` lies inside the focal
+        length along the sheet, the range needs sin β ≥ 1, or no sheet angle
+        with |tan φ| ≤ 3 reaches the given baseline.
 
     Notes
     -----

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scheimpflug.model._checks import check_broadcast, check_last_dim
 from scheimpflug.model.rig import Rig
 
 __all__ = [
@@ -52,7 +53,7 @@ def stage_from_pixel(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm:
     Parameters
     ----------
     u_px, v_px : array_like float
-        Column and row [px], broadcast together.
+        Column and row on the sensor [px], shapes that broadcast together.
     hinge_u_px, hinge_v_px : float
         Image hinge (u_h, v_h) [px].
     F2_px_mm : float
@@ -65,40 +66,54 @@ def stage_from_pixel(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm:
     Returns
     -------
     stage_mm : ndarray float64
-        ``s = F²/(u − u_h) + d0`` (Eq. 11) [mm].
+        ``s = F²/(u − u_h) + d0`` (paper Eq. 11), the stage coordinate of the
+        sheet point [mm], broadcast shape of ``u_px`` and ``v_px``.
     h_mm : ndarray float64
-        ``h = C·(v − v_h)/(u − u_h)`` (Eq. 12) [mm], positive above the
-        meridian plane for ``v < v_h``.
+        ``h = C·(v − v_h)/(u − u_h)`` (paper Eq. 12), the height above the
+        meridian plane [mm], positive for ``v < v_h``.
+
+    Raises
+    ------
+    ValueError
+        If ``u_px`` and ``v_px`` do not broadcast together.
 
     Notes
     -----
     At ``u = u_h`` (the image hinge) the sheet point lies at infinity: both
     outputs are NaN there, never ±inf.
     """
-    inv = _inverse_or_nan(np.asarray(u_px, dtype=np.float64) - hinge_u_px)
-    dv = np.asarray(v_px, dtype=np.float64) - hinge_v_px
+    u, v = check_broadcast(u_px=u_px, v_px=v_px)
+    inv = _inverse_or_nan(u - hinge_u_px)
+    dv = v - hinge_v_px
     return F2_px_mm * inv + d0_mm, C_mm * dv * inv
 
 
 def pixel_from_stage(stage_mm, h_mm, hinge_u_px: float, hinge_v_px: float, F2_px_mm: float,
                      d0_mm: float, C_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel of a sheet point: the inverse of :func:`stage_from_pixel`.
+    """Pixel of a sheet point: the inverse of :func:`stage_from_pixel` (paper Eqs. 11–12).
 
     Parameters
     ----------
     stage_mm, h_mm : array_like float
-        Stage coordinate along the sheet and height [mm], broadcast together.
+        Stage coordinate along the sheet and height above the meridian plane
+        [mm], shapes that broadcast together.
     hinge_u_px, hinge_v_px, F2_px_mm, d0_mm, C_mm : float
-        Calibration constants as in :func:`stage_from_pixel`.
+        Calibration constants as in :func:`stage_from_pixel` [px, px, px·mm, mm, mm].
 
     Returns
     -------
     u_px, v_px : ndarray float64
         ``u = u_h + F²/(s − d0)``, ``v = v_h + h·(u − u_h)/C`` [px]; NaN at
         ``s = d0`` (the object hinge images at infinity).
+
+    Raises
+    ------
+    ValueError
+        If ``stage_mm`` and ``h_mm`` do not broadcast together.
     """
-    du = F2_px_mm * _inverse_or_nan(np.asarray(stage_mm, dtype=np.float64) - d0_mm)
-    return hinge_u_px + du, hinge_v_px + du * np.asarray(h_mm, dtype=np.float64) / C_mm
+    s, h = check_broadcast(stage_mm=stage_mm, h_mm=h_mm)
+    du = F2_px_mm * _inverse_or_nan(s - d0_mm)
+    return hinge_u_px + du, hinge_v_px + du * h / C_mm
 
 
 def stage_jacobian(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm: float,
@@ -108,9 +123,9 @@ def stage_jacobian(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm: f
     Parameters
     ----------
     u_px, v_px : array_like float
-        Column and row [px].
+        Column and row on the sensor [px], shapes that broadcast together.
     hinge_u_px, hinge_v_px, F2_px_mm, C_mm : float
-        Calibration constants as in :func:`stage_from_pixel`.
+        Calibration constants as in :func:`stage_from_pixel` [px, px, px·mm, mm].
 
     Returns
     -------
@@ -120,14 +135,39 @@ def stage_jacobian(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm: f
         ``−C·(v − v_h)/(u − u_h)²`` [mm/px].
     dh_dv : ndarray float64
         ``C/(u − u_h)`` [mm/px] (negative: rows increase downward).
+
+    Raises
+    ------
+    ValueError
+        If ``u_px`` and ``v_px`` do not broadcast together.
+
+    Notes
+    -----
+    All three are NaN at ``u = u_h``, like :func:`stage_from_pixel`.
     """
-    inv = _inverse_or_nan(np.asarray(u_px, dtype=np.float64) - hinge_u_px)
-    dv = np.asarray(v_px, dtype=np.float64) - hinge_v_px
+    u, v = check_broadcast(u_px=u_px, v_px=v_px)
+    inv = _inverse_or_nan(u - hinge_u_px)
+    dv = v - hinge_v_px
     return -F2_px_mm * inv ** 2, -C_mm * dv * inv ** 2, C_mm * inv
 
 
 def tilt_rad(focal_length_mm: float, scheimpflug_distance_mm: float, tan_phi: float) -> float:
-    """Sensor tilt β to the lens plane, tan β = f / (d − f·tan φ) (paper Eq. 5) [rad]."""
+    """Sensor tilt β to the lens plane (paper Eq. 5).
+
+    Parameters
+    ----------
+    focal_length_mm : float
+        Focal length f [mm].
+    scheimpflug_distance_mm : float
+        Distance d from the lens centre to the Scheimpflug line [mm].
+    tan_phi : float
+        Tangent of the sheet angle φ to the optical axis [-].
+
+    Returns
+    -------
+    float
+        β = atan2(f, d − f·tan φ), i.e. tan β = f / (d − f·tan φ) [rad].
+    """
     return math.atan2(focal_length_mm, scheimpflug_distance_mm - focal_length_mm * tan_phi)
 
 
@@ -135,8 +175,26 @@ def tilt_rad(focal_length_mm: float, scheimpflug_distance_mm: float, tan_phi: fl
 class HingeGeometry:
     """Derived geometry of an ideal rig (no misalignment, no distortion).
 
-    Build it with :func:`hinge_geometry`; every attribute is computed from the
-    rig's parameters, nothing is stored twice.
+    Build it with :func:`hinge_geometry`; every property is computed from the
+    six parameters below, nothing is stored twice.  Points are in the rig
+    frame (origin at the lens centre, +x along the optical axis toward the
+    object, +z up); sheet coordinates are (D, h): distance along the sheet
+    from the object hinge H and height above the meridian plane.
+
+    Parameters
+    ----------
+    focal_length_mm : float
+        Focal length f [mm].
+    scheimpflug_distance_mm : float
+        Distance d from the lens centre to the Scheimpflug line [mm].
+    tan_phi : float
+        Tangent of the sheet angle φ to the optical axis [-].
+    pixel_pitch_mm : float
+        Pixel pitch p [mm].
+    hinge_column : float
+        Column u_h of the image hinge [px].
+    axis_row : float
+        Row v_h of the meridian plane [px].
     """
 
     focal_length_mm: float
@@ -159,6 +217,7 @@ class HingeGeometry:
 
     @property
     def tan_beta(self) -> float:
+        """Tangent of the sensor tilt, tan β = f / (d − f·tan φ) (paper Eq. 5) [-]."""
         return self.focal_length_mm / (self.scheimpflug_distance_mm - self.focal_length_mm * self.tan_phi)
 
     @property
@@ -219,52 +278,163 @@ class HingeGeometry:
         return self.hinge_column, self.axis_row, self.F2_px_mm, 0.0, self.C_mm
 
     def distance_from_column(self, u_px) -> np.ndarray:
-        """D(u) = F²/(u − u_h), distance along the sheet from the object hinge [mm] (NaN at u_h)."""
+        """Distance along the sheet from the object hinge seen by a column (paper Eq. 11).
+
+        Parameters
+        ----------
+        u_px : array_like float
+            Column [px].
+
+        Returns
+        -------
+        ndarray float64
+            D(u) = F²/(u − u_h) [mm], shape of ``u_px``; NaN at u = u_h.
+        """
         return stage_from_pixel(u_px, self.axis_row, *self._constants())[0]
 
     def column_from_distance(self, distance_mm) -> np.ndarray:
-        """u(D) = u_h + F²/D [px] (NaN at D = 0)."""
+        """Column that sees a distance along the sheet: the inverse of :meth:`distance_from_column`.
+
+        Parameters
+        ----------
+        distance_mm : array_like float
+            Distance D along the sheet from the object hinge [mm].
+
+        Returns
+        -------
+        ndarray float64
+            u(D) = u_h + F²/D [px], shape of ``distance_mm``; NaN at D = 0.
+        """
         return pixel_from_stage(distance_mm, 0.0, *self._constants())[0]
 
     def pixel_from_sheet(self, distance_mm, height_mm) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel (u, v) of the sheet point (D, h): u = u_h + F²/D, v = v_h + h·(u − u_h)/C [px]."""
+        """Pixel of a sheet point (paper Eqs. 11–12, inverted).
+
+        Parameters
+        ----------
+        distance_mm, height_mm : array_like float
+            Sheet coordinates (D, h) [mm], shapes that broadcast together.
+
+        Returns
+        -------
+        u_px, v_px : ndarray float64
+            u = u_h + F²/D, v = v_h + h·(u − u_h)/C [px]; NaN at D = 0.
+        """
         return pixel_from_stage(distance_mm, height_mm, *self._constants())
 
     def sheet_from_pixel(self, u_px, v_px) -> tuple[np.ndarray, np.ndarray]:
-        """Sheet point (D, h) [mm] seen by pixel (u, v): paper Eqs. 11–12 (NaN at u = u_h)."""
+        """Sheet point seen by a pixel (paper Eqs. 11–12).
+
+        Parameters
+        ----------
+        u_px, v_px : array_like float
+            Column and row [px], shapes that broadcast together.
+
+        Returns
+        -------
+        distance_mm, height_mm : ndarray float64
+            Sheet coordinates (D, h) [mm]; NaN at u = u_h.
+        """
         return stage_from_pixel(u_px, v_px, *self._constants())
 
     def rig_from_sheet(self, distance_mm, height_mm) -> np.ndarray:
-        """Rig-frame point of sheet coordinates (D, h): H + D·e_prop + h·e_z, (..., 3) [mm]."""
-        D = np.asarray(distance_mm, dtype=np.float64)[..., None]
-        h = np.asarray(height_mm, dtype=np.float64)[..., None]
+        """Rig-frame point of sheet coordinates.
+
+        Parameters
+        ----------
+        distance_mm, height_mm : array_like float
+            Sheet coordinates (D, h) [mm], shapes that broadcast together.
+
+        Returns
+        -------
+        (..., 3) ndarray float64
+            H + D·e_prop + h·e_z in the rig frame [mm], with ``...`` the
+            broadcast shape of the inputs.
+
+        Raises
+        ------
+        ValueError
+            If ``distance_mm`` and ``height_mm`` do not broadcast together.
+        """
+        D, h = (a[..., None] for a in check_broadcast(distance_mm=distance_mm, height_mm=height_mm))
         return self.object_hinge_mm + D * self.propagation_dir + h * np.array([0.0, 0.0, 1.0])
 
     def sheet_from_rig(self, points_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Sheet coordinates (D, h, offset) of rig points (..., 3) [mm].
+        """Sheet coordinates of rig-frame points.
 
-        ``offset`` is the signed distance from the sheet plane along
-        :attr:`sheet_normal` (positive toward the camera side).
+        Parameters
+        ----------
+        points_mm : (..., 3) array_like float
+            Points in the rig frame [mm].
+
+        Returns
+        -------
+        distance_mm : (...) ndarray float64
+            D, along :attr:`propagation_dir` from the object hinge [mm].
+        height_mm : (...) ndarray float64
+            h, the z coordinate [mm].
+        offset_mm : (...) ndarray float64
+            Signed distance from the sheet plane along :attr:`sheet_normal`
+            (positive toward the camera side) [mm].
+
+        Raises
+        ------
+        ValueError
+            If ``points_mm`` is not of shape ``(..., 3)``.
         """
-        rel = np.asarray(points_mm, dtype=np.float64) - self.object_hinge_mm
+        rel = check_last_dim("points_mm", points_mm, 3) - self.object_hinge_mm
         return rel @ self.propagation_dir, rel[..., 2], rel @ self.sheet_normal
 
     # ------------------------------------------------------------ resolution
     def distance_resolution(self, u_px) -> np.ndarray:
-        """|dD/du| = |F²|/(u − u_h)² [mm/px]."""
+        """Distance resolution along the sheet per column step.
+
+        Parameters
+        ----------
+        u_px : array_like float
+            Column [px].
+
+        Returns
+        -------
+        ndarray float64
+            |dD/du| = |F²|/(u − u_h)² [mm/px], shape of ``u_px``.
+        """
         ds_du, _, _ = stage_jacobian(u_px, self.axis_row, self.hinge_column, self.axis_row,
                                      self.F2_px_mm, self.C_mm)
         return np.abs(ds_du)
 
     def height_resolution(self, u_px) -> np.ndarray:
-        """|dh/dv| = C/|u − u_h| [mm/px]."""
+        """Height resolution per row step.
+
+        Parameters
+        ----------
+        u_px : array_like float
+            Column [px].
+
+        Returns
+        -------
+        ndarray float64
+            |dh/dv| = C/|u − u_h| [mm/px], shape of ``u_px``.
+        """
         _, _, dh_dv = stage_jacobian(u_px, self.axis_row, self.hinge_column, self.axis_row,
                                      self.F2_px_mm, self.C_mm)
         return np.abs(dh_dv)
 
 
 def hinge_geometry(rig: Rig) -> HingeGeometry:
-    """The ideal-rig :class:`HingeGeometry` of ``rig`` (misalignments ignored)."""
+    """The ideal-rig geometry of a rig (misalignments and distortion ignored).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    HingeGeometry
+        Built from the lens focal length, the laser's d and tan φ, the pixel
+        pitch, the hinge column and the axis row.
+    """
     return HingeGeometry(
         focal_length_mm=rig.lens.focal_length_mm,
         scheimpflug_distance_mm=rig.laser.scheimpflug_distance_mm,

@@ -39,17 +39,23 @@ __all__ = [
     "rig_from_dict",
     "rig_to_dict",
     "rig_to_toml",
+    "validate_rig",
 ]
 
 
 @dataclass(frozen=True)
 class Lens:
-    """Ideal thin lens.
+    """Ideal thin lens (the ``[lens]`` table of the rig file).
 
-    focal_length_mm : f [mm], > 0.
-    f_number : N, aperture diameter = f / N [-], > 0.
-    k1, k2 : radial distortion of the chief-ray angle, tan θ_d = tan θ (1 + k1 t² + k2 t⁴)
-        with t = tan θ [-]; 0 for an ideal lens.
+    Parameters
+    ----------
+    focal_length_mm : float, default 55.0
+        Focal length f [mm], > 0.
+    f_number : float, default 5.6
+        N, aperture diameter = f / N [-], > 0.
+    k1, k2 : float, default 0.0
+        Radial distortion of the chief-ray angle,
+        tan θ_d = tan θ (1 + k1 t² + k2 t⁴) with t = tan θ [-]; 0 for an ideal lens.
     """
 
     focal_length_mm: float = 55.0
@@ -60,20 +66,34 @@ class Lens:
 
 @dataclass(frozen=True)
 class Laser:
-    """Line laser spreading a vertical sheet ``y = d − x·tan φ``.
+    """Line laser spreading a vertical sheet ``y = d − x·tan φ`` in the rig frame (the ``[laser]`` table).
 
-    scheimpflug_distance_mm : d, lens centre to the Scheimpflug line [mm].
-    tan_phi : tan φ, sheet angle to the optical axis [-].
-    wavelength_nm : [nm].
-    power_mw : optical power in the whole fan [mW].
-    origin_x_mm : x of the laser origin on the sheet, in the meridian plane [mm].
-    waist_um : 1/e² half-thickness of the sheet at its waist [µm].
-    waist_distance_mm : distance of the waist from the origin along the sheet [mm].
-    divergence_mrad : far-field 1/e² half-angle of the thickness [mrad]
+    Parameters
+    ----------
+    scheimpflug_distance_mm : float, default 150.0
+        d, lens centre to the Scheimpflug line [mm], > 0.
+    tan_phi : float, default 0.2075
+        tan φ, sheet angle to the optical axis [-]; d − f·tan φ must be > 0
+        (paper Eq. 5).
+    wavelength_nm : float, default 450.0
+        Laser wavelength [nm].
+    power_mw : float, default 3.0
+        Optical power in the whole fan [mW].
+    origin_x_mm : float, default 0.0
+        x of the laser origin on the sheet, in the meridian plane [mm]; < f.
+    waist_um : float, default 150.0
+        1/e² half-thickness of the sheet at its waist [µm].
+    waist_distance_mm : float, default 640.0
+        Distance of the waist from the origin along the sheet [mm].
+    divergence_mrad : float, default 1.5
+        Far-field 1/e² half-angle of the thickness [mrad]
         (≥ λ / (π w0), the diffraction limit).
-    fan_angle_deg : full opening of the fan in the sheet [deg].
-    fan_edge_deg : width of the soft fan edge (Gaussian roll-off) [deg].
-    speckle_contrast : multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
+    fan_angle_deg : float, default 40.0
+        Full opening of the fan in the sheet [deg], in (0, 180).
+    fan_edge_deg : float, default 1.0
+        Width of the soft fan edge (Gaussian roll-off) [deg].
+    speckle_contrast : float, default 0.0
+        Multiplicative speckle contrast, 0 = off, 1 = fully developed [-].
     """
 
     scheimpflug_distance_mm: float = 150.0
@@ -91,23 +111,38 @@ class Laser:
 
 @dataclass(frozen=True)
 class Sensor:
-    """Image sensor, tilted by the Scheimpflug angle (placement set by the hinge pixel).
+    """Image sensor, tilted by the Scheimpflug angle, placement set by the hinge pixel (the ``[sensor]`` table).
 
-    pixel_pitch_um : p [µm].
-    columns, rows : N_u × N_v; columns run along the tilt (distance) direction and
+    Parameters
+    ----------
+    pixel_pitch_um : float, default 5.86
+        Pixel pitch p [µm].
+    columns, rows : int, default 1216, 1936
+        N_u × N_v [px]; columns run along the tilt (distance) direction and
         increase toward the image hinge; rows run along height, increasing downward.
-    hinge_column : u_h, column of the image hinge [px]; must lie beyond the last column.
-    axis_row : v_h, row of the meridian plane [px].
-    roll_deg, tilt_error_deg : misalignment of the sensor about its normal and about
-        its row axis (changes β), through the sensor centre [deg].
-    offset_u_px, offset_v_px, offset_normal_um : sensor displacement [px, px, µm].
-    quantum_efficiency : electrons per photon at the laser wavelength [-].
-    full_well_e : saturation charge [e⁻].
-    read_noise_e : RMS read noise [e⁻].
-    dark_offset_dn : black level added by the ADC [DN].
-    adc_bits : ADC depth; frames are stored as 16-bit PNG [bit].
-    gain_e_per_dn : conversion gain; 0 = full well maps to full scale [e⁻/DN].
-    exposure_ms : exposure time [ms].
+    hinge_column : float, default 3196.0
+        u_h, column of the image hinge [px]; must lie beyond the last column.
+    axis_row : float, default 771.0
+        v_h, row of the meridian plane [px].
+    roll_deg, tilt_error_deg : float, default 0.0
+        Misalignment of the sensor about its normal and about its row axis
+        (changes β), through the sensor centre [deg]; within ±45° and ±30°.
+    offset_u_px, offset_v_px, offset_normal_um : float, default 0.0
+        Sensor displacement along columns, rows and the normal [px, px, µm].
+    quantum_efficiency : float, default 0.75
+        Electrons per photon at the laser wavelength [-], in (0, 1].
+    full_well_e : float, default 32000.0
+        Saturation charge [e⁻].
+    read_noise_e : float, default 6.0
+        RMS read noise [e⁻].
+    dark_offset_dn : float, default 16.0
+        Black level added by the ADC [DN].
+    adc_bits : int, default 12
+        ADC depth, 1..16; frames are stored as 16-bit PNG [bit].
+    gain_e_per_dn : float, default 0.0
+        Conversion gain; 0 = full well maps to full scale [e⁻/DN].
+    exposure_ms : float, default 0.5
+        Exposure time [ms].
     """
 
     pixel_pitch_um: float = 5.86
@@ -131,15 +166,23 @@ class Sensor:
 
 @dataclass(frozen=True)
 class Stage:
-    """Translation and rotary stages (INTERFACE.md stage conventions).
+    """Translation and rotary stages (INTERFACE.md stage conventions; the ``[stage]`` table).
 
-    d0_mm : stage coordinate of the object hinge; a face at stage s is at D = s − d0 [mm].
-    axis_mm : rotary axis position in stage coordinates [mm].
-    calibration_table_z_mm : height of the translation stage's table (plate bottom) [mm].
-    rotary_table_z_mm : height of the rotary stage's table below/above the optical axis [mm].
-    axis_tilt_deg, axis_tilt_azimuth_deg : tilt of the rotary axis from vertical and
-        the direction it leans to (0 = toward +propagation) [deg].
-    runout_um : radial runout of the rotary axis (once per turn) [µm].
+    Parameters
+    ----------
+    d0_mm : float, default -466.0
+        Stage coordinate of the object hinge; a face at stage s is at D = s − d0 [mm].
+    axis_mm : float, default 179.45
+        Rotary axis position in stage coordinates [mm].
+    calibration_table_z_mm : float, default -54.0
+        Height of the translation stage's table (plate bottom) [mm].
+    rotary_table_z_mm : float, default -70.0
+        Height of the rotary stage's table below/above the optical axis [mm].
+    axis_tilt_deg, axis_tilt_azimuth_deg : float, default 0.0
+        Tilt of the rotary axis from vertical, in [0, 10), and the direction it
+        leans to (0 = toward +propagation) [deg].
+    runout_um : float, default 0.0
+        Radial runout of the rotary axis (once per turn) [µm].
     """
 
     d0_mm: float = -466.0
@@ -153,10 +196,13 @@ class Stage:
 
 @dataclass(frozen=True)
 class Environment:
-    """Light that is not the laser.
+    """Light that is not the laser (the ``[environment]`` table).
 
-    ambient_irradiance_w_m2 : diffuse ambient irradiance on the scene within the
-        camera's spectral band [W/m²].
+    Parameters
+    ----------
+    ambient_irradiance_w_m2 : float, default 0.02
+        Diffuse ambient irradiance on the scene within the camera's spectral
+        band [W/m²], >= 0.
     """
 
     ambient_irradiance_w_m2: float = 0.02
@@ -194,7 +240,29 @@ class Twin:
 
 @dataclass(frozen=True)
 class Rig:
-    """A whole instrument: one table of the rig file per field."""
+    """A whole instrument: one table of the rig file per field.
+
+    The rig is validated on construction (:func:`validate_rig`).
+
+    Parameters
+    ----------
+    lens : Lens, optional
+        The ``[lens]`` table; default the paper lens.
+    laser : Laser, optional
+        The ``[laser]`` table; default the paper laser.
+    sensor : Sensor, optional
+        The ``[sensor]`` table; default the paper sensor.
+    stage : Stage, optional
+        The ``[stage]`` table; default the paper stages.
+    environment : Environment, optional
+        The ``[environment]`` table; default the paper's ambient light.
+
+    Raises
+    ------
+    RigError
+        If a table has the wrong type, a key the wrong type or a non-finite
+        value, or the values are impossible (the message names the key).
+    """
 
     lens: Lens = field(default_factory=Lens)
     laser: Laser = field(default_factory=Laser)
@@ -207,7 +275,24 @@ class Rig:
         validate_rig(self)
 
     def replace(self, **tables: Mapping[str, Any]) -> Rig:
-        """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``."""
+        """A copy with some keys changed, e.g. ``rig.replace(lens={"f_number": 8})``.
+
+        Parameters
+        ----------
+        **tables : Mapping[str, Any]
+            Per table name (``lens``, ``laser``, ``sensor``, ``stage``,
+            ``environment``), the keys to change and their new values.
+
+        Returns
+        -------
+        Rig
+            The new, validated rig; ``self`` is unchanged.
+
+        Raises
+        ------
+        RigError
+            For an unknown table or key, or if the changed rig is invalid.
+        """
         data = rig_to_dict(self)
         for table, values in tables.items():
             if table not in data:
@@ -226,6 +311,7 @@ _TABLES: dict[str, type] = {
 }
 
 PRESETS = ("paper",)
+"""Names of the built-in rigs (:func:`load_preset`)."""
 
 # ---------------------------------------------------------------- validation
 
@@ -259,7 +345,21 @@ def _check_fields(table: str, obj: Any) -> None:
 
 
 def validate_rig(rig: Rig) -> None:
-    """Raise :class:`RigError` naming the key and the reason if ``rig`` is impossible."""
+    """Check that a rig is possible.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig to check (called by ``Rig.__post_init__``).
+
+    Raises
+    ------
+    RigError
+        Naming the table, key, value and reason: a table of the wrong type, a
+        non-integer or non-finite value, or a physically impossible one (e.g.
+        f ≤ 0, d − f·tan φ ≤ 0, the hinge column inside the sensor, a
+        divergence below the diffraction limit).
+    """
     for name, cls in _TABLES.items():
         obj = getattr(rig, name)
         if not isinstance(obj, cls):
@@ -378,7 +478,25 @@ def _table_from_dict(name: str, cls: type, values: Any) -> Any:
 
 
 def rig_from_dict(data: Mapping[str, Any]) -> Rig:
-    """Build a :class:`Rig` from nested tables; missing keys take the paper defaults."""
+    """Build a rig from nested tables; missing keys take the paper defaults.
+
+    Parameters
+    ----------
+    data : Mapping[str, Any]
+        ``{table: {key: value}}`` as in the rig file (or ``manifest.json``);
+        integral floats are accepted for integer keys.
+
+    Returns
+    -------
+    Rig
+        The validated rig.
+
+    Raises
+    ------
+    RigError
+        For a non-table, an unknown table or key, a boolean or non-numeric
+        value, or an invalid rig.
+    """
     if not isinstance(data, Mapping):
         raise RigError(f"a rig must be a table of tables, got {type(data).__name__}")
     unknown = sorted(set(data) - set(_TABLES))
@@ -389,12 +507,34 @@ def rig_from_dict(data: Mapping[str, Any]) -> Rig:
 
 
 def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
-    """Nested plain tables, as in the rig file (and in ``manifest.json``)."""
+    """Nested plain tables, as in the rig file (and in ``manifest.json``).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    dict of str to dict
+        ``{table: {key: value}}``, every key of every table.
+    """
     return {name: dataclasses.asdict(getattr(rig, name)) for name in _TABLES}
 
 
 def rig_to_toml(rig: Rig) -> str:
-    """The rig file text for ``rig`` (every key, with its value)."""
+    """The rig file text of a rig (every key, with its value).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    str
+        TOML text, one ``[table]`` per rig table; :func:`load_rig` reads it back.
+    """
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
         lines.append(f"[{name}]")
@@ -412,7 +552,24 @@ def _toml_value(value: Any) -> str:
 
 
 def load_rig(path: str | Path) -> Rig:
-    """Read a TOML rig file; a missing, unreadable or malformed file raises :class:`RigError`."""
+    """Read a TOML rig file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The rig file (INTERFACE.md).
+
+    Returns
+    -------
+    Rig
+        The validated rig; keys not in the file take the paper defaults.
+
+    Raises
+    ------
+    RigError
+        If the file is missing, unreadable, not UTF-8, not valid TOML, or
+        describes an invalid rig.
+    """
     p = Path(path)
     try:
         text = p.read_bytes().decode("utf-8")
@@ -428,7 +585,23 @@ def load_rig(path: str | Path) -> Rig:
 
 
 def load_preset(name: str) -> Rig:
-    """A built-in rig by name (``paper``: DESIGN.md §2 with f/5.6)."""
+    """A built-in rig by name.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`PRESETS` (``paper``: DESIGN.md §2 with f/5.6).
+
+    Returns
+    -------
+    Rig
+        The preset, read from ``scheimpflug/model/presets/<name>.toml``.
+
+    Raises
+    ------
+    RigError
+        If ``name`` is not a known preset.
+    """
     if name not in PRESETS:
         raise RigError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     text = resources.files("scheimpflug.model").joinpath("presets", f"{name}.toml").read_text("utf-8")

@@ -14,7 +14,8 @@ def add_parser(sub):
                                    "optionally cross-checked with a cylinder scan.")
     p.add_argument("dir", metavar="DIR", help="frame folder of the blocker")
     p.add_argument("--calibration", required=True, metavar="CAL.json",
-                   help="calibration written by 'scheimpflug calibrate --out'")
+                   help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
+                        "or '--opencv'")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("--blocker-thickness-mm", type=float, default=None,
                    help="blocker thickness [mm] (default: manifest scenario_params."
@@ -29,9 +30,9 @@ def add_parser(sub):
 
 def _run(args) -> int:
     from scheimpflug.axis import locate_axis, locate_axis_from_cylinder
-    from scheimpflug.calibration import Calibration
+    from scheimpflug.io.opencv import load_calibration
 
-    cal = Calibration.load(args.calibration)
+    cal = load_calibration(args.calibration)
     res = locate_axis(args.dir, cal, blocker_thickness_mm=args.blocker_thickness_mm)
     out = res.to_json_dict()
     cyl = None

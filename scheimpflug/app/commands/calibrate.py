@@ -1,4 +1,4 @@
-"""`scheimpflug calibrate DIR`: the paper's parameter-free calibration (+ refined fit)."""
+"""`scheimpflug calibrate DIR`: the paper's calibration, the general model, or the better of both."""
 
 from __future__ import annotations
 
@@ -9,58 +9,119 @@ from scheimpflug.app.commands._common import print_json
 
 
 def add_parser(sub):
-    p = sub.add_parser("calibrate", help="calibrate from plate frames (paper Section 3)",
+    p = sub.add_parser("calibrate", help="calibrate from plate frames (paper Section 3, or the general model)",
                        description="Calibrate from a frame folder of a plate moved along the "
-                                   "sheet: image hinge, F², d0 and C (paper Eqs. 11–12), by the "
-                                   "paper's endpoint method and by a refined joint fit.")
+                                   "sheet: image hinge, F², d0 and C (paper Eqs. 11–12) by the "
+                                   "paper's endpoint method and a refined joint fit, and a general "
+                                   "model (sheet homography + radial distortion) for rigs with "
+                                   "sensor roll or lens distortion.")
     p.add_argument("dir", metavar="DIR", help="frame folder (manifest.json + frames/)")
     p.add_argument("--plate-height-mm", type=float, default=None,
                    help="plate height [mm] (default: manifest scenario_params or 89)")
     p.add_argument("--out", metavar="CAL.json", help="write the calibration here")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("--plot", metavar="FILE.png", help="draw the paper's Fig. 3(b)/(c)")
+    p.add_argument("--model", choices=("paper", "general", "auto"), default="auto",
+                   help="paper form (Eqs. 11–12), general model (homography + radial distortion), or "
+                        "auto (default): the general model when an F-test on the residuals finds it "
+                        "significantly better and it removes ≥ 20 %% of the residual sum of squares")
     p.add_argument("--method", choices=("paper", "refined", "best"), default="best",
-                   help="estimate to use (default best: smaller standard error of u_h)")
+                   help="paper form's estimate (default best: smaller standard error of u_h)")
     p.add_argument("--detector", choices=("gaussian3", "cog", "blais-rioux", "edge"),
                    default="cog",
                    help="stripe detector (default cog: windowed centre of gravity, unbiased on "
                         "wide stripes; edge = the paper's light-bar edge)")
+    p.add_argument("--opencv", metavar="FILE.json",
+                   help="also write the calibration as OpenCV's tilted camera model + laser plane "
+                        "(JSON; .yml/.yaml/.xml through cv2.FileStorage)")
+    p.add_argument("--rig", metavar="RIG.toml",
+                   help="rig file for the lens focal length and pixel pitch (default: the manifest's "
+                        "rig, else the paper's, assumed); they set the camera intrinsics of the "
+                        "general model and of the OpenCV export")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=_run)
     return p
 
 
 def _summary(res) -> str:
+    pr = res.paper
     lines = []
-    for c in (res.paper, res.refined):
-        mark = "*" if c is res.best else " "
+    for c in (pr.paper, pr.refined):
+        mark = "*" if c is res.chosen else " "
         lines.append(f"{mark} {c.method:8s} hinge = ({c.hinge_u_px:9.2f}, {c.hinge_v_px:8.2f}) px "
                      f"(σu {c.hinge_u_sigma_px:.3g})  F² = {c.F2_px_mm:.6g} ± {c.F2_sigma_px_mm:.3g} "
                      f"px·mm  d0 = {c.d0_mm:.3f} mm  C = {c.C_mm:.4f} ± {c.C_sigma_mm:.3g} mm")
-    r2 = res.paper.endpoint_fit_r2
+    g = res.general
+    cam = g.camera if g is not None else None
+    mark = "*" if g is not None and res.chosen is g else " "
+    lines.append("  general  unavailable" if g is None else
+                 f"{mark} general  k1 = {cam.k1:.5g}, principal point ({cam.principal_px[0]:.1f}, "
+                 f"{cam.principal_px[1]:.1f}) px, residual {g.residual_rms_px:.4f} px RMS, "
+                 f"σ over the field {g.field_sigma_mm.get('stage_rms', float('nan')):.3g} mm (stage), "
+                 f"{g.field_sigma_mm.get('height_rms', float('nan')):.3g} mm (height)")
+    r2 = pr.paper.endpoint_fit_r2
     lines.append(f"  endpoint fits R² = {r2[0]:.6f} (top), {r2[1]:.6f} (bottom); "
-                 f"{len(res.measurements)} frames used, {len(res.skipped)} skipped")
+                 f"{len(res.measurements)} frames with a stripe, {len(pr.measurements)} with both edges, "
+                 f"{len(res.skipped)} skipped")
+    lines.append(f"  model: {res.selection.reason}")
     return "\n".join(lines)
+
+
+def _optics(args, folder):
+    """(f [mm], p [µm], assumed) from --rig, else the manifest's rig, else the paper's."""
+    from scheimpflug.sheet_model import DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM
+
+    if args.rig:
+        from scheimpflug.model.rig import load_rig
+
+        rig = load_rig(args.rig)
+        return rig.lens.focal_length_mm, rig.sensor.pixel_pitch_um, False
+    r = folder.rig or {}
+    f, p = (r.get("lens") or {}).get("focal_length_mm"), (r.get("sensor") or {}).get("pixel_pitch_um")
+    if f is None or p is None:
+        return DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM, True
+    return float(f), float(p), False
+
+
+def _result_dict(res) -> dict:
+    d = res.chosen.to_json_dict()
+    d["model"] = "general" if res.chosen is res.general else "paper"
+    d["selection"] = res.selection.to_json_dict()
+    if d["model"] == "paper" and res.general is not None:
+        d["general"] = res.general.to_json_dict()["general"]
+    return d
 
 
 def _run(args) -> int:
     from scheimpflug.app.progress import Progress
-    from scheimpflug.calibration import calibrate_folder
+    from scheimpflug.io.atomic import write_json_atomic
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.sheet_model import calibrate_sheet_folder
 
+    folder = open_frame_folder(args.dir)
+    f_mm, p_um, assumed = _optics(args, folder)
     with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
         warnings.simplefilter("ignore")
-        res = calibrate_folder(args.dir, args.plate_height_mm, method=args.method,
-                               detector=args.detector, progress=bar)
-    for name, reason in res.skipped:
+        res = calibrate_sheet_folder(folder, args.plate_height_mm, model=args.model, method=args.method,
+                                     detector=args.detector, focal_length_mm=f_mm, pixel_pitch_um=p_um,
+                                     progress=bar)
+    for name, reason in res.paper.skipped:
         print(f"warning: {name}: skipped: {reason}", file=sys.stderr)
+    if assumed and (args.opencv or res.chosen is res.general):
+        print(f"warning: no rig: the camera intrinsics assume f = {f_mm:g} mm and a {p_um:g} µm pixel "
+              f"pitch (give --rig)", file=sys.stderr)
+    d = _result_dict(res)
     if args.out:
-        res.best.save(args.out)
+        write_json_atomic(args.out, d)
+    if args.opencv:
+        from scheimpflug.io.opencv import write_opencv
+
+        write_opencv(args.opencv, res.chosen, f_mm, p_um, assumed)
     if args.plot:
         from scheimpflug.app.calibration_plot import plot_calibration
-        plot_calibration(res, args.plot)
+        plot_calibration(res.paper, args.plot)
     if args.json:
-        d = res.best.to_json_dict()
-        d["skipped"] = [{"file": f, "reason": r} for f, r in res.skipped]
+        d["skipped"] = [{"file": f, "reason": r} for f, r in res.paper.skipped]
         print_json(d)
     else:
         print(_summary(res))

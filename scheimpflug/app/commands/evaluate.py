@@ -1,4 +1,5 @@
-"""`scheimpflug evaluate CLOUD.ply --mesh TRUTH`: point-to-mesh scores and the paper's fits."""
+"""`scheimpflug evaluate CLOUD.ply --mesh TRUTH [--model MODEL]`: point-to-mesh scores, the paper's fits,
+and the two-sided scores of a surface model."""
 
 from __future__ import annotations
 
@@ -24,6 +25,15 @@ def add_parser(sub):
                    help="score and fit only the points nearest to this object id / body (repeatable)")
     p.add_argument("--z-range", nargs=2, type=float, metavar=("ZMIN", "ZMAX"),
                    help="keep only points with ZMIN <= z <= ZMAX [mm] (e.g. the smooth band)")
+    g = p.add_argument_group("two-sided scoring of a surface model (README: 'From profiles to a model')")
+    g.add_argument("--model", metavar="MODEL.ply|stl",
+                   help="also score this surface model (from 'reconstruct --model') against the truth both "
+                        "ways: coverage, Hausdorff and mean distances, volume error")
+    g.add_argument("--samples", type=int, default=200_000, metavar="N",
+                   help="area-uniform samples drawn on each surface (default 200000)")
+    g.add_argument("--seed", type=int, default=0, help="seed of the samples (default 0)")
+    g.add_argument("--coverage-mm", type=float, default=0.1, metavar="D",
+                   help="a true point within D of the model is covered [mm] (default 0.1)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.set_defaults(func=_run)
     return p
@@ -98,6 +108,11 @@ def _run(args) -> int:
                           for k in unique if np.any(keep & (labels == k))}
     if args.fit:
         out["fits"] = _fits(args.fit, xyz[keep])
+    if args.model:
+        from scheimpflug.app.model_scoring import score_model
+
+        out.update(score_model(pm, labels_all, args.model, samples=args.samples, seed=args.seed,
+                               coverage_mm=args.coverage_mm))
     _print(out, args)
     return 0
 
@@ -118,6 +133,10 @@ def _print(out: dict, args) -> None:
     for name, fit in out.get("fits", {}).items():
         shown = {k: v for k, v in fit.items() if k != "n_points"}
         print(f"  fit {name}: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()))
+    if "coverage" in out:
+        from scheimpflug.app.model_scoring import model_lines
+
+        print("\n".join(model_lines(out)))
     sys.stdout.flush()
 
 

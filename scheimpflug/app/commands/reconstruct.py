@@ -1,4 +1,8 @@
-"""`scheimpflug reconstruct DIR`: rotary scan + calibration + axis → point cloud (PLY)."""
+"""`scheimpflug reconstruct DIR`: rotary scan + calibration + axis → point cloud (PLY) [+ surface model].
+
+``reconstruct CLOUD.ply --model OUT.stl`` meshes a cloud written earlier (its
+points keep their frame and row) without the frames.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import sys
 import time
 
 from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._model import add_model_options
 
 _METHODS = ("gaussian3", "cog", "blais-rioux", "edge")
 
@@ -16,15 +21,19 @@ def add_parser(sub):
                                    "to the light sheet with the calibration (paper Eqs. 11–12) and "
                                    "rotate it into the part frame (INTERFACE.md stage conventions). "
                                    "Writes a binary PLY coloured by height with per-point angle, "
-                                   "row and intensity.")
-    p.add_argument("dir", metavar="DIR", help="rotary scan folder (manifest.json + frames/)")
-    p.add_argument("--calibration", required=True, metavar="CAL.json",
-                   help="calibration written by 'scheimpflug calibrate --out'")
-    axis = p.add_mutually_exclusive_group(required=True)
+                                   "row, intensity and frame; with --model also a watertight mesh of "
+                                   "the part and its volume, area and sections.")
+    p.add_argument("dir", metavar="DIR|CLOUD.ply",
+                   help="rotary scan folder (manifest.json + frames/), or a cloud from an earlier "
+                        "'reconstruct' to mesh with --model")
+    p.add_argument("--calibration", metavar="CAL.json",
+                   help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
+                        "or '--opencv' (needed for a folder)")
+    axis = p.add_mutually_exclusive_group()
     axis.add_argument("--axis-mm", type=float, metavar="A",
                       help="rotary axis position, stage coordinate [mm]")
     axis.add_argument("--axis-from", metavar="DIR", help="locate the axis from a blocker folder")
-    p.add_argument("--out", required=True, metavar="CLOUD.ply", help="output point cloud")
+    p.add_argument("--out", metavar="CLOUD.ply", help="output point cloud (needed for a folder)")
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
                         "and on speckled stripes, benchmarks/RESULTS.md)")
@@ -37,6 +46,7 @@ def add_parser(sub):
                    help="keep rows whose stripe peak is saturated (dropped by default: biased)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    add_model_options(p)
     p.set_defaults(func=_run)
     return p
 
@@ -73,15 +83,34 @@ def _extract(folder, args):
                               multi_peak=args.multi_peak)
 
 
-def _run(args) -> int:
-    from scheimpflug.calibration import Calibration
+def _check_args(args) -> bool:
+    """Whether the input is a cloud file; one clear error for missing options."""
+    from pathlib import Path
+
+    from scheimpflug.app.commands._model import check_model_args
+    from scheimpflug.errors import ScheimpflugError
+
+    is_cloud = Path(args.dir).suffix.lower() == ".ply" and not Path(args.dir).is_dir()
+    if is_cloud and not args.model:
+        raise ScheimpflugError(f"{args.dir}: a point cloud as input needs --model (what to build from it)")
+    if not is_cloud:
+        missing = [name for name, v in (("--calibration", args.calibration), ("--out", args.out),
+                                        ("--axis-mm or --axis-from", args.axis_mm is not None or args.axis_from))
+                   if not v]
+        if missing:
+            raise ScheimpflugError(f"reconstructing the folder {args.dir} needs {', '.join(missing)}")
+    check_model_args(args)
+    return is_cloud
+
+
+def _from_folder(args, t0: float):
     from scheimpflug.errors import FrameError
     from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
-    t0 = time.perf_counter()
-    calibration = Calibration.load(args.calibration)
+    calibration = load_calibration(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration)
@@ -90,8 +119,7 @@ def _run(args) -> int:
                                  axis_mm, intensity=peaks)
     if len(cloud) == 0:
         raise FrameError(f"{args.dir}: no stripe found in any of the {len(folder)} frames "
-                         f"({stats['saturated_rows']} saturated rows dropped)")
-    write_point_cloud(args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
+                         f"({stats['saturated_rows']} saturated rows dropped): no usable frame")
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
                **stats, "seconds": round(time.perf_counter() - t0, 3)}
@@ -99,6 +127,50 @@ def _run(args) -> int:
           f"({stats['blank_frames']} without stripe, {stats['saturated_rows']} saturated rows"
           f"{' kept' if args.keep_saturated else ' dropped'}), axis {axis_mm:.3f} mm "
           f"({axis_source}), {summary['seconds']:.1f} s → {args.out}", file=sys.stderr)
+    return cloud, folder, summary, lambda: write_point_cloud(
+        args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
+
+
+def _model(args, cloud, folder, summary: dict, write_cloud) -> None:
+    """Build the model first, then write the cloud and the model: a meshing error leaves no file."""
+    from scheimpflug.app.commands._model import (
+        make_model,
+        model_summary,
+        print_model_line,
+        table_z_from_folder,
+        write_model,
+    )
+
+    t0 = time.perf_counter()
+    table_z = table_z_from_folder(args, folder)
+    model = make_model(cloud, args, table_z)
+    seconds = time.perf_counter() - t0
+    write_cloud()
+    numbers = model_summary(model, args.section_z)
+    write_model(args.model, model, comment=f"scheimpflug reconstruct {args.dir} --model-method {args.model_method}")
+    if args.sections_plot:
+        from scheimpflug.app.report_plots import plot_sections
+
+        plot_sections(model.vertices_mm, model.faces, [s["z_mm"] for s in numbers["sections"]], args.sections_plot)
+    summary.update(model=str(args.model), model_method=args.model_method, table_z_mm=table_z,
+                   model_seconds=round(seconds, 3), **numbers)
+    print_model_line(numbers, args.model, sys.stderr)
+
+
+def _run(args) -> int:
+    t0 = time.perf_counter()
+    if _check_args(args):
+        from scheimpflug.io.ply import read_point_cloud
+
+        cloud, folder = read_point_cloud(args.dir), None
+        summary = {"cloud": str(args.dir), "n_points": len(cloud)}
+        write_cloud = lambda: None  # noqa: E731  (the cloud is the input)
+    else:
+        cloud, folder, summary, write_cloud = _from_folder(args, t0)
+    if args.model:
+        _model(args, cloud, folder, summary, write_cloud)
+    else:
+        write_cloud()
     if args.json:
         print_json(summary)
     return 0

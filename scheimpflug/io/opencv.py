@@ -1,0 +1,262 @@
+"""The instrument as OpenCV users hold it: camera matrix, distortion with τx, τy, laser plane.
+
+``scheimpflug calibrate DIR --opencv FILE.json`` (INTERFACE.md "OpenCV
+export") writes::
+
+    {"camera_matrix": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+     "dist_coeffs": [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y],
+     "image_size": [columns, rows],
+     "laser_plane": [a, b, c, d],
+     "sheet_frame": {"origin_mm": [X, Y, Z], "stage_axis": [...], "height_axis": [...]},
+     "model": "paper" | "general", "assumptions": {...}, "format": "scheimpflug-opencv/1"}
+
+in OpenCV's camera frame (x right along the columns, y down along the rows,
+z forward; :mod:`scheimpflug.tilted_camera`).  ``cv2.projectPoints`` of a
+sheet point ``X = origin + s·stage_axis + h·height_axis`` (stage coordinate
+``s``, height ``h`` [mm]) with ``rvec = tvec = 0`` gives the pixel the
+pipeline's calibration gives; a pixel's ray (``cv2.undistortPoints``) meets
+the laser plane ``a·X + b·Y + c·Z + d = 0`` ((a, b, c) a unit vector, d < 0,
+lengths in mm) at that point.  A ``.yml``, ``.yaml`` or ``.xml`` name writes
+the same keys with ``cv2.FileStorage``.
+
+What is assumed
+---------------
+A calibration fixes the pixel ↔ sheet mapping, a plane-to-plane homography
+(with distortion).  A camera matrix and a pose hold more: no homography tells
+the focal length, the pixel pitch or where the optical axis is.  The paper
+form is decomposed into the ideal Scheimpflug rig with the rig's focal length
+``f`` and pixel pitch ``p`` (:func:`scheimpflug.sheet_model.ideal_camera`):
+``fx = fy`` is then the sensor's distance from the lens centre along the
+optical axis over ``p`` (≈ d·tan β / p, not f / p: the sensor of a Scheimpflug
+rig sits beyond the focal plane), ``(cx, cy)`` where the optical axis meets the
+sensor, ``τy = β`` and ``τx = 0``.  The general model carries its own
+intrinsics (the same decomposition, refined).  The metric scale of the camera
+frame is set by the stage: one stage millimetre is one millimetre of
+``stage_axis``.  Other intrinsics reproduce the same pixels with another
+plane; these are the physical ones when ``f`` and ``p`` are right.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from scheimpflug.errors import CalibrationError
+from scheimpflug.io.atomic import atomic_path, write_json_atomic
+from scheimpflug.sheet_model import (
+    DEFAULT_FOCAL_LENGTH_MM,
+    DEFAULT_PIXEL_PITCH_UM,
+    GeneralCalibration,
+    ideal_camera,
+)
+from scheimpflug.tilted_camera import TiltedCamera
+
+__all__ = ["FORMAT", "as_general", "load_calibration", "opencv_dict", "read_opencv", "write_opencv"]
+
+FORMAT = "scheimpflug-opencv/1"
+_YAML_SUFFIXES = (".yml", ".yaml", ".xml")
+
+
+def as_general(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
+               pixel_pitch_um: float = DEFAULT_PIXEL_PITCH_UM) -> GeneralCalibration:
+    """Any calibration as a camera + sheet homography (the paper form decomposed, module docstring).
+
+    Parameters
+    ----------
+    calibration : Calibration or GeneralCalibration
+        The calibration.
+    focal_length_mm, pixel_pitch_um : float
+        Focal length [mm] and pixel pitch [µm] assumed for the paper form's decomposition.
+
+    Returns
+    -------
+    GeneralCalibration
+        The same pixel mapping (exactly, for the paper form: no distortion).
+    """
+    if isinstance(calibration, GeneralCalibration):
+        return calibration
+    camera, g = ideal_camera(calibration, focal_length_mm, pixel_pitch_um)
+    return GeneralCalibration(camera=camera, homography=g, columns=calibration.columns,
+                              rows=calibration.rows, plate_height_mm=calibration.plate_height_mm,
+                              n_frames=calibration.n_frames, paper=calibration)
+
+
+def opencv_dict(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
+                pixel_pitch_um: float = DEFAULT_PIXEL_PITCH_UM, assumed: bool = False) -> dict[str, Any]:
+    """The OpenCV export of a calibration (module docstring), JSON-ready.
+
+    Parameters
+    ----------
+    calibration : Calibration or GeneralCalibration
+        The calibration.
+    focal_length_mm, pixel_pitch_um : float
+        Focal length [mm] and pixel pitch [µm] of the decomposition.
+    assumed : bool
+        Whether f and p were assumed (no rig given); written to ``assumptions``.
+
+    Returns
+    -------
+    dict
+        ``camera_matrix``, ``dist_coeffs`` (14), ``image_size``, ``laser_plane``, ``sheet_frame``,
+        ``model``, ``assumptions``, ``format``.
+    """
+    gen = as_general(calibration, focal_length_mm, pixel_pitch_um)
+    mu = gen.metric_scale()
+    g = gen.homography
+    origin, e_s, e_h = mu * g[:, 2], mu * g[:, 0], mu * g[:, 1]
+    n = np.cross(e_s, e_h)
+    n /= np.linalg.norm(n)
+    if n @ origin < 0:
+        n = -n
+    model = "general" if isinstance(calibration, GeneralCalibration) else "paper"
+    return {"format": FORMAT, "model": model,
+            "camera_matrix": gen.camera.camera_matrix.tolist(),
+            "dist_coeffs": gen.camera.dist_coeffs.tolist(),
+            "image_size": [int(gen.columns), int(gen.rows)],
+            "laser_plane": [*map(float, n), float(-n @ origin)],
+            "sheet_frame": {"origin_mm": origin.tolist(), "stage_axis": e_s.tolist(),
+                            "height_axis": e_h.tolist()},
+            "assumptions": {"focal_length_mm": focal_length_mm, "pixel_pitch_um": pixel_pitch_um,
+                            "source": "assumed (no rig given)" if assumed else "rig",
+                            "metric_scale": "one stage millimetre = one millimetre of stage_axis"}}
+
+
+def write_opencv(path: str | Path, calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
+                 pixel_pitch_um: float = DEFAULT_PIXEL_PITCH_UM, assumed: bool = False) -> dict[str, Any]:
+    """Write the OpenCV export to ``path`` atomically (JSON, or YAML/XML by ``cv2.FileStorage``).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file; ``.yml``, ``.yaml`` or ``.xml`` use ``cv2.FileStorage``, anything else JSON.
+    calibration : Calibration or GeneralCalibration
+        The calibration.
+    focal_length_mm, pixel_pitch_um : float
+        Focal length [mm] and pixel pitch [µm] of the decomposition.
+    assumed : bool
+        Whether f and p were assumed.
+
+    Returns
+    -------
+    dict
+        What was written (:func:`opencv_dict`).
+    """
+    d = opencv_dict(calibration, focal_length_mm, pixel_pitch_um, assumed)
+    p = Path(path)
+    if p.suffix.lower() not in _YAML_SUFFIXES:
+        write_json_atomic(p, d)
+        return d
+    with atomic_path(p) as tmp:
+        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+        for key in ("camera_matrix", "dist_coeffs", "image_size", "laser_plane"):
+            fs.write(key, np.asarray(d[key], np.float64))
+        for key in ("origin_mm", "stage_axis", "height_axis"):
+            fs.write(f"sheet_{key}", np.asarray(d["sheet_frame"][key], np.float64))
+        fs.write("model", d["model"])
+        fs.release()
+    return d
+
+
+def _read_any(p: Path) -> dict:
+    if p.suffix.lower() not in _YAML_SUFFIXES:
+        d = json.loads(p.read_text("utf-8"))
+        if not isinstance(d, dict):
+            raise ValueError("not a JSON object")
+        return d
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    if not fs.isOpened():
+        raise ValueError("cv2.FileStorage cannot open it")
+    mat = lambda k: fs.getNode(k).mat()  # noqa: E731
+    d = {k: mat(k) for k in ("camera_matrix", "dist_coeffs", "image_size", "laser_plane")}
+    d["sheet_frame"] = {k: mat(f"sheet_{k}") for k in ("origin_mm", "stage_axis", "height_axis")}
+    fs.release()
+    if any(v is None for v in d.values()) or any(v is None for v in d["sheet_frame"].values()):
+        raise ValueError("a key is missing")
+    return d
+
+
+def _camera(K: np.ndarray, dist: np.ndarray) -> TiltedCamera:
+    if K.shape != (3, 3) or dist.shape != (14,):
+        raise ValueError(f"camera_matrix must be 3 × 3 and dist_coeffs 14 values, got {K.shape}, {dist.shape}")
+    if abs(K[0, 0] - K[1, 1]) > 1e-9 * abs(K[0, 0]) or K[0, 1] != 0:
+        raise ValueError("only square pixels without skew (fx = fy, no skew) are supported")
+    others = np.delete(dist, [0, 1, 12, 13])
+    if np.any(others != 0):
+        raise ValueError("only k1, k2, tau_x and tau_y may be non-zero in dist_coeffs")
+    return TiltedCamera(float(K[0, 0]), (float(K[0, 2]), float(K[1, 2])), float(dist[12]),
+                        float(dist[13]), float(dist[0]), float(dist[1]))
+
+
+def read_opencv(path: str | Path) -> GeneralCalibration:
+    """Read an OpenCV export back as a calibration (the same mapping, hence the same reconstruction).
+
+    Parameters
+    ----------
+    path : str or Path
+        A file written by :func:`write_opencv` (JSON, YAML or XML).
+
+    Returns
+    -------
+    GeneralCalibration
+        Camera and sheet homography ``G = [stage_axis, height_axis, origin]``.
+
+    Raises
+    ------
+    CalibrationError
+        A missing or unreadable file, a missing key, or a model this pipeline does not hold
+        (tangential or higher-order terms, non-square pixels, a sheet frame off the laser plane).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise CalibrationError(f"OpenCV calibration {str(p)!r} does not exist")
+    try:
+        d = _read_any(p)
+        cam = _camera(np.asarray(d["camera_matrix"], np.float64),
+                      np.asarray(d["dist_coeffs"], np.float64).ravel())
+        sf = d["sheet_frame"]
+        g = np.column_stack([np.asarray(sf[k], np.float64).ravel()
+                             for k in ("stage_axis", "height_axis", "origin_mm")])
+        size = np.asarray(d["image_size"]).ravel()
+        plane = np.asarray(d["laser_plane"], np.float64).ravel()
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError,
+            cv2.error) as exc:
+        raise CalibrationError(f"OpenCV calibration {str(p)!r}: {exc}") from None
+    off = abs(plane[:3] @ g[:, 2] + plane[3])
+    if g.shape != (3, 3) or not math.isfinite(off) or off > 1e-6 * max(1.0, abs(plane[3])):
+        raise CalibrationError(f"OpenCV calibration {str(p)!r}: the sheet frame's origin is not on the "
+                               f"laser plane (off by {off:.3g} mm)")
+    return GeneralCalibration(camera=cam, homography=g / g[2, 2], columns=int(size[0]),
+                              rows=int(size[1]))
+
+
+def load_calibration(path: str | Path):
+    """Read any calibration file: ``scheimpflug calibrate --out`` JSON or an OpenCV export.
+
+    Parameters
+    ----------
+    path : str or Path
+        Calibration JSON (paper or general model) or an OpenCV export (JSON with
+        ``camera_matrix``, or ``.yml``/``.yaml``/``.xml``).
+
+    Returns
+    -------
+    Calibration or GeneralCalibration
+        The calibration (:func:`scheimpflug.sheet_model.load_sheet_model` or :func:`read_opencv`).
+    """
+    from scheimpflug.sheet_model import load_sheet_model
+
+    p = Path(path)
+    if p.suffix.lower() in _YAML_SUFFIXES:
+        return read_opencv(p)
+    try:
+        d = json.loads(p.read_text("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        d = None
+    if isinstance(d, dict) and "camera_matrix" in d:
+        return read_opencv(p)
+    return load_sheet_model(p)
