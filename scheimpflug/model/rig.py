@@ -256,6 +256,8 @@ class Rig:
         The ``[stage]`` table; default the paper stages.
     environment : Environment, optional
         The ``[environment]`` table; default the paper's ambient light.
+    twin : Twin, optional
+        The ``[twin]`` table (how the digital twin renders); default the ideal twin.
 
     Raises
     ------
