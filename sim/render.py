@@ -75,6 +75,7 @@ scene transform) are opaque, so frames reuse the compiled kernels.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numba
@@ -299,6 +300,9 @@ class Renderer:
         self._setup_ambient()
         self._frame = sim_scene.transforms_dr()  # (scene_from_rig, rig_from_scene) of the frame
         self._speckle_model = None
+        #: wall time [s] spent per stage since construction (``benchmarks/bench_optics.py``)
+        self.timings = {"ambient": 0.0, "first_hit": 0.0, "transport": 0.0, "accumulate": 0.0,
+                        "speckle": 0.0}
 
     def _part_contrast(self) -> np.ndarray:
         """Speckle contrast of each part's surface light, indexed by part index + 1."""
@@ -381,8 +385,11 @@ class Renderer:
         self.scene.set_pose(rig_from_part)
         key = self._key(seed)
         self._frame = self.scene.transforms_dr()
+        t0 = time.perf_counter()
         out = self._ambient_image(key)
+        self.timings["ambient"] += time.perf_counter() - t0
         first, extra = self._laser_paths(key)
+        t0 = time.perf_counter()
         if extra is None and not self._speckle_on():
             self._splat_into(out, first[0], first[1])      # the ideal twin, as it always was
             return FrameLight(out)
@@ -390,7 +397,10 @@ class Renderer:
             out += self._accumulate(first[0], first[1]) * self._speckle(key).astype(np.float32)
             return FrameLight(out)
         light = self._combine(first, extra)
+        t1 = time.perf_counter()
+        self.timings["accumulate"] += t1 - t0
         out += self._speckled(light, key) if self._speckle_on() else light.laser
+        self.timings["speckle"] += time.perf_counter() - t1
         light.image = out
         return light
 
@@ -644,6 +654,7 @@ class Renderer:
     def _trace_from(self, ray, flux, u_ap, s):
         """First hit + camera splat of rays (rig frame), then the transport beyond it."""
         mi, dr = self._mi, self._dr
+        t0 = time.perf_counter()
         to_scene, to_rig = self._frame
         ray_s = to_scene @ ray
         si = self.scene.scene.ray_intersect(ray_s)
@@ -667,11 +678,14 @@ class Renderer:
             dr.eval(value, uv)
         first = (np.asarray(uv, np.float32), np.asarray(value, np.float32),
                  None if contrast is None else np.asarray(contrast, np.float32))
+        t1 = time.perf_counter()
+        self.timings["first_hit"] += t1 - t0
         if not self.transport.active:
             return first, None
         beta = dr.select(si.is_valid(), flux, 0.0)
         result = self.transport.trace(si, ray_s.d, beta, s, self._frame)
         self.transport.subsurface_electrons(result)
+        self.timings["transport"] += time.perf_counter() - t1
         return first, result
 
     def _combine(self, first, extra: TransportResult | None) -> FrameLight:

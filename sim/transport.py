@@ -380,8 +380,8 @@ class LightTransport:
         """
         out = {}
         for key, img in result.subsurface.items():
-            a = np.asarray(img, np.float64).reshape(self.shape) / FIXED_POINT_SCALE
-            out[key] = a.astype(np.float32)
+            a = np.asarray(img).reshape(self.shape).astype(np.float32)
+            out[key] = a * np.float32(1.0 / FIXED_POINT_SCALE)
         result.subsurface = out
         return out
 
