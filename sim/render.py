@@ -150,6 +150,9 @@ class RenderSettings:
         per row carry the inter-reflected light [-].
     subsurface_max_steps : int, default 512
         Events after which a subsurface random walk is abandoned [-].
+    subsurface_thinning : int, default 2
+        One path in this many that enters a translucent material walks in it (its power
+        multiplied accordingly); a walk splats at every scattering vertex [-].
 
     Raises
     ------
@@ -157,7 +160,8 @@ class RenderSettings:
         When ``pixel_filter`` is not ``"box"`` or ``"tent"``, ``pilot_block`` is not
         a multiple of 4, or a count (``samples_per_row``, ``pilot_block``,
         ``ambient_step_px``, ``ambient_bsdf_samples``, ``rr_depth``,
-        ``secondary_thinning``, ``subsurface_max_steps``) is not an integer ≥ 1.
+        ``secondary_thinning``, ``subsurface_max_steps``, ``subsurface_thinning``) is not an
+        integer ≥ 1.
     """
 
     samples_per_row: int = 32
@@ -172,6 +176,7 @@ class RenderSettings:
     rr_depth: int = 3
     secondary_thinning: int = 4
     subsurface_max_steps: int = 512
+    subsurface_thinning: int = 2
 
     def __post_init__(self) -> None:
         if self.pixel_filter not in ("box", "tent"):
@@ -180,7 +185,8 @@ class RenderSettings:
             raise RenderError(f"pilot_block = {self.pilot_block}: must be a multiple of 4 "
                               "(samples come in mirrored groups of four)")
         for name in ("samples_per_row", "pilot_block", "ambient_step_px", "ambient_bsdf_samples",
-                     "rr_depth", "subsurface_max_steps", "secondary_thinning"):
+                     "rr_depth", "subsurface_max_steps", "secondary_thinning",
+                     "subsurface_thinning"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise RenderError(f"RenderSettings.{name} = {value!r}: must be an integer ≥ 1")
@@ -295,7 +301,7 @@ class Renderer:
         self.transport = LightTransport(
             mi, dr, sim_scene, self.lens, self.channel, rig.twin.bounces, self.shape,
             self.electrons_per_watt, self.settings.rr_depth, self.settings.subsurface_max_steps,
-            self._contrast, self.settings.secondary_thinning)
+            self._contrast, self.settings.secondary_thinning, self.settings.subsurface_thinning)
         self._setup_laser()
         self._setup_ambient()
         self._frame = sim_scene.transforms_dr()  # (scene_from_rig, rig_from_scene) of the frame

@@ -20,7 +20,8 @@ boundary transmits (Mitsuba's ``roughdielectric`` sampled at the entry point,
 Walks are stopped after ``max_steps`` events (the energy of longer walks is
 lost: at the renderer's default 512 events, 1–2 % of the reflectance of marble,
 paper and white plastic, nothing for cardboard and tape) and by Russian
-roulette once the weight has fallen below 5 % of its start.
+roulette once the weight has fallen below 20 % of its start (survivors carry
+20 %: unbiased, and weights never grow).
 
 Geometry: the walk runs in the half-space below the tangent plane of the
 entry point (local frame: lateral t1, t2, depth z ≥ 0).  This is exact for a
@@ -253,7 +254,7 @@ def _walk_state(mi, dr, lanes, direction, weight, rng, params) -> dict:
     return {"lane": lanes, "rng": _gather(mi, dr, rng, lanes),
             "x": dr.zeros(mi.Point3f, m),
             "d": dr.gather(mi.Vector3f, mi.Vector3f(direction) + dr.zeros(mi.Vector3f, dr.width(rng.state)), lanes),
-            "w": w0, "w_rr": 0.05 * w0, "it": dr.zeros(mi.UInt32, m),
+            "w": w0, "w_rr": 0.2 * w0, "it": dr.zeros(mi.UInt32, m),
             "act": dr.full(mi.Bool, True, m), "out": dr.zeros(mi.Bool, m),
             "d_out": mi.Vector3f(dr.zeros(mi.Float, m), dr.zeros(mi.Float, m), dr.full(mi.Float, -1.0, m)),
             "ss": dr.gather(mi.Float, params[0], lanes), "sa": dr.gather(mi.Float, params[1], lanes),

@@ -118,16 +118,22 @@ class LightTransport:
         that many, its power × ``thinning``) continues beyond the first surface: the
         secondary light is dimmer and broader than the stripe and needs fewer samples
         (unbiased; more variance in the secondary light only).
+    walk_thinning : int
+        Likewise, one path in ``walk_thinning`` that enters a translucent material walks
+        in it (each walk splats at ~10–100 vertices, so the subsurface light needs fewer
+        walks than the surface light needs paths).
     """
 
     def __init__(self, mi, dr, scene, lens: LensConnection, channel: int, bounces: int,
                  shape: tuple[int, int], electrons_per_watt: float, rr_depth: int = 3,
-                 max_walk_steps: int = 512, contrast=None, thinning: int = 1) -> None:
+                 max_walk_steps: int = 512, contrast=None, thinning: int = 1,
+                 walk_thinning: int = 1) -> None:
         self._mi, self._dr = mi, dr
         self.scene, self.lens, self.channel = scene, lens, channel
         self.bounces, self.rr_depth, self.max_walk_steps = bounces, rr_depth, max_walk_steps
         self.shape = shape
         self.thinning = int(thinning)
+        self.walk_thinning = int(walk_thinning)
         self.electrons_per_watt = electrons_per_watt
         media = scene.media
         self.has_media = any(m is not None for m in media)
@@ -235,8 +241,13 @@ class LightTransport:
         entered = is_med & (mi.Frame3f.cos_theta(bs.wo) < 0.0) & (weight > 0)
         self._exits = None
         if self.has_media and bool(dr.any(entered)[0]):
-            self._exits = self._walk(si, wo, beta * weight, part, path_id, depth, s, frame,
-                                     entered, result)
+            walks, power = entered, beta * weight
+            if self.walk_thinning > 1:      # one walk per block of paths, its power × m
+                m = self.walk_thinning
+                pick = mi.sample_tea_32(path_id // m, s ^ mi.UInt32(0x68E31DA4 + depth), 6)[0] % m
+                walks = entered & ((path_id % m) == pick)
+                power = power * float(m)
+            self._exits = self._walk(si, wo, power, part, path_id, depth, s, frame, walks, result)
         return wo, weight, entered
 
     def _outside_frame(self, si, ray_d, mask):
