@@ -31,8 +31,10 @@ vertex normals), so no adjoint shading-normal correction is needed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from .lens import LensConnection
@@ -240,14 +242,20 @@ class LightTransport:
         weight = w[self.channel]
         entered = is_med & (mi.Frame3f.cos_theta(bs.wo) < 0.0) & (weight > 0)
         self._exits = None
-        if self.has_media and bool(dr.any(entered)[0]):
+        if not self.has_media or not bool(dr.any(is_med)[0]):
+            return wo, weight, entered
+        tabulated = self._tabulated_light(si, ray_d, beta, part, path_id, depth, s, frame,
+                                          is_med, result)
+        continues = depth < self.bounces
+        if continues or not tabulated:
             walks, power = entered, beta * weight
             if self.walk_thinning > 1:      # one walk per block of paths, its power × m
                 m = self.walk_thinning
                 pick = mi.sample_tea_32(path_id // m, s ^ mi.UInt32(0x68E31DA4 + depth), 6)[0] % m
                 walks = entered & ((path_id % m) == pick)
                 power = power * float(m)
-            self._exits = self._walk(si, wo, power, part, path_id, depth, s, frame, walks, result)
+            self._exits = self._walk(si, wo, power, part, path_id, depth, s, frame, walks, result,
+                                     with_nee=not tabulated)
         return wo, weight, entered
 
     def _outside_frame(self, si, ray_d, mask):
@@ -261,29 +269,105 @@ class LightTransport:
         return si
 
     # ------------------------------------------------------------ subsurface
-    def _walk(self, si, d_in, power, part, path_id, depth, s, frame, entered, result):
-        """Random walks of the light that entered media; splats; exit rays (scene frame)."""
+    def _walk(self, si, d_in, power, part, path_id, depth, s, frame, entered, result,
+              with_nee: bool = True):
+        """Random walks of the light that entered media.
+
+        Returns the exit rays (scene frame); for media without a table the walks also
+        splat their next-event light.
+        """
         mi, dr = self._mi, self._dr
         med = WalkMedium(*[dr.gather(mi.Float, col, part) for col in self._media[1:]])
         local = mi.Frame3f(-si.n)               # z of the walk's local frame points inward
-        u_ap = mi.Point2f(self._rand(s, path_id, depth, 5), self._rand(s, path_id, depth, 6))
-        conn = self._nee_frame(si, local, med, self.lens.aperture_point(u_ap), frame, entered)
-        target = self._subsurface_image(result, 1 if depth == 1 else 2)
         rng = mi.PCG32(size=dr.width(power), initstate=mi.UInt64(s) * 0x9E3779B97F4A7C15
                        + (depth + 1), initseq=mi.UInt64(path_id))
+        nee, target = None, None
+        if with_nee:
+            u_ap = mi.Point2f(self._rand(s, path_id, depth, 5), self._rand(s, path_id, depth, 6))
+            conn = self._nee_frame(si, local, med, self.lens.aperture_point(u_ap), frame, entered)
+            target = self._subsurface_image(result, 1 if depth == 1 else 2)
 
-        def nee(x, d, w, act, u, lane):
-            self._nee_splat(x, d, w, act, med, conn, u, lane, target)
+            def nee(x, d, w, act, u, lane):
+                self._nee_splat(x, d, w, act, med, conn, u, lane, target)
 
         walk = random_walk(mi, dr, med, local.to_local(d_in), power, rng, entered,
                            self.max_walk_steps, nee)
         exit_p = mi.Point3f(si.p + local.to_world(mi.Vector3f(walk.position)) + 1e-4 * si.n)
         exit_d = local.to_world(walk.direction)
-        dr.eval(target, walk.exited, exit_p, exit_d, walk.weight)
+        dr.eval(walk.exited, exit_p, exit_d, walk.weight, *([target] if with_nee else []))
         n_walks = int(dr.count(entered)[0])
         steps = int(dr.sum(dr.select(entered, walk.steps, 0))[0])
         result.walks = (result.walks[0] + n_walks, result.walks[1] + steps)
         return walk.exited & entered, exit_p, exit_d, walk.weight
+
+    # ------------------------------------------------------------ tabulated subsurface light
+    def _tabulated_light(self, si, ray_d, beta, part, path_id, depth, s, frame, is_med,
+                         result) -> bool:
+        """Camera-bound subsurface light of translucent hits from the media's tables.
+
+        Each hit's incident power, entry image, angles and local projection are read out;
+        hits are grouped by 16-pixel tile and medium, and each group's entry image is
+        convolved with the medium's tabulated response (:class:`sim.subsurface.SubsurfaceTable`)
+        mapped onto the sensor.  Returns False if a medium cannot be tabulated (g ≠ 0), in
+        which case the walks splat instead.
+        """
+        if any(t is None for t in self._tables_for_media()):
+            return False
+        geo = self._entry_geometry(si, ray_d, beta, part, path_id, depth, s, frame, is_med)
+        if geo is None:
+            return True
+        key = 1 if depth == 1 else 2
+        img = result.subsurface.get(key)
+        if img is None:
+            img = result.subsurface[key] = np.zeros(self.shape, np.float64)
+        _convolve_groups(img, geo, self._tables, self.electrons_per_watt)
+        return True
+
+    def _tables_for_media(self) -> list:
+        """The :class:`SubsurfaceTable` of each part's medium (None entries: not tabulable)."""
+        if getattr(self, "_tables", None) is None:
+            cache: dict = {}
+            tables = [None]
+            for m in self.scene.media:
+                if m is None:
+                    tables.append(None)
+                    continue
+                if m not in cache:
+                    cache[m] = _table_for(m)
+                tables.append(cache[m])
+            self._tables = tables
+        return [t for t, m in zip(self._tables[1:], self.scene.media) if m is not None]
+
+    def _entry_geometry(self, si, ray_d, beta, part, path_id, depth, s, frame, is_med):
+        """Per translucent hit: part + 1, power × aperture solid angle, image, Jacobian, angles."""
+        mi, dr = self._mi, self._dr
+        to_scene, to_rig = frame
+        n = si.n
+        d = dr.normalize(ray_d)
+        cos_in = dr.clip(-dr.dot(d, n), 0.0, 1.0)
+        d_tan = d + cos_in * n
+        t_inc = dr.select(dr.norm(d_tan) > 1e-6, dr.normalize(d_tan), si.sh_frame.s)
+        t_perp = dr.cross(n, t_inc)
+        u_ap = mi.Point2f(self._rand(s, path_id, depth, 5), self._rand(s, path_id, depth, 6))
+        a_rig = self.lens.aperture_point(u_ap)
+        a_scene = to_scene @ a_rig
+        visible = is_med & (beta > 0) & ~self.scene.scene.ray_test(si.spawn_ray_to(a_scene), is_med)
+        w = dr.normalize(a_scene - si.p)
+        cos_o = dr.dot(w, n)
+        azim = dr.atan2(dr.dot(w, t_perp), dr.dot(w, t_inc))
+        geo, uv0, ok, _ = self.lens.connect_at(to_rig @ si.p, visible & (cos_o > 1e-3), a_rig)
+        eps = 0.05  # [mm]
+        _, uv1, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * t_inc), ok, a_rig)
+        _, uv2, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * t_perp), ok, a_rig)
+        idx = dr.compress(ok)
+        if dr.width(idx) == 0:
+            return None
+        cols = [part, beta * geo, uv0.x, uv0.y, (uv1.x - uv0.x) / eps, (uv1.y - uv0.y) / eps,
+                (uv2.x - uv0.x) / eps, (uv2.y - uv0.y) / eps, dr.acos(cos_in), dr.acos(cos_o), azim]
+        cols = [dr.gather(type(c), c, idx) for c in cols]
+        dr.eval(*cols)
+        out = np.stack([np.asarray(c, np.float64) for c in cols])
+        return out
 
     def _nee_frame(self, si, local, med, a_rig, frame, entered) -> dict:
         """Per-walk constants of the camera connection through the boundary.
@@ -391,8 +475,147 @@ class LightTransport:
         """
         out = {}
         for key, img in result.subsurface.items():
+            if isinstance(img, np.ndarray):
+                out[key] = img.astype(np.float32)
+                continue
             a = np.asarray(img).reshape(self.shape).astype(np.float32)
             out[key] = a * np.float32(1.0 / FIXED_POINT_SCALE)
         result.subsurface = out
         return out
 
+
+
+_TABLES: dict = {}
+
+
+def _table_for(medium):
+    """The (cached, per process) :class:`SubsurfaceTable` of a medium, or None if g ≠ 0."""
+    from .subsurface import SubsurfaceTable
+
+    if medium.g != 0.0:
+        return None
+    if medium not in _TABLES:
+        _TABLES[medium] = SubsurfaceTable(medium)
+    return _TABLES[medium]
+
+
+def _convolve_groups(img, geo, tables, electrons_per_watt) -> None:
+    """Add the tabulated subsurface light of the hits ``geo`` to ``img`` [e⁻].
+
+    ``geo`` holds the columns of ``_entry_geometry``; per (16-px tile, part) group the
+    entry image is convolved with the response on the sensor.
+    """
+    part = geo[0].astype(np.int64)
+    tile = (np.floor(geo[3] / 16.0).astype(np.int64) * 100000
+            + np.floor(geo[2] / 16.0).astype(np.int64))
+    order = np.lexsort((tile, part))
+    keys = np.stack([part[order], tile[order]], 1)
+    starts = np.flatnonzero(np.r_[True, np.any(np.diff(keys, axis=0) != 0, axis=1)])
+    ends = np.r_[starts[1:], len(order)]
+    for a, b in zip(starts, ends):
+        sel = order[a:b]
+        w = geo[1, sel]
+        total = w.sum()
+        if total <= 0:
+            continue
+        mean = (geo[:, sel] * w).sum(axis=1) / total
+        azim = np.degrees(np.arctan2((np.sin(geo[10, sel]) * w).sum(), (np.cos(geo[10, sel]) * w).sum()))
+        table = tables[int(part[sel[0]])]
+        image_kernel, r0, c0 = _cached_sensor_kernel(table, np.degrees(mean[8]),
+                                                     np.degrees(mean[9]), azim, mean[4:8])
+        if image_kernel is None:
+            continue
+        _splat_convolved(img, geo[2, sel], geo[3, sel], w * electrons_per_watt, image_kernel, r0, c0)
+
+
+_SENSOR_KERNELS: dict = {}
+
+
+def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac):
+    """Cached :func:`_sensor_kernel` of a table's response.
+
+    Keyed by the angles (1°, 2.5°, 10°) and the Jacobian (to 1 %).
+    """
+    scale = max(float(np.abs(jac).max()), 1e-9)
+    key = (id(table), round(incidence_deg), round(view_deg / 2.5), round(azimuth_deg / 10.0),
+           *np.round(np.asarray(jac) / scale * 100.0).astype(int), round(math.log(scale) * 100))
+    if key not in _SENSOR_KERNELS:
+        if len(_SENSOR_KERNELS) > 20000:
+            _SENSOR_KERNELS.clear()
+        kern = table.kernel(round(incidence_deg), 2.5 * key[2], 10.0 * key[3])
+        _SENSOR_KERNELS[key] = _sensor_kernel(kern, table.cell_mm, jac)
+    return _SENSOR_KERNELS[key]
+
+
+def _sensor_kernel(kern, cell_mm, jac):
+    """Map the surface response onto pixels.
+
+    ``kern`` holds cells of ``cell_mm`` (x forward, y across); cells finer than ¼ px are
+    merged, and the faintest cells holding together 0.2 % of the light are dropped (the
+    far tail of the halo).  Returns (kernel (rows, columns), row and column of the entry
+    point in it).
+    """
+    n = kern.shape[0]
+    merge = max(1, int(0.25 / max(cell_mm * float(np.abs(jac).max()), 1e-12)))
+    while n % merge:
+        merge -= 1
+    if merge > 1:
+        kern = kern.reshape(n // merge, merge, n // merge, merge).sum(axis=(1, 3))
+        cell_mm, n = cell_mm * merge, n // merge
+    if kern.max() <= 0:
+        return None, 0, 0
+    flat = np.sort(kern.ravel())
+    cut = flat[np.searchsorted(np.cumsum(flat), 0.002 * flat.sum())]
+    nz = np.argwhere(kern >= cut)
+    x = (nz[:, 0] - 0.5 * (n - 1)) * cell_mm
+    y = (nz[:, 1] - 0.5 * (n - 1)) * cell_mm
+    du = jac[0] * x + jac[2] * y
+    dv = jac[1] * x + jac[3] * y
+    c0 = int(np.ceil(-du.min())) + 1
+    r0 = int(np.ceil(-dv.min())) + 1
+    out = np.zeros((int(np.ceil(dv.max())) + r0 + 2, int(np.ceil(du.max())) + c0 + 2))
+    _bilinear_add(out, dv + r0, du + c0, kern[nz[:, 0], nz[:, 1]])
+    return out, r0, c0
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear_add(out, fv, fu, values):  # pragma: no cover - compiled
+    for i in range(values.shape[0]):
+        iv, iu = int(math.floor(fv[i])), int(math.floor(fu[i]))
+        av, au = fv[i] - iv, fu[i] - iu
+        for dv in range(2):
+            for du in range(2):
+                r, c = iv + dv, iu + du
+                if 0 <= r < out.shape[0] and 0 <= c < out.shape[1]:
+                    out[r, c] += values[i] * (av if dv else 1.0 - av) * (au if du else 1.0 - au)
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat_convolved(img, u, v, w, kern, r0, c0):  # pragma: no cover - compiled
+    """Img += (entry image of the hits, bilinear at their images (u, v), weights w) ⊛ kern."""
+    rows, cols = img.shape
+    kr, kc = kern.shape
+    u_lo, v_lo = int(math.floor(u.min())), int(math.floor(v.min()))
+    entry = np.zeros((int(math.floor(v.max())) - v_lo + 2, int(math.floor(u.max())) - u_lo + 2))
+    for i in range(u.shape[0]):
+        fu, fv = math.floor(u[i]), math.floor(v[i])
+        au, av = u[i] - fu, v[i] - fv
+        iu, iv = int(fu) - u_lo, int(fv) - v_lo
+        entry[iv, iu] += w[i] * (1.0 - av) * (1.0 - au)
+        entry[iv, iu + 1] += w[i] * (1.0 - av) * au
+        entry[iv + 1, iu] += w[i] * av * (1.0 - au)
+        entry[iv + 1, iu + 1] += w[i] * av * au
+    for er in range(entry.shape[0]):
+        for ec in range(entry.shape[1]):
+            e = entry[er, ec]
+            if e == 0.0:
+                continue
+            top, left = v_lo + er - r0, u_lo + ec - c0
+            for a in range(kr):
+                r = top + a
+                if r < 0 or r >= rows:
+                    continue
+                for b in range(kc):
+                    c = left + b
+                    if 0 <= c < cols:
+                        img[r, c] += e * kern[a, b]
