@@ -149,3 +149,33 @@ class LensConnection:
         ok = active & (p.x > f * 1.0001) & (lam > 0) & (uv.x > -1.0) & (uv.x < pose.columns) \
             & (uv.y > -1.0) & (uv.y < pose.rows)
         return geo, dr.select(ok, uv, -10.0), ok, a
+
+    def landing(self, p, a):
+        """Where the ray from rig point p through aperture point a meets the sensor plane.
+
+        Unmasked (also off the sensor), for finite differences of the projection.
+
+        Parameters
+        ----------
+        p : mitsuba.Point3f
+            Rig points in front of the focal plane [mm].
+        a : mitsuba.Point3f
+            Aperture points [mm].
+
+        Returns
+        -------
+        mitsuba.Point2f
+            Pixel coordinates [px].
+        """
+        mi, dr, pose = self._mi, self._dr, self.pose
+        f, k1, k2 = self.rig.lens.focal_length_mm, self.rig.lens.k1, self.rig.lens.k2
+        mag = -f / (p.x - f)
+        t2 = (p.y * p.y + p.z * p.z) / (p.x * p.x)
+        dist = 1.0 + k1 * t2 + k2 * t2 * t2
+        img = mi.Point3f(mag * p.x, mag * p.y * dist, mag * p.z * dist)
+        origin, normal, u_dir, v_dir = self._plane
+        o, n = mi.Point3f(*origin), mi.Vector3f(*normal)
+        w = img - a
+        rel = a + dr.dot(o - a, n) / dr.dot(w, n) * w - o
+        return mi.Point2f(dr.dot(rel, mi.Vector3f(*u_dir)),
+                          dr.dot(rel, mi.Vector3f(*v_dir))) / pose.pitch_mm

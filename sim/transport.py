@@ -339,31 +339,40 @@ class LightTransport:
         return [t for t, m in zip(self._tables[1:], self.scene.media) if m is not None]
 
     def _entry_geometry(self, si, ray_d, beta, part, path_id, depth, s, frame, is_med):
-        """Per translucent hit: part + 1, power × aperture solid angle, image, Jacobian, angles."""
+        """Per translucent hit: part + 1, power × aperture solid angle, image, Jacobian, angles.
+
+        Directions on the surface are measured in a basis (b1, b2) that depends on the
+        normal only (b1 ⊥ the part frame's z, or x for horizontal faces), so that hits of
+        one tile share it: the Jacobian is ∂(u, v)/∂(b1, b2); the incidence plane's forward
+        direction and the view direction are given as azimuths in it (weighted by their
+        sines, so that normal incidence or view carry no direction).
+        """
         mi, dr = self._mi, self._dr
         to_scene, to_rig = frame
         n = si.n
         d = dr.normalize(ray_d)
         cos_in = dr.clip(-dr.dot(d, n), 0.0, 1.0)
-        d_tan = d + cos_in * n
-        t_inc = dr.select(dr.norm(d_tan) > 1e-6, dr.normalize(d_tan), si.sh_frame.s)
-        t_perp = dr.cross(n, t_inc)
+        up = dr.select(dr.abs(n.z) < 0.9, mi.Vector3f(0.0, 0.0, 1.0), mi.Vector3f(1.0, 0.0, 0.0))
+        t_inc = dr.normalize(dr.cross(up, n))          # b1
+        t_perp = dr.cross(n, t_inc)                      # b2
         u_ap = mi.Point2f(self._rand(s, path_id, depth, 5), self._rand(s, path_id, depth, 6))
         a_rig = self.lens.aperture_point(u_ap)
         a_scene = to_scene @ a_rig
         visible = is_med & (beta > 0) & ~self.scene.scene.ray_test(si.spawn_ray_to(a_scene), is_med)
         w = dr.normalize(a_scene - si.p)
         cos_o = dr.dot(w, n)
-        azim = dr.atan2(dr.dot(w, t_perp), dr.dot(w, t_inc))
         geo, uv0, ok, _ = self.lens.connect_at(to_rig @ si.p, visible & (cos_o > 1e-3), a_rig)
         eps = 0.05  # [mm]
-        _, uv1, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * t_inc), ok, a_rig)
-        _, uv2, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * t_perp), ok, a_rig)
+        uv1 = self.lens.landing(to_rig @ mi.Point3f(si.p + eps * t_inc), a_rig)
+        uv2 = self.lens.landing(to_rig @ mi.Point3f(si.p + eps * t_perp), a_rig)
+        ok &= (dr.abs(uv1.x - uv0.x) + dr.abs(uv1.y - uv0.y) + dr.abs(uv2.x - uv0.x)
+               + dr.abs(uv2.y - uv0.y)) < 100.0 * eps          # a real lens: < 100 px/mm
         idx = dr.compress(ok)
         if dr.width(idx) == 0:
             return None
         cols = [part, beta * geo, uv0.x, uv0.y, (uv1.x - uv0.x) / eps, (uv1.y - uv0.y) / eps,
-                (uv2.x - uv0.x) / eps, (uv2.y - uv0.y) / eps, dr.acos(cos_in), dr.acos(cos_o), azim]
+                (uv2.x - uv0.x) / eps, (uv2.y - uv0.y) / eps, dr.acos(cos_in), dr.acos(cos_o),
+                dr.dot(d, t_inc), dr.dot(d, t_perp), dr.dot(w, t_inc), dr.dot(w, t_perp)]
         cols = [dr.gather(type(c), c, idx) for c in cols]
         dr.eval(*cols)
         out = np.stack([np.asarray(c, np.float64) for c in cols])
@@ -391,8 +400,8 @@ class LightTransport:
         p0 = to_rig @ si.p
         geo, uv0, ok, _ = self.lens.connect_at(p0, visible & (cos_o > 1e-4), a_rig)
         eps = 0.05  # [mm]
-        _, uv1, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * local.s), ok, a_rig)
-        _, uv2, _, _ = self.lens.connect_at(to_rig @ mi.Point3f(si.p + eps * local.t), ok, a_rig)
+        uv1 = self.lens.landing(to_rig @ mi.Point3f(si.p + eps * local.s), a_rig)
+        uv2 = self.lens.landing(to_rig @ mi.Point3f(si.p + eps * local.t), a_rig)
         k = dr.select(ok, trans * cos_o / (med.eta * med.eta * cos_i) * geo, 0.0) \
             * (self.electrons_per_watt * FIXED_POINT_SCALE)
         return {"uv0": uv0, "ju": (uv1 - uv0) / eps, "jv": (uv2 - uv0) / eps, "k": k,
@@ -519,10 +528,16 @@ def _convolve_groups(img, geo, tables, electrons_per_watt) -> None:
         if total <= 0:
             continue
         mean = (geo[:, sel] * w).sum(axis=1) / total
-        azim = np.degrees(np.arctan2((np.sin(geo[10, sel]) * w).sum(), (np.cos(geo[10, sel]) * w).sum()))
+        psi_in = math.atan2(mean[11], mean[10])      # forward direction of the incidence plane
+        psi_view = math.atan2(mean[13], mean[12])
+        azim = math.degrees(psi_view - psi_in)
+        c, s_ = math.cos(psi_in), math.sin(psi_in)    # incidence frame → (b1, b2)
+        j = mean[4:8]
+        jac = np.array([j[0] * c + j[2] * s_, j[1] * c + j[3] * s_,
+                        -j[0] * s_ + j[2] * c, -j[1] * s_ + j[3] * c])
         table = tables[int(part[sel[0]])]
         image_kernel, r0, c0 = _cached_sensor_kernel(table, np.degrees(mean[8]),
-                                                     np.degrees(mean[9]), azim, mean[4:8])
+                                                     np.degrees(mean[9]), azim, jac)
         if image_kernel is None:
             continue
         _splat_convolved(img, geo[2, sel], geo[3, sel], w * electrons_per_watt, image_kernel, r0, c0)
@@ -534,11 +549,11 @@ _SENSOR_KERNELS: dict = {}
 def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac):
     """Cached :func:`_sensor_kernel` of a table's response.
 
-    Keyed by the angles (1°, 2.5°, 10°) and the Jacobian (to 1 %).
+    Keyed by the angles (1°, 2.5°, 10°) and the Jacobian (to 2 %).
     """
     scale = max(float(np.abs(jac).max()), 1e-9)
     key = (id(table), round(incidence_deg), round(view_deg / 2.5), round(azimuth_deg / 10.0),
-           *np.round(np.asarray(jac) / scale * 100.0).astype(int), round(math.log(scale) * 100))
+           *np.round(np.asarray(jac) / scale * 50.0).astype(int), round(math.log(scale) * 50))
     if key not in _SENSOR_KERNELS:
         if len(_SENSOR_KERNELS) > 20000:
             _SENSOR_KERNELS.clear()
@@ -550,44 +565,56 @@ def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac):
 def _sensor_kernel(kern, cell_mm, jac):
     """Map the surface response onto pixels.
 
-    ``kern`` holds cells of ``cell_mm`` (x forward, y across); cells finer than ¼ px are
-    merged, and the faintest cells holding together 0.2 % of the light are dropped (the
-    far tail of the halo).  Returns (kernel (rows, columns), row and column of the entry
-    point in it).
+    ``kern`` holds cells of ``cell_mm`` (x forward, y across, centred on the entry);
+    cells finer than ½ px are merged, the faintest cells holding together 0.2 % of the
+    light dropped (the far tail of the halo), and the result resampled on the pixel grid
+    through the inverse of the local Jacobian ``jac`` = (∂u/∂x, ∂v/∂x, ∂u/∂y, ∂v/∂y)
+    [px/mm].  Returns (kernel (rows, columns), row and column of the entry point in it).
     """
     n = kern.shape[0]
-    merge = max(1, int(0.25 / max(cell_mm * float(np.abs(jac).max()), 1e-12)))
+    merge = max(1, int(0.5 / max(cell_mm * float(np.abs(jac).max()), 1e-12)))
     while n % merge:
         merge -= 1
     if merge > 1:
         kern = kern.reshape(n // merge, merge, n // merge, merge).sum(axis=(1, 3))
         cell_mm, n = cell_mm * merge, n // merge
-    if kern.max() <= 0:
+    det = jac[0] * jac[3] - jac[2] * jac[1]
+    if kern.max() <= 0 or abs(det) < 1e-12:
         return None, 0, 0
     flat = np.sort(kern.ravel())
-    cut = flat[np.searchsorted(np.cumsum(flat), 0.002 * flat.sum())]
-    nz = np.argwhere(kern >= cut)
-    x = (nz[:, 0] - 0.5 * (n - 1)) * cell_mm
-    y = (nz[:, 1] - 0.5 * (n - 1)) * cell_mm
-    du = jac[0] * x + jac[2] * y
-    dv = jac[1] * x + jac[3] * y
-    c0 = int(np.ceil(-du.min())) + 1
-    r0 = int(np.ceil(-dv.min())) + 1
+    kern = np.where(kern >= flat[np.searchsorted(np.cumsum(flat), 0.002 * flat.sum())], kern, 0.0)
+    nz = np.argwhere(kern > 0)
+    half = 0.5 * (n - 1)
+    xs, ys = np.meshgrid(np.array([nz[:, 0].min() - half - 1, nz[:, 0].max() - half + 1]) * cell_mm,
+                         np.array([nz[:, 1].min() - half - 1, nz[:, 1].max() - half + 1]) * cell_mm)
+    du = jac[0] * xs + jac[2] * ys
+    dv = jac[1] * xs + jac[3] * ys
+    c0, r0 = int(np.ceil(-du.min())) + 1, int(np.ceil(-dv.min())) + 1
     out = np.zeros((int(np.ceil(dv.max())) + r0 + 2, int(np.ceil(du.max())) + c0 + 2))
-    _bilinear_add(out, dv + r0, du + c0, kern[nz[:, 0], nz[:, 1]])
-    return out, r0, c0
+    inv = np.array([jac[3], -jac[1], -jac[2], jac[0]]) / det   # (∂x/∂u, ∂y/∂u, ∂x/∂v, ∂y/∂v)
+    _resample(out, r0, c0, kern / (cell_mm * cell_mm), half, cell_mm, inv, 1.0 / abs(det))
+    total = out.sum()
+    return (out * (kern.sum() / total) if total > 0 else out), r0, c0
 
 
 @numba.njit(cache=True, nogil=True)
-def _bilinear_add(out, fv, fu, values):  # pragma: no cover - compiled
-    for i in range(values.shape[0]):
-        iv, iu = int(math.floor(fv[i])), int(math.floor(fu[i]))
-        av, au = fv[i] - iv, fu[i] - iu
-        for dv in range(2):
-            for du in range(2):
-                r, c = iv + dv, iu + du
-                if 0 <= r < out.shape[0] and 0 <= c < out.shape[1]:
-                    out[r, c] += values[i] * (av if dv else 1.0 - av) * (au if du else 1.0 - au)
+def _resample(out, r0, c0, density, half, cell_mm, inv, pixel_area):  # pragma: no cover
+    """out[r, c] = density at the surface point of pixel offset (c − c0, r − r0) × pixel area."""
+    n = density.shape[0]
+    for r in range(out.shape[0]):
+        dv = r - r0
+        for c in range(out.shape[1]):
+            du = c - c0
+            fx = (inv[0] * du + inv[2] * dv) / cell_mm + half
+            fy = (inv[1] * du + inv[3] * dv) / cell_mm + half
+            ix, iy = int(math.floor(fx)), int(math.floor(fy))
+            if ix < 0 or iy < 0 or ix + 1 >= n or iy + 1 >= n:
+                continue
+            ax, ay = fx - ix, fy - iy
+            out[r, c] = pixel_area * ((1 - ax) * (1 - ay) * density[ix, iy]
+                                      + ax * (1 - ay) * density[ix + 1, iy]
+                                      + (1 - ax) * ay * density[ix, iy + 1]
+                                      + ax * ay * density[ix + 1, iy + 1])
 
 
 @numba.njit(cache=True, nogil=True)
