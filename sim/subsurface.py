@@ -463,6 +463,7 @@ class SubsurfaceTable:
         self.tables = np.stack([self._tabulate(a, n_walks, max_steps, seed + i)
                                 for i, a in enumerate(TABLE_INCIDENCE_DEG)])
         self._kernels: dict = {}
+        self._tables_merged: dict = {}
 
     def _tabulate(self, incidence_deg: float, n: int, max_steps: int, seed: int) -> np.ndarray:
         import drjit as dr
@@ -498,7 +499,8 @@ class SubsurfaceTable:
         dr.eval(acc)
         return (np.asarray(acc, np.float64) / (scale * n)).reshape(nx, nx, nz)
 
-    def kernel(self, incidence_deg: float, view_deg: float, view_azimuth_deg: float) -> np.ndarray:
+    def kernel(self, incidence_deg: float, view_deg: float, view_azimuth_deg: float,
+               merge: int = 1) -> np.ndarray:
         """Intensity leaving the surface toward a view direction, per unit incident power.
 
         Parameters
@@ -511,11 +513,14 @@ class SubsurfaceTable:
         view_azimuth_deg : float
             Azimuth of the view direction from the incidence plane's forward direction
             [deg].
+        merge : int
+            Cells merged by this factor per axis before the projection (a divisor of
+            ``NX``; cells of ``merge·cell_mm``).
 
         Returns
         -------
-        (NX, NX) float64
-            Per cell of ``cell_mm`` (x forward along the incidence plane, y across, both
+        (NX/merge, NX/merge) float64
+            Per cell of ``merge·cell_mm`` (x forward along the incidence plane, y across, both
             centred on the entry point): radiant intensity toward the view direction per
             unit incident power [1/sr]; zero beyond the critical direction.
         """
@@ -525,11 +530,21 @@ class SubsurfaceTable:
         f = (a - angles[k]) / (angles[k + 1] - angles[k])
         view = round(float(view_deg) / 2.5) * 2.5
         azim = round(float(view_azimuth_deg) / 10.0) * 10.0
-        return (1.0 - f) * self._projected(k, view, azim) + f * self._projected(k + 1, view, azim)
+        return ((1.0 - f) * self._projected(k, view, azim, merge)
+                + f * self._projected(k + 1, view, azim, merge))
 
-    def _projected(self, k: int, view_deg: float, azimuth_deg: float) -> np.ndarray:
-        key = (k, view_deg, azimuth_deg)
+    def _merged(self, k: int, merge: int) -> np.ndarray:
+        key = (k, merge)
+        if key not in self._tables_merged:
+            n = self.NX // merge
+            self._tables_merged[key] = self.tables[k].reshape(n, merge, n, merge, self.NZ).sum(axis=(1, 3))
+        return self._tables_merged[key]
+
+    def _projected(self, k: int, view_deg: float, azimuth_deg: float, merge: int) -> np.ndarray:
+        key = (k, view_deg, azimuth_deg, merge)
         if key not in self._kernels:
+            if len(self._kernels) >= 4096:        # ≤ 64 MB per table (merge ≥ 2)
+                self._kernels.clear()
             m = self.medium
             cos_o = math.cos(math.radians(min(view_deg, 89.0)))
             sin_t = math.sqrt(1.0 - cos_o * cos_o) / m.eta
@@ -543,37 +558,42 @@ class SubsurfaceTable:
             weight = trans * cos_o / (m.eta * m.eta * cos_t) / (4.0 * math.pi)
             phi = math.radians(azimuth_deg)
             self._kernels[key] = _project_table(
-                self.tables[k], self.cell_mm, self.depth_cell_mm, m.sigma_t_per_mm / cos_t,
+                self._merged(k, merge), self.cell_mm * merge, self.depth_cell_mm, m.sigma_t_per_mm / cos_t,
                 sin_t / cos_t * math.cos(phi), sin_t / cos_t * math.sin(phi), weight)
         return self._kernels[key]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _project_table(table, cell, dcell, atten, shift_x, shift_y, weight):  # pragma: no cover
-    """Sum the vertex table along the refracted view direction onto the surface (bilinear)."""
+    """Sum the vertex table along the refracted view direction onto the surface.
+
+    Layer z moves by z·(shift_x, shift_y) (bilinear; a uniform shift, so gathering per
+    output cell equals splatting per table cell); rows of the output in parallel, each
+    summed in a fixed order.
+    """
     nx, ny, nz = table.shape
     out = np.zeros((nx, ny))
-    for iz in range(nz):
-        z = (iz + 0.5) * dcell
-        w = weight * math.exp(-atten * z)
-        ox = z * shift_x / cell
-        oy = z * shift_y / cell
-        for ix in range(nx):
-            fx = ix + ox
+    for qx in numba.prange(nx):
+        for iz in range(nz):
+            z = (iz + 0.5) * dcell
+            w = weight * math.exp(-atten * z)
+            fx = qx - z * shift_x / cell
             jx = int(math.floor(fx))
             ax = fx - jx
-            if jx < -1 or jx >= nx:
-                continue
-            for iy in range(ny):
-                v = table[ix, iy, iz]
-                if v == 0.0:
+            fy0 = -z * shift_y / cell
+            jy0 = int(math.floor(fy0))
+            ay = fy0 - jy0
+            for dx in range(2):
+                sx = jx + dx
+                if sx < 0 or sx >= nx:
                     continue
-                fy = iy + oy
-                jy = int(math.floor(fy))
-                ay = fy - jy
-                for dx in range(2):
-                    for dy in range(2):
-                        qx, qy = jx + dx, jy + dy
-                        if 0 <= qx < nx and 0 <= qy < ny:
-                            out[qx, qy] += w * v * (ax if dx else 1.0 - ax) * (ay if dy else 1.0 - ay)
+                wx = w * (ax if dx else 1.0 - ax)
+                for qy in range(ny):
+                    sy = qy + jy0
+                    acc = 0.0
+                    if 0 <= sy < ny:
+                        acc += (1.0 - ay) * table[sx, sy, iz]
+                    if 0 <= sy + 1 < ny:
+                        acc += ay * table[sx, sy + 1, iz]
+                    out[qx, qy] += wx * acc
     return out

@@ -544,77 +544,120 @@ def _convolve_groups(img, geo, tables, electrons_per_watt) -> None:
 
 
 _SENSOR_KERNELS: dict = {}
+_SURFACE_KERNELS: dict = {}
 
 
 def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac):
     """Cached :func:`_sensor_kernel` of a table's response.
 
-    Keyed by the angles (1°, 2.5°, 10°) and the Jacobian (to 2 %).
+    Keyed by the angles (1°, 2.5°, 10°) and the Jacobian (to 2 %); the surface
+    response of the angles is cached on its own (:func:`_surface_kernel`).
     """
     scale = max(float(np.abs(jac).max()), 1e-9)
+    merge = _merge_factor(table, scale)
     key = (id(table), round(incidence_deg), round(view_deg / 2.5), round(azimuth_deg / 10.0),
            *np.round(np.asarray(jac) / scale * 50.0).astype(int), round(math.log(scale) * 50))
     if key not in _SENSOR_KERNELS:
         if len(_SENSOR_KERNELS) > 20000:
             _SENSOR_KERNELS.clear()
-        kern = table.kernel(round(incidence_deg), 2.5 * key[2], 10.0 * key[3])
-        _SENSOR_KERNELS[key] = _sensor_kernel(kern, table.cell_mm, jac)
+        skey = (id(table), key[1], key[2], key[3], merge)
+        if skey not in _SURFACE_KERNELS:
+            if len(_SURFACE_KERNELS) > 4000:
+                _SURFACE_KERNELS.clear()
+            _SURFACE_KERNELS[skey] = _surface_kernel(
+                table.kernel(key[1], 2.5 * key[2], 10.0 * key[3], merge))
+        kern, lo, half = _SURFACE_KERNELS[skey]
+        _SENSOR_KERNELS[key] = _sensor_kernel(kern, lo, half, table.cell_mm * merge, jac)
     return _SENSOR_KERNELS[key]
 
 
-def _sensor_kernel(kern, cell_mm, jac):
-    """Map the surface response onto pixels.
+def _merge_factor(table, px_per_mm: float) -> int:
+    """Merge factor of a table's cells per axis for a Jacobian scale [px/mm].
 
-    ``kern`` holds cells of ``cell_mm`` (x forward, y across, centred on the entry);
-    cells finer than ½ px are merged, the faintest cells holding together 0.2 % of the
-    light dropped (the far tail of the halo), and the result resampled on the pixel grid
-    through the inverse of the local Jacobian ``jac`` = (∂u/∂x, ∂v/∂x, ∂u/∂y, ∂v/∂y)
-    [px/mm].  Returns (kernel (rows, columns), row and column of the entry point in it).
+    The largest power of two (≤ NX/16) with merged cells ≤ ½ px.
+    """
+    merge = 1
+    while 2 * merge * table.cell_mm * px_per_mm <= 0.5 and 2 * merge <= table.NX // 16:
+        merge *= 2
+    return merge
+
+
+def _surface_kernel(kern):
+    """A table kernel cropped to the box that holds all but its faint tail.
+
+    The box leaves out at most 0.1 % of the light on each of its four sides (the far
+    tail of the halo); the cells in it are scaled to hold all the light.  Returns (the
+    cropped cells (x, y), index (x, y) of the crop's first cell in the kernel, index of
+    the kernel's centre — the entry point); the cells are None when the kernel holds no
+    light.
     """
     n = kern.shape[0]
-    merge = max(1, int(0.5 / max(cell_mm * float(np.abs(jac).max()), 1e-12)))
-    while n % merge:
-        merge -= 1
-    if merge > 1:
-        kern = kern.reshape(n // merge, merge, n // merge, merge).sum(axis=(1, 3))
-        cell_mm, n = cell_mm * merge, n // merge
+    total = float(kern.sum())
+    if total <= 0:
+        return None, (0, 0), 0.5 * (n - 1)
+    lo, hi = [], []
+    for marginal in (kern.sum(axis=1), kern.sum(axis=0)):
+        c = np.cumsum(marginal) / total
+        lo.append(int(np.searchsorted(c, 0.001, side="right")))
+        hi.append(max(int(np.searchsorted(c, 0.999, side="left")) + 1, lo[-1] + 1))
+    crop = kern[lo[0]:hi[0], lo[1]:hi[1]]
+    crop = crop * (total / max(float(crop.sum()), 1e-300))
+    return np.ascontiguousarray(crop, np.float32), (lo[0], lo[1]), 0.5 * (n - 1)
+
+
+def _sensor_kernel(kern, lo, half, cell_mm, jac):
+    """Map a cropped surface response onto pixels.
+
+    ``kern`` holds cells of ``cell_mm`` (x forward, y across; cell (i, j) of it is cell
+    (lo + (i, j)) of a kernel centred at index ``half`` on the entry point), resampled on
+    the pixel grid through the inverse of the local Jacobian ``jac`` = (∂u/∂x, ∂v/∂x,
+    ∂u/∂y, ∂v/∂y) [px/mm].  Returns (kernel (rows, columns), row and column of the entry
+    point in it), or (None, 0, 0).
+    """
     det = jac[0] * jac[3] - jac[2] * jac[1]
-    if kern.max() <= 0 or abs(det) < 1e-12:
+    if kern is None or abs(det) < 1e-12:
         return None, 0, 0
-    flat = np.sort(kern.ravel())
-    kern = np.where(kern >= flat[np.searchsorted(np.cumsum(flat), 0.002 * flat.sum())], kern, 0.0)
-    nz = np.argwhere(kern > 0)
-    half = 0.5 * (n - 1)
-    xs, ys = np.meshgrid(np.array([nz[:, 0].min() - half - 1, nz[:, 0].max() - half + 1]) * cell_mm,
-                         np.array([nz[:, 1].min() - half - 1, nz[:, 1].max() - half + 1]) * cell_mm)
+    rows, cols = kern.shape
+    xs, ys = np.meshgrid(np.array([lo[0] - half - 1, lo[0] + rows - half]) * cell_mm,
+                         np.array([lo[1] - half - 1, lo[1] + cols - half]) * cell_mm)
     du = jac[0] * xs + jac[2] * ys
     dv = jac[1] * xs + jac[3] * ys
     c0, r0 = int(np.ceil(-du.min())) + 1, int(np.ceil(-dv.min())) + 1
     out = np.zeros((int(np.ceil(dv.max())) + r0 + 2, int(np.ceil(du.max())) + c0 + 2))
     inv = np.array([jac[3], -jac[1], -jac[2], jac[0]]) / det   # (∂x/∂u, ∂y/∂u, ∂x/∂v, ∂y/∂v)
-    _resample(out, r0, c0, kern / (cell_mm * cell_mm), half, cell_mm, inv, 1.0 / abs(det))
+    _resample(out, r0, c0, kern.astype(np.float64) / (cell_mm * cell_mm), half - lo[0], half - lo[1], cell_mm, inv,
+              1.0 / abs(det))
     total = out.sum()
-    return (out * (kern.sum() / total) if total > 0 else out), r0, c0
+    return (out * (float(kern.sum(dtype=np.float64)) / total) if total > 0 else out), r0, c0
 
 
 @numba.njit(cache=True, nogil=True)
-def _resample(out, r0, c0, density, half, cell_mm, inv, pixel_area):  # pragma: no cover
-    """out[r, c] = density at the surface point of pixel offset (c − c0, r − r0) × pixel area."""
-    n = density.shape[0]
+def _resample(out, r0, c0, density, hx, hy, cell_mm, inv, pixel_area):  # pragma: no cover
+    """out[r, c] = density at the surface point of pixel offset (c − c0, r − r0) × pixel area.
+
+    The entry point is at index (hx, hy) of ``density``; outside it the density is 0.
+    """
+    nx, ny = density.shape
     for r in range(out.shape[0]):
         dv = r - r0
         for c in range(out.shape[1]):
             du = c - c0
-            fx = (inv[0] * du + inv[2] * dv) / cell_mm + half
-            fy = (inv[1] * du + inv[3] * dv) / cell_mm + half
+            fx = (inv[0] * du + inv[2] * dv) / cell_mm + hx
+            fy = (inv[1] * du + inv[3] * dv) / cell_mm + hy
             ix, iy = int(math.floor(fx)), int(math.floor(fy))
-            if ix < 0 or iy < 0 or ix + 1 >= n or iy + 1 >= n:
+            if ix < -1 or iy < -1 or ix >= nx or iy >= ny:
                 continue
             ax, ay = fx - ix, fy - iy
-            out[r, c] = pixel_area * ((1 - ax) * (1 - ay) * density[ix, iy]
-                                      + ax * (1 - ay) * density[ix + 1, iy]
-                                      + (1 - ax) * ay * density[ix, iy + 1]
-                                      + ax * ay * density[ix + 1, iy + 1])
+            v = 0.0
+            for dx in range(2):
+                qx = ix + dx
+                if qx < 0 or qx >= nx:
+                    continue
+                for dy in range(2):
+                    qy = iy + dy
+                    if 0 <= qy < ny:
+                        v += (ax if dx else 1.0 - ax) * (ay if dy else 1.0 - ay) * density[qx, qy]
+            out[r, c] = pixel_area * v
 
 
 @numba.njit(cache=True, nogil=True)
