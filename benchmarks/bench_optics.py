@@ -10,11 +10,13 @@ Prints
    (``speckle_contrast`` 0.7), full paper resolution, sensor noise, 16-bit PNG and the
    stripe truth (incl. the secondary-light truth), through :func:`sim.writer.render_scenario`
    exactly as ``scheimpflug render`` runs it — frames/s and the share of every stage
-   (the renderer's own stages from :attr:`sim.render.Renderer.timings`);
+   (the renderer's own stages from :attr:`sim.render.Renderer.timings`), and the
+   CPU time of all the process's threads per frame (a figure that the machine's
+   other load does not inflate; half of it bounds the wall time on 2 idle cores);
 3. the total diffuse reflectance of each translucent material at normal incidence
    (:func:`sim.subsurface.total_reflectance`, the table of :mod:`sim.materials`).
 
-    .venv/bin/python benchmarks/bench_optics.py [--frames 40] [--part pile] [--baseline ../main]
+    .venv/bin/python benchmarks/bench_optics.py [--frames 40] [--part pile] [--baseline ../main] [--cpu]
 """
 
 from __future__ import annotations
@@ -41,20 +43,22 @@ sc = rotary_scenario(rig, part={part!r}, step_deg=2.0, frames={frames} + 3)
 tw = MitsubaTwin(rig, sc.assembly)
 for f in sc.frames[:3]:
     tw.render(f)
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 for f in sc.frames[3:]:
     tw.render(f)
-print(json.dumps({{"ms": 1e3 * (time.perf_counter() - t0) / {frames}}}))
+print(json.dumps({{"ms": 1e3 * (time.perf_counter() - t0) / {frames},
+                  "cpu_ms": 1e3 * (time.process_time() - c0) / {frames}}}))
 """
 
 
-def ideal_ms(root: str, part: str, frames: int) -> float:
-    """Render-only ms/frame of the ideal twin of checkout ``root`` (fresh process)."""
+def ideal_ms(root: str, part: str, frames: int) -> tuple[float, float]:
+    """Render-only (wall, CPU) ms/frame of the ideal twin of checkout ``root`` (fresh process)."""
     code = _IDEAL.format(root=str(root), part=part, frames=frames)
     env = dict(os.environ, PYTHONPATH=str(root))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                          check=True).stdout
-    return json.loads(out.strip().splitlines()[-1])["ms"]
+    r = json.loads(out.strip().splitlines()[-1])
+    return r["ms"], r["cpu_ms"]
 
 
 def realistic(part: str, frames: int) -> None:
@@ -71,20 +75,45 @@ def realistic(part: str, frames: int) -> None:
                         build_manifest(rig, warm, 0, twin.spp, twin.variant), warn=lambda m: None)
     scenario = rotary_scenario(rig, part=part, step_deg=2.0, frames=frames, truth_pixels_every=0)
     twin.renderer.timings = dict.fromkeys(twin.renderer.timings, 0.0)
+    c0, t0 = time.process_time(), time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         stats = render_scenario(rig, scenario, Path(tmp) / "scan", twin,
                                 build_manifest(rig, scenario, 0, twin.spp, twin.variant),
                                 warn=lambda m: None)
-    wall = stats.wall_s / frames
+    cpu = (time.process_time() - c0) / frames
+    wall = (time.perf_counter() - t0) / frames
     print(f"\nrealistic frame loop, {part}, {frames} frames at full resolution "
           f"(bounces 3, subsurface, surface speckle 0.7, noise, PNG, stripe truth):")
-    print(f"  {1e3 * wall:.0f} ms/frame = {1 / wall:.2f} frames/s")
+    print(f"  {1e3 * wall:.0f} ms/frame = {1 / wall:.2f} frames/s; CPU of all threads "
+          f"{1e3 * cpu:.0f} ms/frame (on 2 otherwise idle cores ≥ {0.5e3 * cpu:.0f} ms/frame wall)")
     parts = {**{f"render: {k}": v for k, v in twin.renderer.timings.items()},
              **{k: v for k, v in stats.seconds.items() if k != "render" and v > 0}}
     other = stats.seconds["render"] - sum(twin.renderer.timings.values())
     parts["render: other (pose, Python)"] = other
+    clock = "CPU" if sim_clock_is_cpu() else "wall"
+    print(f"  stages ({clock} time; shares of the loop's {clock} time):")
     for name, sec in parts.items():
         print(f"  {name:34s} {1e3 * sec / frames:7.1f} ms/frame  {100 * sec / stats.wall_s:5.1f} %")
+
+
+def sim_clock_is_cpu() -> bool:
+    """Whether :func:`cpu_stage_clocks` is in effect."""
+    import sim.render
+
+    return sim.render.time.perf_counter is time.process_time
+
+
+def cpu_stage_clocks() -> None:
+    """Make the renderer's and the frame loop's stage timers read process CPU time."""
+    import types
+
+    import sim.render
+    import sim.writer
+
+    clock = types.SimpleNamespace(perf_counter=time.process_time, process_time=time.process_time,
+                                  time=time.time, sleep=time.sleep)
+    sim.render.time = clock
+    sim.writer.time = clock
 
 
 def reflectances() -> None:
@@ -107,7 +136,12 @@ def main() -> None:
     ap.add_argument("--part", default="pile")
     ap.add_argument("--baseline", default=None, help="another checkout to time the ideal path of")
     ap.add_argument("--skip-ideal", action="store_true")
+    ap.add_argument("--cpu", action="store_true",
+                    help="stage shares of the realistic loop in CPU time of all threads "
+                         "(for a loaded machine) instead of wall time")
     args = ap.parse_args()
+    if args.cpu:
+        cpu_stage_clocks()
     print(f"load average at start: {os.getloadavg()}")
     here = Path(__file__).resolve().parents[1]
     if not args.skip_ideal:
@@ -119,7 +153,8 @@ def main() -> None:
         print(f"ideal path, {args.part}, render only, full resolution ({args.frames} frames × 2):")
         for k, v in runs.items():
             if v:
-                print(f"  {k:9s} {' / '.join(f'{x:.1f}' for x in v)} ms/frame")
+                print(f"  {k:9s} wall {' / '.join(f'{x[0]:.1f}' for x in v)} ms/frame,"
+                      f" CPU {' / '.join(f'{x[1]:.1f}' for x in v)} ms/frame")
     t0 = time.perf_counter()
     realistic(args.part, args.frames)
     reflectances()

@@ -151,8 +151,9 @@ class RenderSettings:
     subsurface_max_steps : int, default 512
         Events after which a subsurface random walk is abandoned [-].
     subsurface_thinning : int, default 2
-        One path in this many that enters a translucent material walks in it (its power
-        multiplied accordingly); a walk splats at every scattering vertex [-].
+        One path in this many that enters a translucent material without a tabulated
+        response (g ≠ 0) walks in it (its power multiplied accordingly); a walk splats at
+        every scattering vertex [-].
 
     Raises
     ------

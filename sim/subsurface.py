@@ -423,6 +423,8 @@ class SubsurfaceTable:
     intensity leaving the surface toward that direction (the next-event weights of
     :mod:`sim.subsurface`'s module docstring): a deterministic subsurface response that
     the renderer convolves with the light entering, instead of splatting noisy walks.
+    The same walks' exits (point, direction, weight) are kept as a sample set, from
+    which the renderer draws the light that goes on to other surfaces.
 
     Parameters
     ----------
@@ -440,6 +442,16 @@ class SubsurfaceTable:
     ValueError
         If the medium's g is not 0.
 
+    Attributes
+    ----------
+    tables : (angles, NX, NX, NZ) float64
+        Vertex weight per cell (x, y, z) per unit incident power.
+    exit_albedo : (angles,) float64
+        Power leaving through the boundary per unit power entering [-].
+    exit_samples : (angles, EXIT_SAMPLES, 5) float32
+        Exits drawn in proportion to their power: point (x, y) [mm] and direction
+        (x, y, z; z < 0 leaves the material), the walk's local frame.
+
     Notes
     -----
     The box holds |x|, |y| ≤ X = max(16 ℓ, 6 L_d) and z ≤ 8 ℓ (ℓ = 1/(σ_s + σ_a) the
@@ -449,6 +461,7 @@ class SubsurfaceTable:
     """
 
     NX, NZ = 128, 24
+    EXIT_SAMPLES = 4096
 
     def __init__(self, medium, n_walks: int = 50_000, max_steps: int = 1024, seed: int = 0) -> None:
         if medium.g != 0.0:
@@ -460,12 +473,16 @@ class SubsurfaceTable:
         self.half_width_mm = max(16.0 * mfp, 6.0 * diffusion)
         self.cell_mm = 2.0 * self.half_width_mm / self.NX
         self.depth_cell_mm = 8.0 * mfp / self.NZ
-        self.tables = np.stack([self._tabulate(a, n_walks, max_steps, seed + i)
-                                for i, a in enumerate(TABLE_INCIDENCE_DEG)])
+        runs = [self._tabulate(a, n_walks, max_steps, seed + i)
+                for i, a in enumerate(TABLE_INCIDENCE_DEG)]
+        self.tables = np.stack([r[0] for r in runs])
+        self.exit_albedo = np.array([r[1] for r in runs])
+        self.exit_samples = np.stack([r[2] for r in runs])
         self._kernels: dict = {}
         self._tables_merged: dict = {}
 
-    def _tabulate(self, incidence_deg: float, n: int, max_steps: int, seed: int) -> np.ndarray:
+    def _tabulate(self, incidence_deg: float, n: int, max_steps: int, seed: int):
+        """Vertex table, exit albedo and exit samples of ``n`` walks at one incidence."""
         import drjit as dr
         import mitsuba as mi
 
@@ -494,10 +511,20 @@ class SubsurfaceTable:
 
         medium = WalkMedium(mi.Float(m.sigma_s_per_mm), mi.Float(m.sigma_a_per_mm), mi.Float(0.0),
                             mi.Float(m.eta))
-        random_walk(mi, dr, medium, mi.Vector3f(bs.wo.x, bs.wo.y, -bs.wo.z), w[0], rng,
-                    mi.Frame3f.cos_theta(bs.wo) < 0.0, max_steps, nee)
+        enter = mi.Frame3f.cos_theta(bs.wo) < 0.0
+        walk = random_walk(mi, dr, medium, mi.Vector3f(bs.wo.x, bs.wo.y, -bs.wo.z), w[0], rng,
+                           enter, max_steps, nee)
         dr.eval(acc)
-        return (np.asarray(acc, np.float64) / (scale * n)).reshape(nx, nx, nz)
+        table = (np.asarray(acc, np.float64) / (scale * n)).reshape(nx, nx, nz)
+        w_in = np.where(np.asarray(enter), np.asarray(w[0], np.float64), 0.0)
+        w_out = np.where(np.asarray(walk.exited), np.asarray(walk.weight, np.float64), 0.0)
+        albedo = float(w_out.sum() / max(w_in.sum(), 1e-300))
+        samples = np.zeros((self.EXIT_SAMPLES, 5), np.float32)
+        if w_out.sum() > 0:
+            pick = np.random.default_rng(seed).choice(n, self.EXIT_SAMPLES, p=w_out / w_out.sum())
+            pos, d = np.asarray(walk.position), np.asarray(walk.direction)
+            samples[:] = np.concatenate([pos[:2, pick], d[:, pick]]).T
+        return table, albedo, samples
 
     def kernel(self, incidence_deg: float, view_deg: float, view_azimuth_deg: float,
                merge: int = 1) -> np.ndarray:

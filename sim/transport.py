@@ -121,9 +121,9 @@ class LightTransport:
         secondary light is dimmer and broader than the stripe and needs fewer samples
         (unbiased; more variance in the secondary light only).
     walk_thinning : int
-        Likewise, one path in ``walk_thinning`` that enters a translucent material walks
-        in it (each walk splats at ~10–100 vertices, so the subsurface light needs fewer
-        walks than the surface light needs paths).
+        Likewise, one path in ``walk_thinning`` that enters a translucent material without
+        a table (g ≠ 0) walks in it (each walk splats at ~10–100 vertices, so the
+        subsurface light needs fewer walks than the surface light needs paths).
     """
 
     def __init__(self, mi, dr, scene, lens: LensConnection, channel: int, bounces: int,
@@ -225,10 +225,13 @@ class LightTransport:
                           np.asarray(contrast, np.float32))
 
     def _scatter(self, si, ray_d, beta, path_id, depth, s, frame, active, result):
-        """Sample each vertex's BSDF; run the subsurface walks of light entering a medium.
+        """Sample each vertex's BSDF; the subsurface light of the light entering a medium.
 
-        Returns (outgoing direction (scene), throughput weight, entered-medium mask);
-        lanes that left a medium get the exit ray through ``self._exits``.
+        Tabulated media (:class:`sim.subsurface.SubsurfaceTable`): the camera-bound light
+        from the table's response, the light going on from the table's exits; other
+        media: random walks that splat at every vertex.  Returns (outgoing direction
+        (scene), throughput weight, entered-medium mask); lanes that left a medium get
+        the exit ray through ``self._exits``.
         """
         mi, dr = self._mi, self._dr
         part = self.scene.part_index_dr(si)
@@ -247,7 +250,11 @@ class LightTransport:
         tabulated = self._tabulated_light(si, ray_d, beta, part, path_id, depth, s, frame,
                                           is_med, result)
         continues = depth < self.bounces
-        if continues or not tabulated:
+        if tabulated and continues:
+            self._exits = self._table_exits(si, ray_d, beta * weight, part, path_id, depth, s,
+                                            entered)
+            result.walks = (result.walks[0] + int(dr.count(entered)[0]), result.walks[1])
+        elif not tabulated:
             walks, power = entered, beta * weight
             if self.walk_thinning > 1:      # one walk per block of paths, its power × m
                 m = self.walk_thinning
@@ -320,8 +327,59 @@ class LightTransport:
         img = result.subsurface.get(key)
         if img is None:
             img = result.subsurface[key] = np.zeros(self.shape, np.float64)
-        _convolve_groups(img, geo, self._tables, self.electrons_per_watt)
+        _convolve_groups(img, geo, self._tables, self.electrons_per_watt, coarse=depth > 1)
         return True
+
+    def _table_exits(self, si, ray_d, power, part, path_id, depth, s, entered):
+        """Exits of the light entering tabulated media, drawn from the tables' walks.
+
+        Each lane takes one of the exit samples of its medium's table
+        (:attr:`sim.subsurface.SubsurfaceTable.exit_samples`) at its angle of incidence
+        (one of the two neighbouring tabulated angles, chosen with the linear
+        interpolation's weights), placed in the frame of its entry point (x forward along
+        the incidence plane, z into the material), with the power entering times the
+        table's exit albedo.  Returns (exited, point, direction, power) like the walks.
+        """
+        from .subsurface import TABLE_INCIDENCE_DEG, SubsurfaceTable
+
+        mi, dr = self._mi, self._dr
+        if getattr(self, "_exit_arrays", None) is None:
+            slots, unique = [-1], []
+            for table in self._tables[1:]:
+                if table is None:
+                    slots.append(-1)
+                    continue
+                if not any(table is t for t in unique):
+                    unique.append(table)
+                slots.append(next(i for i, t in enumerate(unique) if t is table))
+            albedo = np.concatenate([t.exit_albedo for t in unique])
+            cols = np.concatenate([t.exit_samples.reshape(-1, 5) for t in unique]).T
+            self._exit_arrays = (mi.Int32(slots), mi.Float(albedo),
+                                 [mi.Float(np.ascontiguousarray(c)) for c in cols])
+        slot, albedo, cols = self._exit_arrays
+        n_angles, n_samples = len(TABLE_INCIDENCE_DEG), SubsurfaceTable.EXIT_SAMPLES
+        step = TABLE_INCIDENCE_DEG[1] - TABLE_INCIDENCE_DEG[0]     # uniform, from 0°
+        n = si.n
+        d = dr.normalize(ray_d)
+        cos_in = dr.clip(-dr.dot(d, n), 0.0, 1.0)
+        x = dr.minimum(dr.acos(cos_in) * (180.0 / math.pi) / step, n_angles - 1.0)
+        k = mi.UInt32(dr.floor(x))
+        k = dr.select(self._rand(s, path_id, depth, 8) < x - mi.Float(k),
+                      dr.minimum(k + 1, n_angles - 1), k)
+        tab = dr.gather(mi.Int32, slot, part)
+        ok = entered & (tab >= 0)
+        row = mi.UInt32(dr.maximum(tab, 0)) * n_angles + k
+        j = dr.minimum(mi.UInt32(self._rand(s, path_id, depth, 9) * n_samples), n_samples - 1)
+        ex, ey, dx, dy, dz = [dr.gather(mi.Float, c, row * n_samples + j, ok) for c in cols]
+        weight = power * dr.gather(mi.Float, albedo, row, ok)
+        tangent = d + cos_in * n                       # d − (d·n)·n
+        forward = dr.select(dr.squared_norm(tangent) > 1e-12, dr.normalize(tangent),
+                            mi.Frame3f(n).s)
+        inward = -n
+        across = dr.cross(inward, forward)
+        point = mi.Point3f(si.p + ex * forward + ey * across + 1e-4 * n)
+        direction = dr.normalize(dx * forward + dy * across + dz * inward)
+        return ok & (weight > 0), point, direction, weight
 
     def _tables_for_media(self) -> list:
         """The :class:`SubsurfaceTable` of each part's medium (None entries: not tabulable)."""
@@ -508,15 +566,18 @@ def _table_for(medium):
     return _TABLES[medium]
 
 
-def _convolve_groups(img, geo, tables, electrons_per_watt) -> None:
+def _convolve_groups(img, geo, tables, electrons_per_watt, coarse: bool = False) -> None:
     """Add the tabulated subsurface light of the hits ``geo`` to ``img`` [e⁻].
 
     ``geo`` holds the columns of ``_entry_geometry``; per (16-px tile, part) group the
-    entry image is convolved with the response on the sensor.
+    entry image is convolved with the response on the sensor.  ``coarse`` (for the
+    dim, spread-out light arriving after a bounce): 64-px tiles and the coarse kernel
+    quantisation of :func:`_cached_sensor_kernel`.
     """
+    size = 64.0 if coarse else 16.0
     part = geo[0].astype(np.int64)
-    tile = (np.floor(geo[3] / 16.0).astype(np.int64) * 100000
-            + np.floor(geo[2] / 16.0).astype(np.int64))
+    tile = (np.floor(geo[3] / size).astype(np.int64) * 100000
+            + np.floor(geo[2] / size).astype(np.int64))
     order = np.lexsort((tile, part))
     keys = np.stack([part[order], tile[order]], 1)
     starts = np.flatnonzero(np.r_[True, np.any(np.diff(keys, axis=0) != 0, axis=1)])
@@ -537,7 +598,7 @@ def _convolve_groups(img, geo, tables, electrons_per_watt) -> None:
                         -j[0] * s_ + j[2] * c, -j[1] * s_ + j[3] * c])
         table = tables[int(part[sel[0]])]
         image_kernel, r0, c0 = _cached_sensor_kernel(table, np.degrees(mean[8]),
-                                                     np.degrees(mean[9]), azim, jac)
+                                                     np.degrees(mean[9]), azim, jac, coarse)
         if image_kernel is None:
             continue
         _splat_convolved(img, geo[2, sel], geo[3, sel], w * electrons_per_watt, image_kernel, r0, c0)
@@ -547,25 +608,28 @@ _SENSOR_KERNELS: dict = {}
 _SURFACE_KERNELS: dict = {}
 
 
-def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac):
+def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac, coarse=False):
     """Cached :func:`_sensor_kernel` of a table's response.
 
-    Keyed by the angles (1°, 2.5°, 10°) and the Jacobian (to 2 %); the surface
-    response of the angles is cached on its own (:func:`_surface_kernel`).
+    Keyed by the angles (incidence, view, azimuth to 1°, 2.5°, 10°; ``coarse``: 5°, 5°,
+    30°) and the Jacobian (to 2 %; ``coarse``: 10 %); the surface response of the
+    angles is cached on its own (:func:`_surface_kernel`).
     """
+    steps = (5.0, 5.0, 30.0, 10.0) if coarse else (1.0, 2.5, 10.0, 50.0)
     scale = max(float(np.abs(jac).max()), 1e-9)
     merge = _merge_factor(table, scale)
-    key = (id(table), round(incidence_deg), round(view_deg / 2.5), round(azimuth_deg / 10.0),
-           *np.round(np.asarray(jac) / scale * 50.0).astype(int), round(math.log(scale) * 50))
+    angles = (round(incidence_deg / steps[0]) * steps[0], round(view_deg / steps[1]) * steps[1],
+              round(azimuth_deg / steps[2]) * steps[2])
+    key = (id(table), *angles, *np.round(np.asarray(jac) / scale * steps[3]).astype(int),
+           round(math.log(scale) * steps[3]))
     if key not in _SENSOR_KERNELS:
         if len(_SENSOR_KERNELS) > 20000:
             _SENSOR_KERNELS.clear()
-        skey = (id(table), key[1], key[2], key[3], merge)
+        skey = (id(table), *angles, merge)
         if skey not in _SURFACE_KERNELS:
             if len(_SURFACE_KERNELS) > 4000:
                 _SURFACE_KERNELS.clear()
-            _SURFACE_KERNELS[skey] = _surface_kernel(
-                table.kernel(key[1], 2.5 * key[2], 10.0 * key[3], merge))
+            _SURFACE_KERNELS[skey] = _surface_kernel(table.kernel(*angles, merge))
         kern, lo, half = _SURFACE_KERNELS[skey]
         _SENSOR_KERNELS[key] = _sensor_kernel(kern, lo, half, table.cell_mm * merge, jac)
     return _SENSOR_KERNELS[key]
@@ -618,12 +682,14 @@ def _sensor_kernel(kern, lo, half, cell_mm, jac):
     if kern is None or abs(det) < 1e-12:
         return None, 0, 0
     rows, cols = kern.shape
-    xs, ys = np.meshgrid(np.array([lo[0] - half - 1, lo[0] + rows - half]) * cell_mm,
-                         np.array([lo[1] - half - 1, lo[1] + cols - half]) * cell_mm)
-    du = jac[0] * xs + jac[2] * ys
-    dv = jac[1] * xs + jac[3] * ys
-    c0, r0 = int(np.ceil(-du.min())) + 1, int(np.ceil(-dv.min())) + 1
-    out = np.zeros((int(np.ceil(dv.max())) + r0 + 2, int(np.ceil(du.max())) + c0 + 2))
+    x0, x1 = (lo[0] - half - 1) * cell_mm, (lo[0] + rows - half) * cell_mm
+    y0, y1 = (lo[1] - half - 1) * cell_mm, (lo[1] + cols - half) * cell_mm
+    du = (jac[0] * x0 + jac[2] * y0, jac[0] * x1 + jac[2] * y0, jac[0] * x0 + jac[2] * y1,
+          jac[0] * x1 + jac[2] * y1)
+    dv = (jac[1] * x0 + jac[3] * y0, jac[1] * x1 + jac[3] * y0, jac[1] * x0 + jac[3] * y1,
+          jac[1] * x1 + jac[3] * y1)
+    c0, r0 = math.ceil(-min(du)) + 1, math.ceil(-min(dv)) + 1
+    out = np.zeros((math.ceil(max(dv)) + r0 + 2, math.ceil(max(du)) + c0 + 2))
     inv = np.array([jac[3], -jac[1], -jac[2], jac[0]]) / det   # (∂x/∂u, ∂y/∂u, ∂x/∂v, ∂y/∂v)
     _resample(out, r0, c0, kern.astype(np.float64) / (cell_mm * cell_mm), half - lo[0], half - lo[1], cell_mm, inv,
               1.0 / abs(det))
