@@ -616,13 +616,16 @@ def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac, coar
     angles is cached on its own (:func:`_surface_kernel`).
     """
     steps = (5.0, 5.0, 30.0, 10.0) if coarse else (1.0, 2.5, 10.0, 50.0)
-    scale = max(float(np.abs(jac).max()), 1e-9)
-    merge = _merge_factor(table, scale)
     angles = (round(incidence_deg / steps[0]) * steps[0], round(view_deg / steps[1]) * steps[1],
               round(azimuth_deg / steps[2]) * steps[2])
-    key = (id(table), *angles, *np.round(np.asarray(jac) / scale * steps[3]).astype(int),
-           round(math.log(scale) * steps[3]))
+    level = round(math.log(max(float(np.abs(jac).max()), 1e-9)) * steps[3])
+    scale = math.exp(level / steps[3])
+    shape = tuple(int(x) for x in np.round(np.asarray(jac) / scale * steps[3]))
+    key = (id(table), *angles, *shape, level)
     if key not in _SENSOR_KERNELS:
+        # built from the key alone, so that a frame does not depend on the frames before
+        jac = np.array(shape, np.float64) / steps[3] * scale
+        merge = _merge_factor(table, scale)
         if len(_SENSOR_KERNELS) > 20000:
             _SENSOR_KERNELS.clear()
         skey = (id(table), *angles, merge)
