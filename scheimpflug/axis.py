@@ -40,7 +40,7 @@ from scipy import optimize
 from scheimpflug.calibration import Calibration
 from scheimpflug.errors import CalibrationError, FrameError
 from scheimpflug.io.frames import FrameFolder, open_frame_folder
-from scheimpflug.stripe import extract_stripes
+from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
     "AxisResult",
@@ -57,6 +57,10 @@ DEFAULT_BLOCKER_THICKNESS_MM = 2.0
 """Blocker thickness when neither the option nor the manifest gives one [mm]."""
 _MIN_COS = 0.3     # blocker frames closer to edge-on than ~73° are skipped
 _MIN_ROWS = 20     # fewer lit rows: no blocker in view
+_MAX_SLOPE = 0.05  # a blocker face images as a vertical stripe: |du/dv| above this is not one [px/px]
+_MAX_FACE_SPREAD_MM = 1.0   # robust σ of the face's stage coordinate over rows above this: not flat
+_WARN_DISAGREE_MM = 1.0     # per-frame axis estimates spreading more than this: warn …
+_MAX_DISAGREE_MM = 5.0      # … more than this: not one blocker at one place, refused
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,9 @@ class AxisResult:
         Lit rows used [-].
     skipped : tuple of (str, str), optional
         (file, reason) of frames not used.
+    warnings : tuple of str, optional
+        Plausibility warnings (no scenario in the manifest, a stripe that is
+        not straight and vertical, frames that disagree), one line each.
     """
 
     axis_mm: float
@@ -96,6 +103,7 @@ class AxisResult:
     spread_mm: float
     n_rows: int
     skipped: tuple[tuple[str, str], ...] = ()
+    warnings: tuple[str, ...] = ()
 
     def to_json_dict(self) -> dict:
         """The result as a JSON-ready dict.
@@ -111,7 +119,8 @@ class AxisResult:
                 "thickness_source": self.thickness_source,
                 "per_frame_axis_mm": list(self.per_frame_axis_mm), "spread_mm": self.spread_mm,
                 "n_rows": self.n_rows,
-                "skipped": [{"file": f, "reason": r} for f, r in self.skipped]}
+                "skipped": [{"file": f, "reason": r} for f, r in self.skipped],
+                "warnings": list(self.warnings)}
 
 
 @dataclass(frozen=True)
@@ -154,13 +163,17 @@ class CylinderAxisFit:
                 "n_frames": self.n_frames}
 
 
-def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector):
-    """Stage coordinates [mm] of the stripe in every lit row (and the columns [px])."""
-    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
+def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector, with_rows=False):
+    """Stage coordinates [mm] of the stripe in every lit row, the columns [px] (and the rows)."""
+    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px="auto")
     if len(prof) < _MIN_ROWS:
+        sat = saturated_fraction(frame, saturation_dn)
+        if sat > 0.5:
+            raise CalibrationError(f"frame saturated ({100 * sat:.0f} % of the pixels at the saturation "
+                                   "level): lower the exposure or the laser power")
         raise CalibrationError(f"no stripe ({len(prof)} lit rows < {_MIN_ROWS})")
     s, _ = calibration.stage_from_pixel(prof.u, prof.rows)
-    return s, prof.u
+    return (s, prof.u, prof.rows) if with_rows else (s, prof.u)
 
 
 def axis_from_faces(face_mm, thickness_mm: float, angles_deg=None) -> np.ndarray:
@@ -222,19 +235,26 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
     Returns
     -------
     AxisResult
-        The axis position, its per-frame estimates and spread, and the frames
-        skipped (nearly edge-on, |cos θ| < 0.3, or with fewer than 20 lit rows).
+        The axis position, its per-frame estimates and spread, the frames
+        skipped (nearly edge-on, |cos θ| < 0.3, or with fewer than 20 lit rows)
+        and plausibility warnings (no scenario in the manifest; a stripe that
+        is not straight and vertical; frames 1–5 mm apart).
 
     Raises
     ------
     CalibrationError
-        If no frame is usable.
+        If no frame is usable, the calibration cannot apply to these frames,
+        the manifest names another scenario or the frames lie at several
+        translation stage positions (a calibration folder is not a blocker),
+        the axis falls outside the depth range the calibration covers, or the
+        frames put it more than 5 mm apart.
     FrameError
         If the frame size differs from the calibration's, the thickness is
         not a number in [0, 100) mm, or the folder or a frame is invalid.
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     _check_size(ff, calibration)
+    notes = _check_blocker_folder(ff)
     t, src = _thickness(ff, blocker_thickness_mm)
     axes, faces, cols, all_s, skipped = [], [], [], [], []
     for i, rec in enumerate(ff.frames):
@@ -244,11 +264,12 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
             continue
         frame = ff.read(i)
         try:
-            s, u = _stage_of_rows(frame, calibration, ff.saturation_dn(frame), detector)
+            s, u, rows = _stage_of_rows(frame, calibration, ff.saturation_dn(frame), detector, True)
         except CalibrationError as exc:
             skipped.append((rec.file, str(exc)))
             continue
         face = float(np.median(s))
+        notes += _stripe_shape_notes(rec.file, u, rows, s - face)
         faces.append(face)
         cols.append(float(np.median(u)))
         axes.append(face + 0.5 * t / cos)
@@ -256,18 +277,70 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
     if not axes:
         reasons = "; ".join(f"{f}: {r}" for f, r in skipped[:3])
         raise CalibrationError(f"no usable blocker frame in {str(ff.path)!r} ({reasons})")
+    notes += _check_axis_result(ff, calibration, axes, t)
     dev = np.concatenate(all_s)
     return AxisResult(axis_mm=float(np.median(axes)), face_mm=float(np.median(faces)),
                       column_px=float(np.median(cols)), blocker_thickness_mm=t,
                       thickness_source=src, per_frame_axis_mm=tuple(axes),
                       spread_mm=float(1.4826 * np.median(np.abs(dev))), n_rows=int(dev.size),
-                      skipped=tuple(skipped))
+                      skipped=tuple(skipped), warnings=tuple(notes))
+
+
+def _check_blocker_folder(ff: FrameFolder) -> list[str]:
+    """Refuse a folder that says it is not a blocker; warn when nothing says what it is."""
+    where = str(ff.path)
+    if isinstance(ff.scenario, str) and ff.scenario != "blocker":
+        raise CalibrationError(f"{where!r} holds a {ff.scenario!r} scenario (manifest), not blocker "
+                               "frames: give the folder of the blocker")
+    stages = {r.stage_mm for r in ff.frames if r.stage_mm is not None}
+    if len(stages) > 1:
+        raise CalibrationError(f"{where!r}: the frames are at {len(stages)} translation stage positions "
+                               "(stage_mm): a calibration sequence, not blocker frames")
+    if ff.scenario is None:
+        return [f"{where!r}: the manifest names no scenario: cannot check that these are blocker frames "
+                "(the result is checked for plausibility only)"]
+    return []
+
+
+def _stripe_shape_notes(file: str, u: np.ndarray, rows: np.ndarray, dev_mm: np.ndarray) -> list[str]:
+    """A blocker face images as a straight vertical stripe: warn when this one is not."""
+    slope = float(np.polyfit(rows.astype(np.float64), u, 1)[0]) if np.ptp(rows) > 0 else 0.0
+    spread = float(1.4826 * np.median(np.abs(dev_mm)))
+    notes = []
+    if abs(slope) > _MAX_SLOPE:
+        notes.append(f"{file}: the stripe is not vertical (slope {slope:+.3f} px/px, > {_MAX_SLOPE}): "
+                     "not a blocker face, or a rolled sensor")
+    if spread > _MAX_FACE_SPREAD_MM:
+        notes.append(f"{file}: the stripe is not straight (its stage coordinate spreads {spread:.3g} mm "
+                     f"over the rows, > {_MAX_FACE_SPREAD_MM:g} mm): not a flat blocker face")
+    return notes
+
+
+def _check_axis_result(ff: FrameFolder, cal: Calibration, axes: list, t: float) -> list[str]:
+    """The axis must lie in the calibrated depth range and the frames must agree."""
+    n = ff.columns
+    ends, _ = cal.stage_from_pixel(np.array([-0.5, n - 0.5]), np.full(2, 0.5 * (ff.rows - 1)))
+    lo, hi = float(np.min(ends)) - t, float(np.max(ends)) + t
+    axis = float(np.median(axes))
+    if not lo <= axis <= hi:
+        raise CalibrationError(f"the axis {axis:.3f} mm lies outside the depth range the calibration "
+                               f"covers ({lo + t:.2f} … {hi - t:.2f} mm): wrong calibration or folder")
+    disagree = float(np.ptp(axes))
+    if disagree > _MAX_DISAGREE_MM:
+        raise CalibrationError(f"{str(ff.path)!r}: the frames put the axis {disagree:.3g} mm apart "
+                               f"({min(axes):.2f} … {max(axes):.2f} mm): not one blocker at one place")
+    if disagree > _WARN_DISAGREE_MM:
+        return [f"the blocker frames disagree by {disagree:.3g} mm on the axis position"]
+    return []
 
 
 def _check_size(ff: FrameFolder, cal: Calibration) -> None:
     if cal.columns and cal.rows and (ff.columns, ff.rows) != (cal.columns, cal.rows):
         raise FrameError(f"frames in {str(ff.path)!r} are {ff.rows} × {ff.columns} but the "
                          f"calibration was made with {cal.rows} × {cal.columns} (rows × columns)")
+    problem = cal.problem(ff.columns) if hasattr(cal, "problem") else None
+    if problem:
+        raise CalibrationError(f"the calibration cannot be applied to {str(ff.path)!r}: {problem}")
 
 
 def axis_from_cylinder_scan(angles_deg, near_stage_mm, radius_mm: float) -> CylinderAxisFit:

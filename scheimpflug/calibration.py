@@ -25,9 +25,27 @@ needed: from the frames alone we get
   ``v = v_h + (u − u_h) a``, and ``C = H / (a_t − a_b)``.  σ(F²) and σ(C) are
   the spreads of the per-frame values, as in the paper.
 
+Every frame with a plate stripe takes part: a frame that shows one plate edge
+only (the other beyond the sensor's rows) still gives its distance relation
+and that edge's endpoint; C's per-frame spread uses the frames with both.
+
+**Standard errors** (the calibration states its own accuracy): the refined
+distance fit's covariance is σ_u²·(JᵀJ)⁻¹ with σ_u² = RSS/(n − 3) from its
+residuals in u (one mean column per frame, n frames); the endpoint fit's is
+σ_v²·(AᵀA)⁻¹ with σ_v² = RSS/(m − 3) (m endpoints), plus u_h's error carried
+through the fit's dependence on u_h; C = H/(a_t − a_b) by its gradient.  The
+paper estimate's σ(u_h), σ(v_h) come from the two endpoint lines' covariances
+(intersection Jacobian), its σ(F²), σ(d0), σ(C) by the delta method (numerical
+Jacobian of the whole estimate) with σ_u from the refined fit and each line's
+own residual σ on its rows.  An exactly determined fit (n = 3, m = 3, a line
+through 2 points) cannot show its noise: its standard errors are NaN (null in
+JSON), never a tiny number.  They are first-order, noise-only figures: a bias
+common to all frames (a miscalibrated stage, a lens error) is not in them.
+:func:`accuracy_warnings` says when they are too large for a stated accuracy
+(:class:`CalibrationAccuracy`) or do not exist.
+
 The default ("best") is the estimate with the smaller standard error of
-``u_h`` (propagated from each fit's residuals); with usable frames that is
-nearly always the refined one.
+``u_h``; with usable frames that is nearly always the refined one.
 
 Conventions (DESIGN.md §3): columns ``u`` increase with distance toward the
 hinge (``u − u_h < 0``, ``F² < 0``); rows ``v`` increase downward, a point
@@ -38,7 +56,10 @@ The stripe centre is measured with a centre detector, not the paper's
 light-bar edge: an edge sits ``σ·sqrt(2 ln 2)`` beyond the centre, an offset
 that varies with the stripe width across the sensor and biases ``u_h``
 (``detector="edge"`` reproduces the paper).  The default is the windowed
-centre of gravity (``cog``, ±7 px): every row of a plate frame sees the stripe
+centre of gravity (``cog``, ±(⌈3σ⌉ + 1) px, at least ±3, σ the frame's stripe width:
+``window_px="auto"`` of :func:`scheimpflug.stripe.extract_stripes`; a fixed
+±7 px window cuts wide stripes' tails and adds the noise of 14 background
+pixels to narrow ones): every row of a plate frame sees the stripe
 at the same sub-pixel phase, so a detector's phase-dependent bias does not
 average out over rows; on noisy 2 px-wide stripes the 3-point Gaussian's
 (noise-induced, log-nonlinearity) bias reaches 0.02 px per frame and moves
@@ -47,6 +68,7 @@ average out over rows; on noisy 2 px-wide stripes the 3-point Gaussian's
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import warnings
@@ -60,15 +82,17 @@ from scipy import optimize
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
-from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.io.frames import FrameFolder, open_frame_folder, scenario_number
 from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
-from scheimpflug.stripe import extract_stripes
+from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
     "Calibration",
+    "CalibrationAccuracy",
     "CalibrationResult",
     "CalibrationTolerances",
     "PlateMeasurement",
+    "accuracy_warnings",
     "calibrate_folder",
     "calibrate_measurements",
     "measure_plate_frame",
@@ -99,6 +123,20 @@ class CalibrationTolerances:
         Fewer usable frames cannot fix a line and a hinge [-].
     min_slope_gap : float, default 1e-3
         Endpoint slopes closer than this are parallel [-].
+    recommended_frames : int, default 6
+        Fewer usable frames give a warning: the refined fit has three unknowns
+        (u_h, F², d0), so with 3 frames it is exactly determined (no σ) and with
+        4–5 its σ rests on one or two degrees of freedom [-].
+    fit_outlier_ratio : float, default 10.0
+        A frame whose column the distance fit u = u_h + F²/(s − d0) of the
+        other frames misses by more than this many times their robust residual
+        σ … [-]
+    fit_outlier_floor_px : float, default 0.1
+        … and by more than this floor is an outlier (a wrong stage position):
+        left out and named (≥ 6 frames) [px].
+    stage_order_px : float, default 0.5
+        Sorted by stage position, a stripe may step back by at most this much,
+        and frames at one position may differ by at most this much [px].
     """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
@@ -110,6 +148,15 @@ class CalibrationTolerances:
     background_gap_rows: int = 6  # background rows start this far outside the edge [rows]
     min_frames: int = 3           # fewer usable frames cannot fix a line and a hinge [-]
     min_slope_gap: float = 1e-3   # endpoint slopes closer than this are parallel [-]
+    recommended_frames: int = 6   # fewer usable frames: warn (3 unknowns in the refined fit) [-]
+    fit_outlier_ratio: float = 10.0  # leave-one-out miss beyond this many robust σ of the others …
+    fit_outlier_floor_px: float = 0.1  # … and beyond this floor: a wrong stage position [px]
+    stage_order_px: float = 0.5   # a stripe stepping back (or apart at one s) by more: refused [px]
+
+
+_MAX_CONDITION = 1e12
+"""A fit whose column-scaled normal matrix is worse conditioned than this is nearly singular:
+its standard errors are undefined (NaN, null in JSON) [-]."""
 
 
 # ---------------------------------------------------------------- result types
@@ -119,6 +166,14 @@ class CalibrationTolerances:
 class Calibration:
     """A calibration: pixel (u, v) → stage coordinate and height (paper Eqs. 11–12).
 
+    Two kinds of uncertainty are reported.  ``F2_sigma_px_mm`` and
+    ``C_sigma_mm`` are the paper's σ(F²) and σ(C): the *spread* of the
+    per-frame values (INTERFACE.md).  The ``*_stderr_*`` fields and
+    ``hinge_u_sigma_px``, ``hinge_v_sigma_px``, ``d0_sigma_mm`` are *standard
+    errors* of the fitted constants, propagated to first order from the
+    measurement noise that the fits' residuals show (module docstring); NaN
+    (null in JSON) when a fit is exactly determined and cannot show its noise.
+
     Parameters
     ----------
     hinge_u_px, hinge_v_px : float
@@ -126,28 +181,37 @@ class Calibration:
     F2_px_mm : float
         F², distance constant [px·mm] (negative).
     F2_sigma_px_mm : float
-        Spread (sample σ) of the per-frame F² [px·mm].
+        Spread (standard deviation) of the per-frame F² [px·mm].
     d0_mm : float
         Stage coordinate of the object hinge [mm].
     C_mm : float
         Height constant [mm].
     C_sigma_mm : float
-        Spread (sample σ) of the per-frame C [mm].
+        Spread of the per-frame C (frames with both plate edges) [mm].
     endpoint_fit_r2 : tuple of float
         R² of the (top, bottom) endpoint line fits [-].
     method : str
         "paper" or "refined".
     columns, rows : int
-        Sensor size the calibration was made with [px] (0 if unknown).
-    plate_height_mm : float, default 89.0
+        Sensor size the calibration was made with [px].
+    plate_height_mm : float
         The calibration plate's height [mm].
-    n_frames : int, default 0
-        Frames used [-].
-    hinge_u_sigma_px : float, default nan
-        Standard error of u_h [px].
-    estimates : dict, optional
-        JSON dicts of both estimates (``{"paper": ..., "refined": ...}``);
-        not compared or hashed.
+    n_frames : int
+        Frames used (every frame with a plate stripe) [-].
+    hinge_u_sigma_px, hinge_v_sigma_px : float
+        Standard errors of u_h and v_h [px].
+    F2_stderr_px_mm : float
+        Standard error of F² [px·mm].
+    d0_sigma_mm : float
+        Standard error of d0 [mm].
+    C_stderr_mm : float
+        Standard error of C [mm].
+    n_frames_both_edges : int
+        Frames that showed both plate edges [-].
+    warnings : tuple of str
+        Accuracy warnings (:func:`accuracy_warnings`).
+    estimates : dict
+        JSON dicts of both estimates (``{"paper": ..., "refined": ...}``).
     """
 
     hinge_u_px: float
@@ -164,6 +228,12 @@ class Calibration:
     plate_height_mm: float = 89.0
     n_frames: int = 0
     hinge_u_sigma_px: float = math.nan
+    hinge_v_sigma_px: float = math.nan
+    F2_stderr_px_mm: float = math.nan
+    d0_sigma_mm: float = math.nan
+    C_stderr_mm: float = math.nan
+    n_frames_both_edges: int = 0
+    warnings: tuple[str, ...] = field(default=(), compare=False, hash=False)
     estimates: dict = field(default_factory=dict, compare=False, hash=False, repr=False)
 
     def stage_from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
@@ -222,25 +292,28 @@ class Calibration:
 
     def _core_dict(self) -> dict[str, Any]:
         return {"hinge_px": [self.hinge_u_px, self.hinge_v_px], "F2_px_mm": self.F2_px_mm,
-                "F2_sigma_px_mm": self.F2_sigma_px_mm, "d0_mm": self.d0_mm, "C_mm": self.C_mm,
-                "C_sigma_mm": self.C_sigma_mm, "endpoint_fit_r2": list(self.endpoint_fit_r2),
-                "hinge_u_sigma_px": _json_float(self.hinge_u_sigma_px), "method": self.method,
-                "n_frames": self.n_frames}
+                "F2_sigma_px_mm": _json_float(self.F2_sigma_px_mm), "d0_mm": self.d0_mm,
+                "C_mm": self.C_mm, "C_sigma_mm": _json_float(self.C_sigma_mm),
+                "endpoint_fit_r2": [_json_float(x) for x in self.endpoint_fit_r2],
+                "hinge_u_sigma_px": _json_float(self.hinge_u_sigma_px),
+                "hinge_v_sigma_px": _json_float(self.hinge_v_sigma_px),
+                "F2_stderr_px_mm": _json_float(self.F2_stderr_px_mm),
+                "d0_sigma_mm": _json_float(self.d0_sigma_mm),
+                "C_stderr_mm": _json_float(self.C_stderr_mm), "method": self.method,
+                "n_frames": self.n_frames, "n_frames_both_edges": self.n_frames_both_edges}
 
     def to_json_dict(self) -> dict[str, Any]:
-        """The calibration as the JSON object of ``calibration.json``.
+        """INTERFACE.md calibrate fields, the standard errors, both estimates and the sensor size.
 
         Returns
         -------
         dict
-            INTERFACE.md calibrate fields (``hinge_px``, ``F2_px_mm``,
-            ``F2_sigma_px_mm``, ``d0_mm``, ``C_mm``, ``C_sigma_mm``,
-            ``endpoint_fit_r2``, ``hinge_u_sigma_px`` (None if not finite),
-            ``method``, ``n_frames``), plus ``columns``, ``rows``,
-            ``plate_height_mm`` and both estimates (``paper``, ``refined``).
+            JSON-ready; a value that does not exist (a spread of one frame, the
+            standard error of an exactly determined fit) is None.
         """
         d = self._core_dict()
-        d.update(columns=self.columns, rows=self.rows, plate_height_mm=self.plate_height_mm)
+        d.update(columns=self.columns, rows=self.rows, plate_height_mm=self.plate_height_mm,
+                 warnings=list(self.warnings))
         d.update({k: v for k, v in self.estimates.items()})
         return d
 
@@ -256,39 +329,41 @@ class Calibration:
 
     @classmethod
     def from_json_dict(cls, d: dict) -> Calibration:
-        """A calibration from the JSON object :meth:`to_json_dict` writes.
+        """A calibration from the dict of :meth:`to_json_dict` (or of ``calibrate --json``).
 
         Parameters
         ----------
         d : dict
-            Needs ``hinge_px``, ``F2_px_mm``, ``d0_mm`` and ``C_mm``; other
-            fields take defaults (NaN σ, method "paper", size 0, 89 mm plate).
+            Needs ``hinge_px``, ``F2_px_mm``, ``d0_mm``, ``C_mm``; the rest is optional.
 
         Returns
         -------
         Calibration
-            The calibration (values are not range-checked; :meth:`load` does).
+            The calibration (absent or null uncertainties are NaN).
 
         Raises
         ------
         CalibrationError
-            If a required field is missing or a field has the wrong type.
+            A required field is missing or not a number.
         """
         try:
-            r2 = d.get("endpoint_fit_r2", [math.nan, math.nan])
-            return cls(hinge_u_px=float(d["hinge_px"][0]), hinge_v_px=float(d["hinge_px"][1]),
-                       F2_px_mm=float(d["F2_px_mm"]),
-                       F2_sigma_px_mm=float(d.get("F2_sigma_px_mm", math.nan)),
-                       d0_mm=float(d["d0_mm"]), C_mm=float(d["C_mm"]),
-                       C_sigma_mm=float(d.get("C_sigma_mm", math.nan)),
-                       endpoint_fit_r2=(float(r2[0]), float(r2[1])),
-                       method=str(d.get("method", "paper")), columns=int(d.get("columns", 0)),
-                       rows=int(d.get("rows", 0)),
-                       plate_height_mm=float(d.get("plate_height_mm", 89.0)),
-                       n_frames=int(d.get("n_frames", 0)),
-                       hinge_u_sigma_px=float(d.get("hinge_u_sigma_px") or math.nan),
+            r2 = d.get("endpoint_fit_r2") or [None, None]
+            return cls(hinge_u_px=_num(d["hinge_px"][0]), hinge_v_px=_num(d["hinge_px"][1]),
+                       F2_px_mm=_num(d["F2_px_mm"]), F2_sigma_px_mm=_float(d, "F2_sigma_px_mm"),
+                       d0_mm=_num(d["d0_mm"]), C_mm=_num(d["C_mm"]), C_sigma_mm=_float(d, "C_sigma_mm"),
+                       endpoint_fit_r2=(_float(r2, 0), _float(r2, 1)),
+                       method=str(d.get("method", "paper")), columns=_whole(d.get("columns", 0)),
+                       rows=_whole(d.get("rows", 0)),
+                       plate_height_mm=_num(d.get("plate_height_mm", 89.0)),
+                       n_frames=_whole(d.get("n_frames", 0)),
+                       hinge_u_sigma_px=_float(d, "hinge_u_sigma_px"),
+                       hinge_v_sigma_px=_float(d, "hinge_v_sigma_px"),
+                       F2_stderr_px_mm=_float(d, "F2_stderr_px_mm"), d0_sigma_mm=_float(d, "d0_sigma_mm"),
+                       C_stderr_mm=_float(d, "C_stderr_mm"),
+                       n_frames_both_edges=_whole(d.get("n_frames_both_edges", 0)),
+                       warnings=tuple(str(w) for w in d.get("warnings", ())),
                        estimates={k: d[k] for k in ("paper", "refined") if k in d})
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise CalibrationError(f"calibration data lacks or garbles a field: {exc!r}") from None
 
     @classmethod
@@ -309,7 +384,8 @@ class Calibration:
         ------
         CalibrationError
             If the file is missing, unreadable or not a JSON object, lacks or
-            garbles a field, or does not have F² < 0, C > 0 and a finite d0.
+            garbles a field, or describes an impossible calibration
+            (:meth:`problem`).
         """
         p = Path(path)
         try:
@@ -320,14 +396,89 @@ class Calibration:
             raise CalibrationError(f"calibration file {str(p)!r} is unreadable: {exc}") from None
         if not isinstance(d, dict):
             raise CalibrationError(f"calibration file {str(p)!r} must hold a JSON object")
-        cal = cls.from_json_dict(d)
-        if not (cal.F2_px_mm < 0 and cal.C_mm > 0 and math.isfinite(cal.d0_mm)):
-            raise CalibrationError(f"calibration file {str(p)!r}: need F2_px_mm < 0 and C_mm > 0")
+        try:
+            cal = cls.from_json_dict(d)
+        except CalibrationError as exc:
+            raise CalibrationError(f"calibration file {str(p)!r}: {exc}") from None
+        problem = cal.problem()
+        if problem:
+            raise CalibrationError(f"calibration file {str(p)!r}: {problem}")
         return cal
+
+    def problem(self, columns: int | None = None) -> str | None:
+        """What makes this calibration impossible, or None (the checks of a loaded file).
+
+        Parameters
+        ----------
+        columns : int, optional
+            Columns of the frames it will be applied to [px]; default the
+            calibration's own (0: unknown, the hinge check is skipped).
+
+        Returns
+        -------
+        str or None
+            The first problem, naming the field: a non-finite constant, a σ
+            that is negative or infinite, F² ≥ 0, C ≤ 0, a value beyond any
+            rig (|u_h|, |v_h| > 1e7 px, |d0| > 1e6 mm), the image hinge not
+            beyond the last column (the sensor would contain the hinge), a
+            plate height not > 0; None if none.
+        """
+        names = ("hinge_u_px", "hinge_v_px", "F2_px_mm", "d0_mm", "C_mm")
+        for name, value in zip(names, self.constants()):
+            if not math.isfinite(value):
+                return f"{name} = {value} must be finite"
+        for name in ("F2_sigma_px_mm", "C_sigma_mm", *_STDERR_KEYS):
+            value = getattr(self, name)
+            if not (math.isnan(value) or 0 <= value < math.inf):
+                return f"{name} = {value} must be >= 0 (or null: undefined)"
+        if not self.F2_px_mm < 0:
+            return f"F2_px_mm = {self.F2_px_mm:.6g} must be < 0 (columns increase toward the hinge)"
+        if not self.C_mm > 0:
+            return f"C_mm = {self.C_mm:.6g} must be > 0"
+        if max(abs(self.hinge_u_px), abs(self.hinge_v_px)) > 1e7 or abs(self.d0_mm) > 1e6:
+            return "hinge_px beyond ±1e7 px or d0_mm beyond ±1e6 mm: not a rig's calibration"
+        n = self.columns if columns is None else columns
+        if n and not self.hinge_u_px > n - 0.5:
+            return (f"image hinge u_h = {self.hinge_u_px:.6g} px lies inside the {n}-column sensor: it "
+                    f"must lie beyond the last column (> {n - 0.5}); a hinge on the sensor images "
+                    "points at infinity")
+        if not (math.isfinite(self.plate_height_mm) and self.plate_height_mm > 0):
+            return f"plate_height_mm = {self.plate_height_mm} must be > 0"
+        return None
+
+
 
 
 def _json_float(x: float):
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _float(d, key) -> float:
+    """``d[key]`` as a float; NaN when absent or null; a boolean or a string is refused."""
+    try:
+        value = d[key]
+    except (KeyError, IndexError, TypeError):
+        return math.nan
+    return _num(value)
+
+
+def _num(x) -> float:
+    """A JSON number as float; null = undefined = NaN; booleans and strings are refused."""
+    if x is None:
+        return math.nan
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"{x!r:.40} is not a number")
+    return float(x)
+
+
+def _whole(x) -> int:
+    """A JSON count as int in [0, 65535] (an integral float is fine)."""
+    v = _num(x)
+    if not (v.is_integer() and 0 <= v <= 65535):
+        raise ValueError(f"{x!r:.40} is not a count in [0, 65535]")
+    return int(v)
+
+
 
 
 @dataclass(frozen=True)
@@ -351,6 +502,8 @@ class PlateMeasurement:
         Rows of the inlier stripe points [px].
     u : (n,) ndarray float64
         Columns of the inlier stripe points [px].
+    file : str, default ""
+        The frame's file (for messages); empty when unknown.
     """
 
     stage_mm: float
@@ -361,6 +514,17 @@ class PlateMeasurement:
     bottom_px: tuple[float, float] | None
     rows: np.ndarray = field(repr=False)
     u: np.ndarray = field(repr=False)
+    file: str = ""
+
+    def name(self) -> str:
+        """The frame's file, or its stage position when the file is unknown.
+
+        Returns
+        -------
+        str
+            ``file`` or ``"stage s mm"``.
+        """
+        return self.file or f"stage {self.stage_mm:g} mm"
 
 
 @dataclass(frozen=True)
@@ -372,13 +536,19 @@ class CalibrationResult:
     best : Calibration
         The chosen estimate.
     paper, refined : Calibration
-        Both estimates (module docstring).
+        Both estimates.
     measurements : tuple of PlateMeasurement
-        The usable frames' measurements (both endpoints measured).
+        The usable frames' measurements.
     skipped : tuple of (str, str)
         (file or index, reason) of every frame not used.
     top_line, bottom_line : tuple of float
-        (m, b) of the paper's endpoint fits v = m u + b [px/px, px].
+        (m, b) of the paper's endpoint fits v = m u + b.
+    partial : tuple of (str, str), default ()
+        (file, "top" or "bottom": the edge not seen) of frames used with one edge.
+    warnings : tuple of str, default ()
+        What the user should know about the frames (too few of them, the
+        estimate preferred because the other's σ is undefined), one line each;
+        the estimates' own accuracy warnings are in ``Calibration.warnings``.
     """
 
     best: Calibration
@@ -388,6 +558,8 @@ class CalibrationResult:
     skipped: tuple[tuple[str, str], ...]
     top_line: tuple[float, float]
     bottom_line: tuple[float, float]
+    partial: tuple[tuple[str, str], ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 # ---------------------------------------------------------------- one frame
@@ -448,7 +620,8 @@ def _edge_row(frame, line, v_end: int, direction: int, side: int,
 
 def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "cog",
                         saturation_dn: float | None = None,
-                        tol: CalibrationTolerances = CalibrationTolerances()) -> PlateMeasurement:
+                        tol: CalibrationTolerances = CalibrationTolerances(),
+                        window_px: int | str = "auto") -> PlateMeasurement:
     """Stripe line and sub-pixel plate endpoints of one calibration frame.
 
     The stripe centres (``detector``) are fitted by a line u = a + b v with
@@ -467,6 +640,9 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         Saturation level [DN]; default the dtype's maximum.
     tol : CalibrationTolerances, optional
         Thresholds; default :class:`CalibrationTolerances`'s.
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
+        widens it beyond 7 px for stripes wider than σ = 7/3 px.
 
     Returns
     -------
@@ -480,9 +656,9 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         With the reason, when the frame holds no usable plate stripe: too few
         lit rows, too few rows on a line, or the stripe saturated in most rows.
     """
-    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn)
+    prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px=window_px)
     if len(prof) < tol.min_rows:
-        raise CalibrationError(f"no stripe ({len(prof)} lit rows < {tol.min_rows})")
+        raise CalibrationError(_no_stripe(frame, len(prof), tol.min_rows, saturation_dn))
     v = prof.rows.astype(np.float64)
     keep, line = _robust_line(v, prof.u, tol)
     if keep.sum() < tol.min_rows:
@@ -502,15 +678,27 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
 # ---------------------------------------------------------------- the fits
 
 
+def _no_stripe(frame: np.ndarray, n_rows: int, min_rows: int, saturation_dn: float | None) -> str:
+    """Why a frame gave too few stripe rows: saturated, or no stripe."""
+    sat = saturated_fraction(frame, saturation_dn)
+    if sat > 0.5:
+        return (f"frame saturated ({100 * sat:.0f} % of the pixels at the saturation level): no stripe "
+                "can be found; lower the exposure or the laser power")
+    return f"no stripe ({n_rows} lit rows < {min_rows})"
+
+
+# ---------------------------------------------------------------- the fits
+
+
 def _line_fit(x: np.ndarray, y: np.ndarray):
-    """Y = m x + b: (m, b), R², and the 2×2 covariance of (m, b)."""
+    """Y = m x + b: (m, b), R², and the 2×2 covariance of (m, b) (None when exactly determined)."""
     A = np.column_stack([x, np.ones_like(x)])
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     r = y - A @ coef
     ss_tot = float(np.sum((y - y.mean()) ** 2))
     r2 = 1.0 - float(r @ r) / ss_tot if ss_tot > 0 else math.nan
-    dof = max(len(x) - 2, 1)
-    cov = np.linalg.inv(A.T @ A) * float(r @ r) / dof
+    dof = len(x) - 2
+    cov = np.linalg.inv(A.T @ A) * float(r @ r) / dof if dof > 0 else None
     return (float(coef[0]), float(coef[1])), r2, cov
 
 
@@ -529,36 +717,148 @@ def _std(x: np.ndarray) -> float:
     return float(np.std(x, ddof=1)) if len(x) > 1 else math.nan
 
 
-def _paper_estimate(s, u, top, bot, H, tol):
-    """The paper's Section 3 calibration (see module docstring)."""
+def _sqrt_or_nan(var) -> float:
+    return math.nan if var is None or not np.isfinite(var) else math.sqrt(max(float(var), 0.0))
+
+
+@dataclass(frozen=True)
+class _Data:
+    """The measurements of a calibration: one entry per frame with a plate stripe."""
+
+    s: np.ndarray      # (n,) stage coordinates [mm]
+    u: np.ndarray      # (n,) mean stripe column [px]
+    top: np.ndarray    # (n, 2) top endpoint (u, v), NaN where the edge was not seen [px]
+    bot: np.ndarray    # (n, 2) bottom endpoint [px]
+    H: float           # plate height [mm]
+
+    @property
+    def has_t(self) -> np.ndarray:
+        return np.isfinite(self.top[:, 1])
+
+    @property
+    def has_b(self) -> np.ndarray:
+        return np.isfinite(self.bot[:, 1])
+
+    @property
+    def both(self) -> np.ndarray:
+        return self.has_t & self.has_b
+
+    def with_values(self, u, vt, vb) -> _Data:
+        """The same frames with other stripe columns and endpoint rows (for the delta method)."""
+        top, bot = self.top.copy(), self.bot.copy()
+        top[self.has_t, 1], bot[self.has_b, 1] = vt, vb
+        return _Data(self.s, u, top, bot, self.H)
+
+
+def _endpoints(ms) -> tuple[np.ndarray, np.ndarray]:
+    nan = (math.nan, math.nan)
+    return (np.array([m.top_px if m.top_px is not None else nan for m in ms], dtype=np.float64),
+            np.array([m.bottom_px if m.bottom_px is not None else nan for m in ms], dtype=np.float64))
+
+
+def _paper_values(d: _Data, tol: CalibrationTolerances) -> dict:
+    """The paper's Section 3 estimate, values only (module docstring)."""
+    top, bot = d.top[d.has_t], d.bot[d.has_b]
     lt, r2t, cov_t = _line_fit(top[:, 0], top[:, 1])
     lb, r2b, cov_b = _line_fit(bot[:, 0], bot[:, 1])
     if abs(lt[0] - lb[0]) < tol.min_slope_gap:
         raise CalibrationError(f"the endpoint lines are parallel (slopes {lt[0]:.5g} and {lb[0]:.5g}):"
                                " the plate edges do not converge to a hinge")
     uh, vh = _intersect(lt, lb)
-    # standard error of u_h: numerical Jacobian of the intersection
+    (_, d0), _, _ = _line_fit(1.0 / (d.u - uh), d.s)
+    F2_i = (d.u - uh) * (d.s - d0)
+    both = d.both
+    C_i = (_per_frame_C(d.H, uh, vh, d.top[both], d.bot[both]) if both.any()
+           else np.array([d.H / (lt[0] - lb[0])]))
+    return dict(hinge_u_px=uh, hinge_v_px=vh, F2_px_mm=float(F2_i.mean()), F2_sigma_px_mm=_std(F2_i),
+                d0_mm=float(d0), C_mm=float(C_i.mean()), C_sigma_mm=_std(C_i) if both.any() else math.nan,
+                endpoint_fit_r2=(r2t, r2b), lines=(lt, lb, cov_t, cov_b))
+
+
+def _intersection_sigmas(lt, lb, cov_t, cov_b) -> tuple[float, float]:
+    """Standard errors of the intersection (u_h, v_h) of two fitted lines (numerical Jacobian)."""
+    if cov_t is None or cov_b is None:
+        return math.nan, math.nan
     p0 = np.array([*lt, *lb])
-    J = np.zeros(4)
+    J = np.zeros((2, 4))
     for i in range(4):
         dp = np.zeros(4)
         dp[i] = 1e-7 * max(1.0, abs(p0[i]))
-        up = _intersect(p0[:2] + dp[:2], p0[2:] + dp[2:])[0]
-        um = _intersect(p0[:2] - dp[:2], p0[2:] - dp[2:])[0]
-        J[i] = (up - um) / (2 * dp[i])
+        up = _intersect(p0[:2] + dp[:2], p0[2:] + dp[2:])
+        um = _intersect(p0[:2] - dp[:2], p0[2:] - dp[2:])
+        J[:, i] = (np.subtract(up, um)) / (2 * dp[i])
     cov = np.zeros((4, 4))
     cov[:2, :2], cov[2:, 2:] = cov_t, cov_b
-    sig_uh = float(math.sqrt(max(J @ cov @ J, 0.0)))
-    (F2_fit, d0), _, _ = _line_fit(1.0 / (u - uh), s)
-    F2_i = (u - uh) * (s - d0)
-    C_i = _per_frame_C(H, uh, vh, top, bot)
-    return dict(hinge_u_px=uh, hinge_v_px=vh, F2_px_mm=float(F2_i.mean()),
-                F2_sigma_px_mm=_std(F2_i), d0_mm=float(d0), C_mm=float(C_i.mean()),
-                C_sigma_mm=_std(C_i), endpoint_fit_r2=(r2t, r2b), hinge_u_sigma_px=sig_uh), lt, lb
+    return _sqrt_or_nan(J[0] @ cov @ J[0]), _sqrt_or_nan(J[1] @ cov @ J[1])
+
+
+def _line_sigma(x: np.ndarray, y: np.ndarray) -> float | None:
+    """Residual standard deviation of a straight-line fit (None when exactly determined)."""
+    if len(x) <= 2:
+        return None
+    (m, b), _, _ = _line_fit(x, y)
+    r = y - (m * x + b)
+    return math.sqrt(float(r @ r) / (len(x) - 2))
+
+
+def _paper_stderr(d: _Data, tol: CalibrationTolerances, sigma_u: float | None) -> dict:
+    """Standard errors of the paper's F², d0 and C by the delta method.
+
+    Noise: ``sigma_u`` on every stripe column (the refined distance fit's
+    residuals), each endpoint line's own residual σ on its rows.
+    """
+    sig_t = _line_sigma(d.top[d.has_t, 0], d.top[d.has_t, 1])
+    sig_b = _line_sigma(d.bot[d.has_b, 0], d.bot[d.has_b, 1])
+    keys = ("F2_px_mm", "d0_mm", "C_mm")
+    if sigma_u is None or sig_t is None or sig_b is None:
+        return dict.fromkeys(("F2_stderr_px_mm", "d0_sigma_mm", "C_stderr_mm"), math.nan)
+    x0 = np.concatenate([d.u, d.top[d.has_t, 1], d.bot[d.has_b, 1]])
+    n, nt = len(d.u), int(d.has_t.sum())
+    sig = np.concatenate([np.full(n, sigma_u), np.full(nt, sig_t), np.full(len(x0) - n - nt, sig_b)])
+
+    def values(x):
+        e = _paper_values(d.with_values(x[:n], x[n:n + nt], x[n + nt:]), tol)
+        return np.array([e[k] for k in keys])
+
+    var = np.zeros(3)
+    for i in range(len(x0)):
+        dx = np.zeros_like(x0)
+        dx[i] = 1e-4
+        var += ((values(x0 + dx) - values(x0 - dx)) / 2e-4 * sig[i]) ** 2
+    return dict(zip(("F2_stderr_px_mm", "d0_sigma_mm", "C_stderr_mm"), (math.sqrt(v) for v in var)))
+
+
+def _paper_estimate(d: _Data, tol: CalibrationTolerances, sigma_u: float | None):
+    """The paper's estimate with its standard errors; also the two endpoint lines."""
+    e = _paper_values(d, tol)
+    lt, lb, cov_t, cov_b = e.pop("lines")
+    e["hinge_u_sigma_px"], e["hinge_v_sigma_px"] = _intersection_sigmas(lt, lb, cov_t, cov_b)
+    e.update(_paper_stderr(d, tol, sigma_u))
+    return e, lt, lb
+
+
+def _scaled_covariance(J: np.ndarray, rss: float, dof: int) -> np.ndarray | None:
+    """σ²·(JᵀJ)⁻¹ with σ² = rss/dof; None if dof ≤ 0 or JᵀJ is singular or nearly so.
+
+    Nearly singular: the column-scaled Jacobian's condition number squared
+    exceeds :data:`_MAX_CONDITION` (its standard errors would be noise).
+    """
+    if dof <= 0:
+        return None
+    scale = np.linalg.norm(J, axis=0)
+    if not np.all(scale > 0) or np.linalg.cond(J / scale) ** 2 > _MAX_CONDITION:
+        return None
+    try:
+        return np.linalg.inv(J.T @ J) * rss / dof
+    except np.linalg.LinAlgError:
+        return None
 
 
 def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None):
-    """Least squares u = u_h + F²/(s − d0): (u_h, F², d0), σ(u_h)."""
+    """Least squares u = u_h + F²/(s − d0): (u_h, F², d0), their covariance, σ of u.
+
+    The covariance and the residual σ are None when the fit is exactly determined.
+    """
     span = float(s.max() - s.min())
 
     def linear(d0):
@@ -579,56 +879,106 @@ def _distance_fit(s: np.ndarray, u: np.ndarray, guess_d0: float | None):
 
     sol = optimize.least_squares(resid, x0=[uh, F2, d0], x_scale=[100.0, 1e5, 10.0],
                                  xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    dof = max(len(s) - 3, 1)
-    r = sol.fun
-    try:
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof
-        sig = float(math.sqrt(max(cov[0, 0], 0.0)))
-    except np.linalg.LinAlgError:
-        sig = math.nan
-    return sol.x, sig
+    rss, dof = float(sol.fun @ sol.fun), len(s) - 3
+    cov = _scaled_covariance(sol.jac, rss, dof)
+    return sol.x, cov, (math.sqrt(rss / dof) if dof > 0 else None)
 
 
-def _refined_estimate(s, u, top, bot, H, r2, guess_d0):
-    """Joint distance fit + endpoint fit through the hinge (module docstring)."""
-    (uh, F2, d0), sig_uh = _distance_fit(s, u, guess_d0)
-    if not (F2 < 0 and np.all(s > d0)):
+def _endpoint_system(d: _Data, uh: float) -> tuple[np.ndarray, np.ndarray]:
+    """Design matrix and rows of the endpoint fit v = v_h + (u − u_h)·a_t (top) or ·a_b (bottom)."""
+    top, bot = d.top[d.has_t], d.bot[d.has_b]
+    nt = len(top)
+    A = np.zeros((nt + len(bot), 3))
+    A[:, 0] = 1.0
+    A[:nt, 1] = top[:, 0] - uh
+    A[nt:, 2] = bot[:, 0] - uh
+    return A, np.concatenate([top[:, 1], bot[:, 1]])
+
+
+def _endpoint_fit(d: _Data, uh: float, sig_uh: float):
+    """(v_h, a_t, a_b) through the hinge column, and their covariance (fit + u_h's error)."""
+    A, y = _endpoint_system(d, uh)
+    theta, *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = y - A @ theta
+    cov = _scaled_covariance(A, float(r @ r), len(y) - 3)
+    if cov is not None and math.isfinite(sig_uh):
+        h = 1e-3 * max(1.0, abs(uh))
+        g = (np.linalg.lstsq(*_endpoint_system(d, uh + h), rcond=None)[0]
+             - np.linalg.lstsq(*_endpoint_system(d, uh - h), rcond=None)[0]) / (2 * h)
+        cov = cov + np.outer(g, g) * sig_uh ** 2
+    elif cov is not None:
+        cov = None
+    return theta, cov
+
+
+def _refined_estimate(d: _Data, r2, guess_d0):
+    """Joint distance fit + endpoint fit through the hinge (module docstring); also σ of u."""
+    (uh, F2, d0), cov_d, sigma_u = _distance_fit(d.s, d.u, guess_d0)
+    if not (F2 < 0 and np.all(d.s > d0)):
         raise CalibrationError(f"the distance relation gives F² = {F2:.4g} px·mm, d0 = {d0:.4g} mm:"
                                " not a Scheimpflug geometry (need F² < 0 and every s > d0)")
-    n = len(top)
-    A = np.zeros((2 * n, 3))
-    A[:, 0] = 1.0
-    A[:n, 1] = top[:, 0] - uh
-    A[n:, 2] = bot[:, 0] - uh
-    (vh, at, ab), *_ = np.linalg.lstsq(A, np.concatenate([top[:, 1], bot[:, 1]]), rcond=None)
-    F2_i = (u - uh) * (s - d0)
-    C_i = _per_frame_C(H, uh, vh, top, bot)
+    sd = np.sqrt(np.maximum(np.diag(cov_d), 0.0)) if cov_d is not None else np.full(3, math.nan)
+    (vh, at, ab), cov_e = _endpoint_fit(d, uh, sd[0])
+    grad_C = d.H / (at - ab) ** 2 * np.array([0.0, -1.0, 1.0])
+    F2_i = (d.u - uh) * (d.s - d0)
+    C_i = _per_frame_C(d.H, uh, vh, d.top[d.both], d.bot[d.both])
+    # exactly determined (3 frames, 3 unknowns): every F2_i equals F² by construction
+    sig_F2 = _std(F2_i) if len(d.s) > 3 else math.nan
     return dict(hinge_u_px=float(uh), hinge_v_px=float(vh), F2_px_mm=float(F2),
-                F2_sigma_px_mm=_std(F2_i), d0_mm=float(d0), C_mm=float(H / (at - ab)),
-                C_sigma_mm=_std(C_i), endpoint_fit_r2=r2, hinge_u_sigma_px=sig_uh)
+                F2_sigma_px_mm=sig_F2, d0_mm=float(d0), C_mm=float(d.H / (at - ab)),
+                C_sigma_mm=_std(C_i), endpoint_fit_r2=r2, hinge_u_sigma_px=float(sd[0]),
+                hinge_v_sigma_px=_sqrt_or_nan(None if cov_e is None else cov_e[0, 0]),
+                F2_stderr_px_mm=float(sd[1]), d0_sigma_mm=float(sd[2]),
+                C_stderr_mm=_sqrt_or_nan(None if cov_e is None else grad_C @ cov_e @ grad_C)), sigma_u
+
+
+def _measurement_data(measurements, plate_height_mm: float, tol: CalibrationTolerances) -> _Data:
+    """Check the frames and gather their measurements (every frame with a plate stripe)."""
+    ms = tuple(measurements)
+    if len(ms) < tol.min_frames:
+        raise CalibrationError(f"only {len(ms)} usable calibration frame(s) (a plate stripe); "
+                               f"need at least {tol.min_frames}")
+    top, bot = _endpoints(ms)
+    d = _Data(np.array([m.stage_mm for m in ms]), np.array([m.u_mean_px for m in ms]), top, bot,
+              float(plate_height_mm))
+    if np.ptp(d.s) <= 0 or np.ptp(d.u) < 1.0:
+        raise CalibrationError(f"the plate did not move: stage positions span {np.ptp(d.s):.4g} mm and "
+                               f"the stripe {np.ptp(d.u):.3g} px")
+    nt, nb = int(d.has_t.sum()), int(d.has_b.sum())
+    if nt < 2 or nb < 2:
+        raise CalibrationError(f"{nt} frame(s) show the plate's top edge and {nb} its bottom edge; need "
+                               "at least 2 of each (lower the plate's table or use a shorter plate)")
+    return d
 
 
 def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, columns: int = 0,
                            rows: int = 0, method: str = "best",
                            tol: CalibrationTolerances = CalibrationTolerances(),
-                           skipped=()) -> CalibrationResult:
+                           skipped=(), accuracy: CalibrationAccuracy | None = None) -> CalibrationResult:
     """Both estimates from per-frame plate measurements (pure; no I/O).
+
+    Every frame with a plate stripe gives the distance relation; the frames
+    that show the top (bottom) edge give the top (bottom) endpoint line; C's
+    per-frame spread uses the frames that show both.
 
     Parameters
     ----------
     measurements : iterable of PlateMeasurement
-        Per-frame measurements; those without both endpoints are left out.
-    plate_height_mm : float, default 89.0
-        Plate height H [mm], > 0.
-    columns, rows : int, default 0
-        Sensor size, recorded in the calibration [px].
-    method : {"best", "paper", "refined"}, default "best"
-        Which estimate becomes ``best``; "best" takes the one with the smaller
-        standard error of u_h.
-    tol : CalibrationTolerances, optional
-        Thresholds; default :class:`CalibrationTolerances`'s.
-    skipped : iterable of (str, str), optional
-        (file or index, reason) of frames already skipped, passed through.
+        One per usable frame (:func:`measure_plate_frame`).
+    plate_height_mm : float
+        Plate height H [mm].
+    columns, rows : int
+        Sensor size [px] (recorded; ``columns`` also sets the distance
+        resolution of the d0 accuracy check).
+    method : {"best", "paper", "refined"}
+        Which estimate becomes ``best`` ("best": the smaller σ(u_h)).
+    tol : CalibrationTolerances
+        Thresholds.
+    skipped : sequence of (str, str)
+        Frames not used and why (recorded).
+    accuracy : CalibrationAccuracy, optional
+        The accuracy the calibration must state (default the class defaults);
+        :func:`accuracy_warnings` fills each estimate's ``warnings``.
 
     Returns
     -------
@@ -638,42 +988,156 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     Raises
     ------
     ValueError
-        For an unknown ``method``.
+        Unknown ``method``.
     CalibrationError
-        If the plate height is not > 0, fewer than ``tol.min_frames`` frames
-        have both edges, the plate did not move, the endpoint lines are
-        parallel, or the distance fit is not a Scheimpflug geometry
-        (F² ≥ 0 or a stage position not beyond d0).
+        Non-positive or non-finite plate height, too few frames or edges, a
+        plate that did not move, stage positions that contradict the frames
+        (two frames at one position with different stripes, a swapped pair,
+        frames flipped left–right), parallel endpoint lines, a non-Scheimpflug
+        distance relation.  A single frame whose stage position the others
+        contradict (≥ 6 frames) is left out and named in ``skipped``.
     """
     if method not in ("best", "paper", "refined"):
         raise ValueError(f"unknown calibration method {method!r} (paper, refined, best)")
-    if not plate_height_mm > 0:
-        raise CalibrationError(f"plate height must be > 0 mm, got {plate_height_mm}")
-    ms = tuple(m for m in measurements if m.top_px is not None and m.bottom_px is not None)
-    if len(ms) < tol.min_frames:
-        raise CalibrationError(f"only {len(ms)} usable calibration frame(s) (a stripe with both plate "
-                               f"edges in view); need at least {tol.min_frames}")
+    if not (math.isfinite(plate_height_mm) and plate_height_mm > 0):
+        raise CalibrationError(f"plate height must be a finite number > 0 mm, got {plate_height_mm}")
+    ms = tuple(measurements)
+    _check_stage_positions(ms, tol)
+    ms, outliers, notes = _reject_distance_outliers(ms, tol)
+    d = _measurement_data(ms, plate_height_mm, tol)
+    pap0 = _paper_values(d, tol)
+    ref, sigma_u = _refined_estimate(d, pap0["endpoint_fit_r2"], pap0["d0_mm"])
+    pap, lt, lb = _paper_estimate(d, tol, sigma_u)
+    common = dict(columns=int(columns), rows=int(rows), plate_height_mm=d.H, n_frames=len(ms),
+                  n_frames_both_edges=int(d.both.sum()))
+    estimates = {"paper": _estimate_json(pap), "refined": _estimate_json(ref)}
+    acc = accuracy or CalibrationAccuracy()
+    paper, refined = (_with_warnings(Calibration(**e, method=name, estimates=estimates, **common), acc)
+                      for e, name in ((pap, "paper"), (ref, "refined")))
+    best, why = _choose(paper, refined, method)
+    notes += _frame_count_notes(len(ms), tol) + why
+    return CalibrationResult(best=best, paper=paper, refined=refined, measurements=ms,
+                             skipped=tuple(skipped) + outliers, top_line=lt, bottom_line=lb,
+                             warnings=tuple(notes))
+
+
+def _check_stage_positions(ms, tol: CalibrationTolerances) -> None:
+    """Refuse stage positions that contradict the frames (a typo in the manifest, flipped frames).
+
+    Columns grow toward the hinge as the plate moves away (u = u_h + F²/(s − d0),
+    F² < 0): sorted by stage position, the stripe columns must increase.  Equal
+    positions must show the stripe at the same column.
+    """
     s = np.array([m.stage_mm for m in ms])
     u = np.array([m.u_mean_px for m in ms])
-    if np.ptp(s) <= 0 or np.ptp(u) < 1.0:
-        raise CalibrationError(f"the plate did not move: stage positions span {np.ptp(s):.4g} mm and "
-                               f"the stripe {np.ptp(u):.3g} px")
-    top = np.array([m.top_px for m in ms])
-    bot = np.array([m.bottom_px for m in ms])
-    H = float(plate_height_mm)
-    pap, lt, lb = _paper_estimate(s, u, top, bot, H, tol)
-    ref = _refined_estimate(s, u, top, bot, H, pap["endpoint_fit_r2"], pap["d0_mm"])
-    common = dict(columns=int(columns), rows=int(rows), plate_height_mm=H, n_frames=len(ms))
-    estimates = {"paper": _estimate_json(pap), "refined": _estimate_json(ref)}
-    paper = Calibration(**pap, method="paper", estimates=estimates, **common)
-    refined = Calibration(**ref, method="refined", estimates=estimates, **common)
-    if method == "best":
-        sp, sr = paper.hinge_u_sigma_px, refined.hinge_u_sigma_px
-        best = paper if (math.isfinite(sp) and not (sr <= sp)) else refined
-    else:
-        best = paper if method == "paper" else refined
-    return CalibrationResult(best=best, paper=paper, refined=refined, measurements=ms,
-                             skipped=tuple(skipped), top_line=lt, bottom_line=lb)
+    order = np.argsort(s, kind="stable")
+    du = np.diff(u[order])
+    floor = tol.stage_order_px
+    if len(du) >= 2 and np.all(du < -floor):
+        raise CalibrationError(
+            "the stripe moves to smaller columns as the stage moves away from the camera: the frames "
+            "look flipped left–right (columns must increase toward the image hinge, the far end of "
+            "the range); flip the frames horizontally (or check the stage_mm sign)")
+    for k in range(len(du)):
+        a, b = ms[order[k]], ms[order[k + 1]]
+        if s[order[k + 1]] == s[order[k]] and abs(du[k]) > floor:
+            raise CalibrationError(
+                f"{a.name()} and {b.name()} have the same stage position s = {a.stage_mm:g} mm but "
+                f"their stripes lie {abs(du[k]):.3g} px apart: is a stage_mm in the manifest wrong?")
+        if du[k] < -floor:
+            raise CalibrationError(
+                f"stage positions and stripe columns disagree: {a.name()} (s = {a.stage_mm:g} mm, "
+                f"u = {a.u_mean_px:.2f} px) and {b.name()} (s = {b.stage_mm:g} mm, "
+                f"u = {b.u_mean_px:.2f} px); the stripe must move toward the hinge as s grows: "
+                "is a stage_mm in the manifest wrong or swapped?")
+
+
+def _reject_distance_outliers(ms, tol: CalibrationTolerances):
+    """Leave out, one at a time, frames whose stage position the others contradict.
+
+    Leave-one-out test of u = u_h + F²/(s − d0): each frame's column is
+    predicted by the fit of all the others; a frame whose prediction error
+    exceeds ``fit_outlier_ratio`` times the others' robust residual σ (1.4826 ×
+    MAD, scaled by √(m/(m − 3)) for the three fitted unknowns) and
+    ``fit_outlier_floor_px`` is left out, worst first.  Needs ≥ 6 frames (the
+    others then leave ≥ 2 degrees of freedom).  At most a quarter of the
+    frames may go: beyond that the model, not a stage position, is what fails,
+    and only a warning is given.
+
+    Returns
+    -------
+    ms : tuple of PlateMeasurement
+        The frames kept.
+    outliers : tuple of (str, str)
+        (frame, reason) of the frames left out.
+    notes : list of str
+        Warnings.
+    """
+    ms, outliers, n0 = tuple(ms), [], len(ms)
+    while len(ms) >= 6:
+        s = np.array([m.stage_mm for m in ms])
+        u = np.array([m.u_mean_px for m in ms])
+        err, scale = _leave_one_out(s, u)
+        ratio = np.abs(err) / np.maximum(scale, 1e-12)
+        worst = int(np.argmax(np.where(np.abs(err) > tol.fit_outlier_floor_px, ratio, 0.0)))
+        if not (abs(err[worst]) > tol.fit_outlier_floor_px and ratio[worst] > tol.fit_outlier_ratio):
+            break
+        if len(outliers) + 1 > n0 // 4:
+            return ms, tuple(outliers), [
+                f"the distance fit u = u_h + F²/(s − d0) contradicts several frames (up to "
+                f"{abs(err[worst]):.3g} px): the paper's model may not describe this rig (lens "
+                "distortion, sensor roll) or several stage positions are wrong"]
+        outliers.append((ms[worst].name(), f"outlier in the distance fit: the other frames put its stripe "
+                         f"{err[worst]:+.3g} px from where it is ({ratio[worst]:.0f} × their residual σ "
+                         f"{scale[worst]:.2g} px): is its stage_mm ({ms[worst].stage_mm:g} mm) wrong?"))
+        ms = ms[:worst] + ms[worst + 1:]
+    return ms, tuple(outliers), []
+
+
+def _leave_one_out(s: np.ndarray, u: np.ndarray):
+    """Per frame: (column − prediction of the others' fit, the others' robust residual σ) [px]."""
+    x0, _, _ = _distance_fit(s, u, None)
+    err, scale = np.empty(len(s)), np.empty(len(s))
+    for i in range(len(s)):
+        k = np.arange(len(s)) != i
+        sk, uk = s[k], u[k]
+        sol = optimize.least_squares(lambda q, sk=sk, uk=uk: uk - (q[0] + q[1] / (sk - q[2])), x0,
+                                     x_scale=[100.0, 1e5, 10.0])
+        q = sol.x
+        err[i] = u[i] - (q[0] + q[1] / (s[i] - q[2]))
+        m = int(k.sum())
+        scale[i] = 1.4826 * float(np.median(np.abs(sol.fun))) * math.sqrt(m / (m - 3))
+    return err, scale
+
+
+def _frame_count_notes(n: int, tol: CalibrationTolerances) -> list[str]:
+    if n >= tol.recommended_frames:
+        return []
+    return [f"only {n} usable calibration frames (recommended: at least {tol.recommended_frames}): "
+            "the refined fit has 3 unknowns (u_h, F², d0), so its standard errors are "
+            + ("undefined" if n <= 3 else f"poorly determined ({n - 3} degree(s) of freedom)")]
+
+
+def _choose(paper: Calibration, refined: Calibration, method: str) -> tuple[Calibration, list[str]]:
+    """The estimate for ``method``; "best" prefers a defined σ(u_h), then the smaller one."""
+    if method != "best":
+        return (paper if method == "paper" else refined), []
+    sp, sr = paper.hinge_u_sigma_px, refined.hinge_u_sigma_px
+    if math.isfinite(sr) and (not math.isfinite(sp) or sr <= sp):
+        return refined, []
+    if math.isfinite(sp):
+        why = [] if math.isfinite(sr) else [
+            "the refined fit's σ(u_h) is undefined (exactly determined or nearly singular): "
+            "using the paper's over-determined estimate"]
+        return paper, why
+    return refined, ["no estimate has a defined σ(u_h): using the refined one"]
+
+
+def _with_warnings(cal: Calibration, accuracy: CalibrationAccuracy) -> Calibration:
+    return dataclasses.replace(cal, warnings=accuracy_warnings(cal, accuracy))
+
+
+_STDERR_KEYS = ("hinge_u_sigma_px", "hinge_v_sigma_px", "F2_stderr_px_mm", "d0_sigma_mm", "C_stderr_mm")
 
 
 def _estimate_json(e: dict) -> dict:
@@ -681,78 +1145,152 @@ def _estimate_json(e: dict) -> dict:
             "F2_sigma_px_mm": _json_float(e["F2_sigma_px_mm"]), "d0_mm": e["d0_mm"],
             "C_mm": e["C_mm"], "C_sigma_mm": _json_float(e["C_sigma_mm"]),
             "endpoint_fit_r2": [_json_float(x) for x in e["endpoint_fit_r2"]],
-            "hinge_u_sigma_px": _json_float(e["hinge_u_sigma_px"])}
+            **{k: _json_float(e[k]) for k in _STDERR_KEYS}}
+
+
+# ---------------------------------------------------------------- stated accuracy
+
+
+@dataclass(frozen=True)
+class CalibrationAccuracy:
+    """The accuracy a calibration must be able to state, and the check's coverage factor.
+
+    Defaults: the closed-loop targets of the twin (tests/test_any_rig.py).
+
+    Parameters
+    ----------
+    hinge_px : float, default 0.5
+        Target for u_h and v_h [px].
+    relative : float, default 5e-4
+        Target for F² and C, relative [-].
+    d0_resolution : float, default 0.1
+        Target for d0 in units of the distance resolution at the centre
+        column, |F²|/(N_u/2 − u_h)² [-].
+    coverage : float, default 2.0
+        A constant meets its target when ``coverage × standard error ≤ target`` [-].
+    """
+
+    hinge_px: float = 0.5
+    relative: float = 5e-4
+    d0_resolution: float = 0.1
+    coverage: float = 2.0
+
+
+def _accuracy_checks(cal: Calibration, acc: CalibrationAccuracy) -> list[tuple[str, float, float, str]]:
+    """(name, standard error, target, unit) of every constant the calibration states."""
+    checks = [("u_h", cal.hinge_u_sigma_px, acc.hinge_px, "px"),
+              ("v_h", cal.hinge_v_sigma_px, acc.hinge_px, "px"),
+              ("F²", cal.F2_stderr_px_mm / abs(cal.F2_px_mm), acc.relative, "(relative)"),
+              ("C", cal.C_stderr_mm / abs(cal.C_mm), acc.relative, "(relative)")]
+    if cal.columns > 0:
+        res = abs(cal.F2_px_mm) / (cal.columns // 2 - cal.hinge_u_px) ** 2
+        checks.append(("d0", cal.d0_sigma_mm, acc.d0_resolution * res, "mm"))
+    return checks
+
+
+def accuracy_warnings(cal: Calibration,
+                      accuracy: CalibrationAccuracy = CalibrationAccuracy()) -> tuple[str, ...]:
+    """Warnings when a calibration cannot state, or does not reach, a stated accuracy.
+
+    Rule: a constant is too uncertain when ``coverage × standard error``
+    exceeds its target (:class:`CalibrationAccuracy`); a constant whose
+    standard error does not exist (an exactly determined fit: 3 frames for
+    u_h, F² and d0, or 3 plate edges for v_h and the two edge slopes) cannot
+    state its accuracy.  Either way the plan is too thin: more frames, or a
+    longer stage range, shrink the standard errors.
+
+    Parameters
+    ----------
+    cal : Calibration
+        The calibration with its standard errors.
+    accuracy : CalibrationAccuracy
+        The targets.
+
+    Returns
+    -------
+    tuple of str
+        At most two lines (constants without a standard error; constants
+        beyond their target); empty when the calibration meets every target.
+    """
+    checks = _accuracy_checks(cal, accuracy)
+    unknown = [name for name, sig, _, _ in checks if not math.isfinite(sig)]
+    k = accuracy.coverage
+    over = [f"{k:g}σ({name}) = {k * sig:.3g} {unit} > {target:.3g} {unit}"
+            for name, sig, target, unit in checks if math.isfinite(sig) and k * sig > target]
+    out = []
+    if unknown:
+        out.append(f"the calibration cannot state the accuracy of {', '.join(unknown)}: its fits are "
+                   f"exactly determined ({cal.n_frames} frames, {cal.n_frames_both_edges} with both plate "
+                   "edges); add calibration frames")
+    if over:
+        out.append(f"the calibration plan is too thin for the stated accuracy: {'; '.join(over)}; "
+                   "add frames or span more of the depth range")
+    return tuple(out)
 
 
 def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | None = None, *,
                      method: str = "best", detector: str = "cog", progress=None,
-                     tol: CalibrationTolerances = CalibrationTolerances()) -> CalibrationResult:
+                     tol: CalibrationTolerances = CalibrationTolerances(),
+                     accuracy: CalibrationAccuracy | None = None) -> CalibrationResult:
     """Calibrate from a frame folder of plate frames (INTERFACE.md).
 
-    Frames without a stripe, without both plate edges in view or saturated are
-    skipped with a warning (``CalibrationResult.skipped``).
+    Frames without a stripe or saturated are skipped with a warning
+    (``CalibrationResult.skipped``); frames that show one plate edge only are
+    used for the distance relation and that edge (``CalibrationResult.partial``).
 
     Parameters
     ----------
-    folder : str, Path or FrameFolder
-        Plate frames, each with ``stage_mm`` in the manifest.
+    folder : path or FrameFolder
+        Frames with ``stage_mm``.
     plate_height_mm : float, optional
         Plate height [mm]; default the manifest's
         ``scenario_params.plate_height_mm`` or 89 mm (the paper's).
-    method : {"best", "paper", "refined"}, default "best"
+    method : {"best", "paper", "refined"}
         Which estimate becomes ``best``.
-    detector : str, default "cog"
+    detector : str
         Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
     progress : ProgressCallback, optional
-        ``progress(done, total)`` before each frame and once at the end
-        (:mod:`scheimpflug.callbacks`).
-    tol : CalibrationTolerances, optional
-        Thresholds; default :class:`CalibrationTolerances`'s.
+        ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    tol : CalibrationTolerances
+        Thresholds of the plate measurement.
+    accuracy : CalibrationAccuracy, optional
+        The accuracy to state (:func:`accuracy_warnings`).
 
     Returns
     -------
     CalibrationResult
-        Both estimates, the chosen one, the measurements and the skipped frames.
+        Both estimates and the diagnostics.
 
     Raises
     ------
     CalibrationError
-        If a frame has no ``stage_mm``, or the usable frames cannot determine
-        the calibration (:func:`calibrate_measurements`).
-    FrameError
-        If the folder or a frame is missing or invalid.
-    ValueError
-        For an unknown ``method``.
-
-    Warns
-    -----
-    UserWarning
-        For each skipped frame, with its file and the reason.
+        A frame without ``stage_mm``, or the fits fail
+        (:func:`calibrate_measurements`).
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:
-        plate_height_mm = float(ff.scenario_params.get("plate_height_mm", 89.0))
+        plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]
     if missing:
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; "
                                f"{missing[0]!r} has none")
-    ms, skipped = [], []
+    ms, skipped, partial = [], [], []
     for i in range(len(ff)):
         report(progress, i, len(ff))
         rec = ff.frames[i]
         frame = ff.read(i)
         try:
-            m = measure_plate_frame(frame, rec.stage_mm, detector=detector,
-                                    saturation_dn=ff.saturation_dn(frame), tol=tol)
+            m = dataclasses.replace(measure_plate_frame(frame, rec.stage_mm, detector=detector,
+                                                        saturation_dn=ff.saturation_dn(frame), tol=tol),
+                                    file=rec.file)
         except CalibrationError as exc:
             skipped.append((rec.file, str(exc)))
             warnings.warn(f"{rec.file}: skipped: {exc}", stacklevel=2)
             continue
         if m.top_px is None or m.bottom_px is None:
-            skipped.append((rec.file, "plate edge outside the frame"))
-            warnings.warn(f"{rec.file}: skipped: plate edge outside the frame", stacklevel=2)
-            continue
+            partial.append((rec.file, "top" if m.top_px is None else "bottom"))
         ms.append(m)
     report(progress, len(ff), len(ff))
-    return calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
-                                  rows=ff.rows, method=method, tol=tol, skipped=skipped)
+    res = calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
+                                 rows=ff.rows, method=method, tol=tol, skipped=skipped, accuracy=accuracy)
+    return dataclasses.replace(res, partial=tuple(partial))

@@ -7,7 +7,9 @@ printed by the command line on one line with a non-zero exit status.
 
 __all__ = [
     "CalibrationError",
+    "DatasetError",
     "FrameError",
+    "LockError",
     "MeshError",
     "RenderError",
     "RigError",
@@ -23,12 +25,20 @@ class RigError(ScheimpflugError, ValueError):
     """An impossible, inconsistent or malformed rig description."""
 
 
+class DatasetError(ScheimpflugError, ValueError):
+    """A malformed dataset spec, or a dataset folder that is missing, foreign or inconsistent."""
+
+
 class FrameError(ScheimpflugError, ValueError):
     """A missing, unreadable, wrong-size, blank or saturated frame or frame folder."""
 
 
 class CalibrationError(ScheimpflugError, ValueError):
     """A calibration set that cannot determine the calibration (too few frames, degenerate)."""
+
+
+class LockError(ScheimpflugError, RuntimeError):
+    """A folder is being written by another process (its lock file names the owner)."""
 
 
 class MeshError(ScheimpflugError, ValueError):

@@ -29,12 +29,14 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.model.hinge import stage_from_pixel
-from scheimpflug.stripe import extract_stripes
+from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
+    "ISOLATION_PX",
     "PointCloud",
     "SheetCalibration",
     "extract_folder",
+    "isolated_rows",
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
@@ -246,9 +248,44 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
                       intensity=ii[ok], frame=ff[ok])
 
 
+ISOLATION_PX = 2.0  # a row's stripe needs a neighbour row's within this many columns [px]
+
+
+def isolated_rows(rows: np.ndarray, u: np.ndarray, max_gap_px: float = ISOLATION_PX) -> np.ndarray:
+    """Which stripe samples of one frame have no neighbour in the adjacent rows.
+
+    Parameters
+    ----------
+    rows : (n,) ndarray int
+        Rows of the samples, increasing [px].
+    u : (n,) ndarray float
+        Their columns [px].
+    max_gap_px : float
+        A sample in row r ± 1 within this many columns counts as a neighbour [px].
+
+    Returns
+    -------
+    (n,) ndarray bool
+        True where neither row r − 1 nor row r + 1 holds a sample within
+        ``max_gap_px`` of the sample's column.
+    """
+    rows = np.asarray(rows)
+    u = np.asarray(u, dtype=np.float64)
+    if rows.size == 0:
+        return np.zeros(0, dtype=bool)
+    lone = np.ones(rows.size, dtype=bool)
+    for step in (-1, 1):
+        j = np.searchsorted(rows, rows + step)
+        j = np.clip(j, 0, rows.size - 1)
+        near = (rows[j] == rows + step) & (np.abs(u[j] - u) <= max_gap_px)
+        lone &= ~near
+    return lone
+
+
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
                    keep_saturated: bool = False, progress: ProgressCallback | None = None,
-                   multi_peak: str = "nearest"):
+                   multi_peak: str = "nearest", window_px: int | str = "auto",
+                   drop_isolated: bool = False):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -267,6 +304,13 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
     multi_peak : str
         Rule for rows with several peaks (:data:`scheimpflug.stripe.MULTI_PEAK_RULES`).
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
+        widens it beyond 7 px, frame by frame, for stripes wider than σ = 7/3 px.
+    drop_isolated : bool, default False
+        Drop a row's stripe when neither adjacent row has one within
+        :data:`ISOLATION_PX` columns (:func:`isolated_rows`): a surface images to
+        a run of rows, a lone detection is noise or stray light at a part's edge.
 
     Returns
     -------
@@ -274,8 +318,10 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         One array per frame, in manifest order: rows (int64) [px], stripe
         columns (float64) [px], peak height above background (float64) [DN].
     stats : dict
-        Counters ``blank_frames`` (no stripe row) and ``saturated_rows``
-        (counted whether kept or not).
+        Counters ``blank_frames`` (no stripe row), ``saturated_rows``
+        (counted whether kept or not), ``isolated_rows`` (dropped or not) and
+        ``saturated_frames`` (more than half of the pixels at the saturation
+        level: blown out).
 
     Raises
     ------
@@ -285,15 +331,22 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         For an unknown ``method`` or a bad ``min_snr``.
     """
     def one(rec, frame):
+        sat = folder.saturation_dn(frame)
         return extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
-                               saturation_dn=folder.saturation_dn(frame))
+                               saturation_dn=sat, window_px=window_px), \
+            saturated_fraction(frame, sat) > 0.5
 
     rows, us, peaks = [], [], []
-    stats = {"blank_frames": 0, "saturated_rows": 0}
-    for prof in folder.map_frames(one):
-        keep = slice(None) if keep_saturated else ~prof.saturated
+    stats = {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0, "saturated_frames": 0}
+    for prof, blown in folder.map_frames(one):
+        keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
+        lone = isolated_rows(prof.rows, prof.u)
+        stats["isolated_rows"] += int(lone.sum())
+        if drop_isolated:
+            keep &= ~lone
         stats["saturated_rows"] += int(prof.saturated.sum())
         stats["blank_frames"] += int(len(prof) == 0)
+        stats["saturated_frames"] += int(blown)
         rows.append(prof.rows[keep])
         us.append(prof.u[keep])
         peaks.append(prof.peak[keep])

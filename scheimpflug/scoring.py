@@ -39,6 +39,7 @@ import numpy as np
 from scheimpflug.errors import MeshError
 
 __all__ = [
+    "MAX_COORDINATE_MM",
     "MeshDistance",
     "PointToMesh",
     "TwoSidedDistance",
@@ -50,6 +51,10 @@ __all__ = [
     "score_points",
     "two_sided_distance",
 ]
+
+MAX_COORDINATE_MM = 1e12
+"""Largest |coordinate| of a point or a mesh vertex that can be scored [mm] (1000 km: no part is
+larger; squared distances of coordinates beyond ≈ 1e154 overflow float64)."""
 
 _LEAF_SIZE = 4          # triangles per BVH leaf: 4 balances box tests against triangle tests
 _STACK = 128            # traversal stack depth; a median-split tree on 1e9 faces is < 64 deep
@@ -106,10 +111,43 @@ def _build_bvh(tri_min, tri_max, centroid, leaf_size):
 
 
 @numba.njit(cache=True, inline="always")
+def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
+    """Closest point of segment ab to p, and its parameter t in [0, 1] (0 for a point)."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    dd = dx * dx + dy * dy + dz * dz
+    t = 0.0
+    if dd > 0.0:
+        t = min(max(((px - ax) * dx + (py - ay) * dy + (pz - az) * dz) / dd, 0.0), 1.0)
+    return ax + t * dx, ay + t * dy, az + t * dz, t
+
+
+@numba.njit(cache=True)
+def _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point of a zero-area triangle (a segment or a point): the nearest of its edges."""
+    best, out = np.inf, (ax, ay, az, 0)
+    edges = ((ax, ay, az, bx, by, bz, 3, 0, 1), (bx, by, bz, cx, cy, cz, 4, 1, 2),
+             (cx, cy, cz, ax, ay, az, 5, 2, 0))
+    for e in edges:
+        qx, qy, qz, t = _closest_on_segment(px, py, pz, e[0], e[1], e[2], e[3], e[4], e[5])
+        d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+        if d2 < best:
+            code = e[7] if t <= 0.0 else (e[8] if t >= 1.0 else e[6])
+            best, out = d2, (qx, qy, qz, code)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
 def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
-    """Closest point of triangle abc to p and the feature it lies on (Ericson §5.1.5)."""
+    """Closest point of triangle abc to p and the feature it lies on (Ericson §5.1.5).
+
+    A zero-area triangle (collinear or coincident corners) is a segment or a point:
+    the nearest point of its edges (:func:`_closest_on_degenerate`).
+    """
     abx, aby, abz = bx - ax, by - ay, bz - az
     acx, acy, acz = cx - ax, cy - ay, cz - az
+    nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
+    if nx * nx + ny * ny + nz * nz == 0.0:
+        return _closest_on_degenerate(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
     apx, apy, apz = px - ax, py - ay, pz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
@@ -255,6 +293,9 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError("mesh faces must index existing vertices")
     if not np.all(np.isfinite(v)):
         raise MeshError("mesh vertices contain NaN or infinite coordinates")
+    if np.abs(v).max() > MAX_COORDINATE_MM:
+        raise MeshError(f"mesh vertices reach {np.abs(v).max():.3g} mm: beyond ±{MAX_COORDINATE_MM:g} mm "
+                        "nothing can be scored (not a part in mm)")
     return v, f.astype(np.int64)
 
 
@@ -388,7 +429,8 @@ class PointToMesh:
     ------
     MeshError
         If the arrays have the wrong shape, faces index missing vertices or
-        are not integers, or a vertex is not finite.
+        are not integers, or a vertex is not finite or beyond
+        :data:`MAX_COORDINATE_MM`.
 
     Notes
     -----
@@ -426,13 +468,16 @@ class PointToMesh:
         Raises
         ------
         ValueError
-            If ``points`` is not (n, 3) or holds NaN or infinite coordinates.
+            If ``points`` is not (n, 3) or holds NaN or infinite coordinates, or
+            coordinates beyond :data:`MAX_COORDINATE_MM`.
         """
         p = np.ascontiguousarray(points, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must be an (n, 3) array, got shape {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ValueError("points contain NaN or infinite coordinates")
+        if p.size and np.abs(p).max() > MAX_COORDINATE_MM:
+            raise ValueError(f"points reach {np.abs(p).max():.3g} mm, beyond ±{MAX_COORDINATE_MM:g} mm")
         n = len(p)
         d2, face = np.empty(n), np.empty(n, dtype=np.int64)
         code, closest = np.empty(n, dtype=np.int64), np.empty((n, 3))

@@ -85,6 +85,7 @@ from scipy import optimize, stats
 
 from scheimpflug.calibration import (
     Calibration,
+    CalibrationAccuracy,
     CalibrationResult,
     CalibrationTolerances,
     PlateMeasurement,
@@ -94,7 +95,7 @@ from scheimpflug.calibration import (
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
-from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.io.frames import FrameFolder, open_frame_folder, scenario_number
 from scheimpflug.model.hinge import stage_from_pixel
 from scheimpflug.tilted_camera import CAMERA_FROM_RIG, TiltedCamera, camera_from_sensor_pose
 
@@ -754,8 +755,9 @@ class ModelSelection:
         dict
             JSON-ready.
         """
-        return {"chosen": self.chosen, "F": _json_float(self.F), "p_value": float(self.p_value),
-                "rss_paper_px2": self.rss_paper_px2, "rss_general_px2": self.rss_general_px2,
+        return {"chosen": self.chosen, "F": _json_float(self.F), "p_value": _json_float(self.p_value),
+                "rss_paper_px2": _json_float(self.rss_paper_px2),
+                "rss_general_px2": _json_float(self.rss_general_px2),
                 "dof": list(self.dof), "alpha": self.alpha, "min_rss_drop": self.min_rss_drop,
                 "reason": self.reason}
 
@@ -895,25 +897,29 @@ def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: Calibratio
 
 def _rig_optics(ff: FrameFolder, focal_length_mm, pixel_pitch_um) -> tuple[float, float, bool]:
     """F [mm] and p [µm]: the arguments, else the manifest's rig, else the paper's (assumed)."""
-    rig = ff.rig or {}
-    f = focal_length_mm or (rig.get("lens") or {}).get("focal_length_mm")
-    p = pixel_pitch_um or (rig.get("sensor") or {}).get("pixel_pitch_um")
+    f = focal_length_mm or ff.rig_value("lens", "focal_length_mm")
+    p = pixel_pitch_um or ff.rig_value("sensor", "pixel_pitch_um")
     assumed = f is None or p is None
     return float(f or DEFAULT_FOCAL_LENGTH_MM), float(p or DEFAULT_PIXEL_PITCH_UM), assumed
 
 
 def _measure_all(ff: FrameFolder, detector: str, tol: CalibrationTolerances, progress):
-    ms, skipped = [], []
+    """Every frame's plate measurement; frames without a stripe and why; frames with one edge."""
+    ms, skipped, partial = [], [], []
     for i in range(len(ff)):
         report(progress, i, len(ff))
         rec, frame = ff.frames[i], ff.read(i)
         try:
-            ms.append(measure_plate_frame(frame, rec.stage_mm, detector=detector,
-                                          saturation_dn=ff.saturation_dn(frame), tol=tol))
+            m = replace(measure_plate_frame(frame, rec.stage_mm, detector=detector,
+                                            saturation_dn=ff.saturation_dn(frame), tol=tol), file=rec.file)
         except CalibrationError as exc:
             skipped.append((rec.file, str(exc)))
+            continue
+        ms.append(m)
+        if m.top_px is None or m.bottom_px is None:
+            partial.append((rec.file, "top" if m.top_px is None else "bottom"))
     report(progress, len(ff), len(ff))
-    return ms, skipped
+    return ms, skipped, partial
 
 
 def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: float | None = None, *,
@@ -922,7 +928,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
                            fit_k2: bool = False, fit_centre: bool = False, extra_points=None,
                            alpha: float = 1e-3, min_rss_drop: float = 0.2,
                            progress: ProgressCallback | None = None,
-                           tol: CalibrationTolerances | None = None) -> SheetModelResult:
+                           tol: CalibrationTolerances | None = None,
+                           accuracy: CalibrationAccuracy | None = None) -> SheetModelResult:
     """Calibrate a plate folder with the paper form and the general model; choose one.
 
     Parameters
@@ -950,6 +957,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
         ``progress(done, total)`` per frame.
     tol : CalibrationTolerances, optional
         Plate measurement thresholds (default :class:`CalibrationTolerances`).
+    accuracy : CalibrationAccuracy, optional
+        The accuracy the paper form must state (:func:`scheimpflug.calibration.accuracy_warnings`).
 
     Returns
     -------
@@ -967,18 +976,20 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     tol = tol or CalibrationTolerances()
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     if plate_height_mm is None:
-        plate_height_mm = float(ff.scenario_params.get("plate_height_mm", 89.0))
+        plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]
     if missing:
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; {missing[0]!r} has none")
-    ms, skipped = _measure_all(ff, detector, tol, progress)
-    both = [m for m in ms if m.top_px is not None and m.bottom_px is not None]
+    ms, skipped, partial = _measure_all(ff, detector, tol, progress)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        paper = calibrate_measurements(both, plate_height_mm=plate_height_mm, columns=ff.columns,
+        paper = calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
                                        rows=ff.rows, method=method, tol=tol,
-                                       skipped=tuple(skipped))
+                                       skipped=tuple(skipped), accuracy=accuracy)
+    paper = replace(paper, partial=tuple(partial))
     f, p, _ = _rig_optics(ff, focal_length_mm, pixel_pitch_um)
+    left_out = {name for name, _ in paper.skipped}        # e.g. a frame at a wrong stage position
+    ms = [m for m in ms if m.file not in left_out]
     try:
         pfit, gfit, general, sel = fit_sheet_models(ms, paper, focal_length_mm=f, pixel_pitch_um=p,
                                                     fit_k2=fit_k2, fit_centre=fit_centre,

@@ -7,12 +7,15 @@ and the frame's noise seed).  Three scenarios (INTERFACE.md):
 ``calibration``
     The calibration plate (:func:`scenes.generators.plate`, height
     ``plate_height_mm``) on the translation stage at s = start + i·step
-    (:func:`sim.stages.rig_from_plate`).  Defaults: 27 steps of 10 mm from −10 mm
-    (s = −10 … 250, all inside the paper rig's −18.8 … 255.5 mm view).
-    The paper used 27 × 20 mm, but that spans 520 mm while its depth range is
-    only ≈ 277 mm, so half of those frames would be empty; ``step_mm=20``
-    reproduces the paper literally and the out-of-view frames are listed in
-    :attr:`Scenario.warnings`.
+    (:func:`sim.stages.rig_from_plate`).  Defaults: the rig's calibration plan
+    (:func:`scheimpflug.model.plan.calibration_plan`): the rig's plate
+    (``[stage] calibration_plate_height_mm``), 27 frames spanning the stretch
+    of the depth range where both plate edges are in view (paper rig:
+    s = −12.1 … 250.5 mm in 10.1 mm steps).  The paper used 27 × 20 mm, but
+    that spans 520 mm while its depth range is only ≈ 277 mm, so half of those
+    frames would be empty; ``step_mm=20`` reproduces the paper literally and
+    the out-of-view frames are listed in :attr:`Scenario.warnings`, as are
+    frames that show one plate edge only.
 ``blocker``
     The blocker part on the rotary stage at θ = 0 (faces ⊥ e_p); ``frames``
     identical poses with different noise seeds (default 1).
@@ -35,6 +38,15 @@ import numpy as np
 
 from scheimpflug.errors import ScheimpflugError
 from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.plan import (
+    CALIBRATION_STEPS,
+    EDGE_MARGIN_ROWS,
+    axis_warnings,
+    calibration_plan,
+    calibration_volume,
+    plate_interval_mm,
+    plate_warnings,
+)
 from scheimpflug.model.rig import Rig
 
 from .stages import rig_from_plate, rig_from_stage, stage_from_part
@@ -46,6 +58,7 @@ __all__ = [
     "blocker_scenario",
     "build_scenario",
     "calibration_scenario",
+    "frame_count",
     "frame_seed",
     "load_assembly",
     "rotary_scenario",
@@ -217,8 +230,8 @@ def _positive(name: str, value: float) -> None:
         raise ScheimpflugError(f"--{name.replace('_', '-')} = {value!r}: must be a number > 0")
 
 
-def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: float = 10.0,
-                         start_mm: float = -10.0, plate_height_mm: float = 89.0,
+def calibration_scenario(rig: Rig, seed: int = 0, steps: int | None = None, step_mm: float | None = None,
+                         start_mm: float | None = None, plate_height_mm: float | None = None,
                          truth_pixels_every: int = 1) -> Scenario:
     """The calibration plate on the translation stage at s = start + i·step.
 
@@ -228,14 +241,15 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: floa
         The rig.
     seed : int, default 0
         Run seed (frame seeds by :func:`frame_seed`).
-    steps : int, default 27
-        Number of frames (≥ 1).
-    step_mm : float, default 10.0
-        Stage step (> 0) [mm].
-    start_mm : float, default -10.0
-        Stage coordinate of the first frame [mm].
-    plate_height_mm : float, default 89.0
-        Height of the plate (> 0) [mm].
+    steps : int, optional
+        Number of frames (≥ 1); default the rig's calibration plan (27).
+    step_mm, start_mm : float, optional
+        Stage step (> 0) and coordinate of the first frame [mm]; default the
+        rig's calibration plan (:func:`scheimpflug.model.plan.calibration_plan`:
+        the stretch of the depth range where both plate edges are in view).
+    plate_height_mm : float, optional
+        Height of the plate (> 0) [mm]; default the rig's
+        ``calibration_plate_height_mm``.
     truth_pixels_every : int, default 1
         Per-pixel truth every N-th frame (0 = never).
 
@@ -244,7 +258,8 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: floa
     Scenario
         Frames with ``stage_mm``; the reference frame is the stage frame;
         frames whose plate lies outside the view (closed form) are listed in
-        ``warnings`` and ``expected_empty``.
+        ``warnings`` and ``expected_empty``; ``warnings`` also lists frames that
+        show one plate edge only and the stage setting that hides the plate.
 
     Raises
     ------
@@ -252,24 +267,48 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int = 27, step_mm: floa
         When ``steps`` is not an integer ≥ 1, ``step_mm`` or
         ``plate_height_mm`` is not > 0, or ``start_mm`` is not finite.
     """
-    _positive_int("steps", steps)
-    _positive("step_mm", step_mm)
-    _positive("plate_height_mm", plate_height_mm)
+    if plate_height_mm is not None:
+        _positive("plate_height_mm", plate_height_mm)
+    if steps is not None:
+        _positive_int("steps", steps)
+    plan = calibration_plan(rig, plate_height_mm, steps or CALIBRATION_STEPS)
+    steps, plate_height_mm = plan.steps, plan.plate_height_mm
+    step_mm = plan.step_mm if step_mm is None else step_mm
+    start_mm = plan.start_mm if start_mm is None else start_mm
+    if steps > 1:
+        _positive("step_mm", step_mm)
     if not math.isfinite(start_mm):
         raise ScheimpflugError(f"--start-mm = {start_mm!r}: must be a finite number")
     assembly = load_assembly("plate", height_mm=plate_height_mm)
     ref_from_rig = np.linalg.inv(rig_from_stage(rig))
     frames = []
     for i in range(steps):
-        s = start_mm + i * step_mm
+        s = round(start_mm + i * step_mm, 9)  # 30.3, not 30.299999999999997, in the manifest
         pose = rig_from_plate(rig, s)
         frames.append(FrameSpec(i, pose, ref_from_rig @ pose, frame_seed(seed, i), stage_mm=s))
     params = {"steps": steps, "step_mm": step_mm, "start_mm": start_mm,
               "plate_height_mm": plate_height_mm, "part": "plate",
               "plate": assembly.parts[0].analytic}
     empty, warnings = _plate_view_warnings(rig, frames)
+    warnings += _edge_warnings(rig, frames, plate_height_mm, empty)
     return Scenario("calibration", params, assembly, tuple(frames), frames[0].ref_from_part,
                     truth_pixels_every, warnings, empty)
+
+
+def _edge_warnings(rig: Rig, frames, plate_height_mm: float, empty: frozenset) -> tuple:
+    """Frames in view that show one plate edge only, and the stage key that hides the plate."""
+    vol = calibration_volume(rig)
+    both = plate_interval_mm(vol, plate_height_mm, rig.stage.calibration_table_z_mm)
+    d0 = rig.stage.d0_mm
+    one = [f for f in frames if f.index not in empty
+           and not (both and both[0] - 1e-9 <= f.stage_mm - d0 <= both[1] + 1e-9)]
+    if not one:
+        return ()
+    where = (f"both edges are in view for s in [{both[0] + d0:.2f}, {both[1] + d0:.2f}] mm" if both
+             else "no stage position shows both edges")
+    return (f"{len(one)} of {len(frames)} calibration frames may show one plate edge only ({where}; "
+            f"{EDGE_MARGIN_ROWS} rows of margin): they give the distance relation, not C or v_h: "
+            f"s = {', '.join(f'{f.stage_mm:g}' for f in one)} mm", *plate_warnings(rig, plate_height_mm))
 
 
 def _plate_view_warnings(rig: Rig, frames) -> tuple[frozenset, tuple]:
@@ -330,7 +369,7 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
     params = {"frames": frames, "blocker_thickness_mm": thickness_mm, "part": "blocker",
               "blocker": assembly.parts[0].analytic}
     return Scenario("blocker", params, assembly, specs, stage_from_part(rig, 0.0),
-                    truth_pixels_every)
+                    truth_pixels_every, tuple(axis_warnings(rig)))
 
 
 def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: float = 0.5,
@@ -376,7 +415,49 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
               "parts": [{"name": p.name, "object_id": p.object_id, "material": p.material,
                          "analytic": p.analytic} for p in assembly.parts]}
     return Scenario("rotary", params, assembly, specs, stage_from_part(rig, 0.0),
-                    truth_pixels_every)
+                    truth_pixels_every, tuple(axis_warnings(rig)))
+
+
+def frame_count(name: str, **options) -> int:
+    """How many frames a scenario will have, from its options alone (nothing is built).
+
+    Lets a caller size a job before building it (a billion frames would take
+    long to build, let alone render).
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCENARIOS`.
+    **options
+        Options of the scenario's builder (``steps``, ``frames``, ``step_deg`` …);
+        the others take the builder's defaults.
+
+    Returns
+    -------
+    int
+        The number of frames (a non-numeric option counts as its default; the
+        builder refuses it later).
+
+    Raises
+    ------
+    ScheimpflugError
+        For an unknown scenario name.
+    """
+    import inspect
+
+    table = {"blocker": blocker_scenario, "calibration": calibration_scenario,
+             "rotary": rotary_scenario}
+    if name not in table:
+        raise ScheimpflugError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
+    opts = {k: p.default for k, p in inspect.signature(table[name]).parameters.items()}
+    opts.update({k: v for k, v in options.items() if v is not None})
+    if name == "calibration":
+        return max(1, int(opts["steps"] or CALIBRATION_STEPS))
+    if name == "blocker":
+        return max(1, int(opts["frames"]))
+    step = float(opts["step_deg"])
+    n = max(1, int(round(360.0 / step))) if math.isfinite(step) and step > 0 else 1
+    return min(n, int(opts["frames"])) if opts.get("frames") else n
 
 
 def build_scenario(name: str, rig: Rig, seed: int = 0, **options) -> Scenario:

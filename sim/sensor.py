@@ -354,6 +354,18 @@ def _dr_poisson(llvm, lam, rng):
     return k
 
 
+def _dr_standard_normal(llvm, u):
+    """Φ⁻¹(u) (Float64) of uniforms ``u`` (Float32) in [0, 1).
+
+    ``u = 0`` (once in 2**24 draws of ``next_float32``) would give
+    erfinv(−1) = NaN and an out-of-range pixel; it is moved half a step above 0.
+    """
+    import drjit as dr
+
+    u = dr.select(u > 0.0, u, 2.0 ** -25)
+    return llvm.Float64(dr.sqrt(2.0) * dr.erfinv(2.0 * u - 1.0))
+
+
 def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel) -> np.ndarray:
     import drjit as dr
 
@@ -361,8 +373,7 @@ def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel) -> np
     lam = llvm.Float64(llvm.Float(flat))
     e = dr.minimum(_dr_poisson(llvm, lam, rng), model.full_well_e)
     if model.read_noise_e > 0:
-        z = llvm.Float64(dr.sqrt(2.0) * dr.erfinv(2.0 * rng.next_float32() - 1.0))
-        e = e + model.read_noise_e * z
+        e = e + model.read_noise_e * _dr_standard_normal(llvm, rng.next_float32())
     dn = dr.clip(dr.round(e / model.gain_e_per_dn + model.dark_offset_dn), 0.0, float(model.full_scale_dn))
     return llvm.UInt32(dn).numpy().astype(np.uint16)
 

@@ -79,6 +79,7 @@ __all__ = [
     "BruteForceCaster",
     "RayCaster",
     "SceneCaster",
+    "SceneTruth",
     "StripeTruth",
     "TruthTolerances",
     "laser_origin_mm",
@@ -251,12 +252,18 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
     -----
     Rows are taken half-open, min(v0, v1) ≤ r < max(v0, v1), so a polyline
     vertex on a row centre is counted once.  The crossing parameter t along the
-    segment is found by the secant method on the exact projection, starting
-    from the linear interpolation of the projected end points.
+    segment starts from the linear-fractional v(t) through the projections of the
+    end points and the midpoint — exact for a lens without distortion, where the
+    pixel of a point is its central projection through the lens centre — and is
+    refined by the secant method on the exact projection until |v − r| is below
+    the tolerance.
     """
     pose = sensor_pose(rig) if pose is None else pose
     seg = np.asarray(segments_mm, dtype=np.float64).reshape(-1, 2, 3)
-    v_end = project_points(rig, seg, pose).uv_px[..., 1]   # (k, 2)
+    k = len(seg)
+    mid = seg[:, 0] + 0.5 * (seg[:, 1] - seg[:, 0])
+    v_all = project_points(rig, np.concatenate([seg.reshape(-1, 3), mid]), pose).uv_px[:, 1]
+    v_end, v_mid = v_all[:2 * k].reshape(k, 2), v_all[2 * k:]
     lo, hi = np.minimum(v_end[:, 0], v_end[:, 1]), np.maximum(v_end[:, 0], v_end[:, 1])
     r_lo = np.clip(np.ceil(lo), 0, rig.sensor.rows)
     r_hi = np.clip(np.ceil(hi), 0, rig.sensor.rows)          # exclusive
@@ -265,27 +272,46 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
     idx = np.repeat(np.arange(len(seg)), count)
     first = np.repeat(np.cumsum(count) - count, count)
     rows = (np.repeat(r_lo, count) + np.arange(count.sum()) - first).astype(np.int64)
-    t = _solve_rows(rig, pose, seg[idx], v_end[idx], rows.astype(np.float64), tol)
+    t, u = _solve_rows(rig, pose, seg[idx], v_end[idx], v_mid[idx], rows.astype(np.float64), tol)
     pts = seg[idx, 0] + t[:, None] * (seg[idx, 1] - seg[idx, 0])
-    u = project_points(rig, pts, pose).uv_px[:, 0]
     return rows, u, pts, idx
 
 
-def _solve_rows(rig, pose, seg, v_end, target, tol) -> np.ndarray:
-    """Secant solve of v(P(t)) = target on each segment; t in [0, 1]."""
-    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
-    f0, f1 = v_end[:, 0] - target, v_end[:, 1] - target
+def _solve_rows(rig, pose, seg, v_end, v_mid, target, tol) -> tuple[np.ndarray, np.ndarray]:
+    """Solve v(P(t)) = target on each segment, t in [0, 1]; return t and u there.
+
+    Start: the linear-fractional v(t) = (v0 + b·t)/(1 + d·t) through t = 0, ½, 1 (exact
+    without lens distortion), else the linear interpolation.  Then secant steps on the
+    segments whose residual is above ``tol.row_residual_px``.
+    """
+    v0, v1, vm = v_end[:, 0], v_end[:, 1], v_mid
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = (2.0 * vm - v0 - v1) / (v1 - vm)
+        b = v1 - v0 + v1 * d
+        t_frac = (target - v0) / (b - target * d)
+        t_lin = (target - v0) / (v1 - v0)
+    t_lin = np.where(np.isfinite(t_lin), t_lin, 0.5)
+    t1 = np.clip(np.where(np.isfinite(t_frac) & (t_frac >= 0) & (t_frac <= 1), t_frac, t_lin), 0.0, 1.0)
+    uv = project_points(rig, seg[:, 0] + t1[:, None] * (seg[:, 1] - seg[:, 0]), pose).uv_px
+    f1, u1 = uv[:, 1] - target, uv[:, 0]
+    far = np.abs(t1 - 0.5) > 0.25                 # the other point of the first secant step
+    t0 = np.where(far, 0.5, np.where(t1 < 0.5, 1.0, 0.0))
+    f0 = np.where(far, vm, np.where(t1 < 0.5, v1, v0)) - target
+    act = np.flatnonzero(np.abs(f1) > tol.row_residual_px)
     for _ in range(tol.max_iterations):
-        denom = f1 - f0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t2 = np.where(denom != 0, t1 - f1 * (t1 - t0) / denom, t1)
-        t2 = np.clip(t2, 0.0, 1.0)
-        p = seg[:, 0] + t2[:, None] * (seg[:, 1] - seg[:, 0])
-        f2 = project_points(rig, p, pose).uv_px[:, 1] - target
-        t0, f0, t1, f1 = t1, f1, t2, f2
-        if not np.any(np.abs(f1) > tol.row_residual_px):
+        if len(act) == 0:
             break
-    return t1
+        a0, a1, b0, b1 = t0[act], t1[act], f0[act], f1[act]
+        denom = b1 - b0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t2 = np.where(denom != 0, a1 - b1 * (a1 - a0) / denom, a1)
+        t2 = np.clip(t2, 0.0, 1.0)
+        sa = seg[act]
+        uv = project_points(rig, sa[:, 0] + t2[:, None] * (sa[:, 1] - sa[:, 0]), pose).uv_px
+        f2 = uv[:, 1] - target[act]
+        t0[act], f0[act], t1[act], f1[act], u1[act] = a1, b1, t2, f2, uv[:, 0]
+        act = act[np.abs(f2) > tol.row_residual_px]
+    return t1, u1
 
 
 # ------------------------------------------------------------------ visibility
@@ -587,8 +613,8 @@ class SceneCaster:
         t = np.full(len(o), np.inf)
         ids = np.zeros(len(o), dtype=np.int64)
         for i in range(0, len(o), self.batch):
-            hits = self.scene.intersect(o[i:i + self.batch], d[i:i + self.batch])
-            t[i:i + self.batch], ids[i:i + self.batch] = hits.t, hits.object_id
+            t[i:i + self.batch], ids[i:i + self.batch] = self.scene.first_hit(o[i:i + self.batch],
+                                                                              d[i:i + self.batch])
         return t, ids
 
 
@@ -751,3 +777,217 @@ def _row_peaks(sec, total, min_share, w, peak_u, peak_share):  # pragma: no cove
             peak_u[r, found] = usum / wsum
             peak_share[r, found] = share
             found += 1
+
+
+# ------------------------------------------------------------------ many frames of one scene
+
+
+@numba.njit(cache=True, nogil=True)
+def _section_faces(vertices, faces, candidates, point, normal):  # pragma: no cover - compiled
+    """Sheet section of the ``candidates`` faces: (segments (k, 2, 3), their face indices (k,)).
+
+    Same rule as :func:`sheet_section` (d ≥ 0 is above; crossings interpolated from the
+    lower-indexed vertex; the two crossing edges taken in the order 01, 12, 20), with
+    d = v·n − p·n evaluated component by component in a fixed order.
+    """
+    c = point[0] * normal[0] + point[1] * normal[1] + point[2] * normal[2]
+    m = candidates.shape[0]
+    seg = np.empty((m, 2, 3))
+    face_of = np.empty(m, dtype=np.int64)
+    dist = np.empty(3)
+    k = 0
+    for i in range(m):
+        f = candidates[i]
+        n_above = 0
+        for j in range(3):
+            v = faces[f, j]
+            dist[j] = vertices[v, 0] * normal[0] + vertices[v, 1] * normal[1] \
+                + vertices[v, 2] * normal[2] - c
+            if dist[j] >= 0.0:
+                n_above += 1
+        if n_above == 0 or n_above == 3:
+            continue
+        q = 0
+        for e in range(3):
+            i0, i1 = e, (e + 1) % 3
+            if (dist[i0] >= 0.0) == (dist[i1] >= 0.0):
+                continue
+            a, b = faces[f, i0], faces[f, i1]
+            da, db = dist[i0], dist[i1]
+            if b < a:
+                a, b, da, db = b, a, db, da
+            t = da / (da - db)
+            for x in range(3):
+                seg[k, q, x] = vertices[a, x] + t * (vertices[b, x] - vertices[a, x])
+            q += 1
+        face_of[k] = f
+        k += 1
+    return seg[:k], face_of[:k]
+
+
+class SceneTruth:
+    """The per-row stripe truth of many frames of one scene, with per-scene data computed once.
+
+    Equivalent to :func:`stripe_truth` frame by frame (same rules, same tolerances; the
+    section's signed distances are evaluated in a fixed order, so results agree with it
+    to rounding), but faster on big meshes: the faces are sorted once along a Morton
+    curve into blocks of ``faces_per_cell`` with their bounding boxes, and each frame
+    cuts only the faces of the blocks the sheet crosses; the two visibility casts go in
+    one ray query.  Besides the truth of
+    :func:`stripe_truth` it gives, per row, the distance D of the stripe point along the
+    sheet from the object hinge and the laser's angle of incidence on the face it lies on.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+    vertices_part_mm : (n, 3) float
+        Scene mesh vertices in the part frame [mm].
+    faces : (m, 3) int
+        Triangles.
+    face_ids : (m,) int
+        Object id per face.
+    faces_per_cell : int
+        Faces per block [-].
+    tol : TruthTolerances
+        Numerical tolerances.
+    """
+
+    def __init__(self, rig: Rig, vertices_part_mm, faces, face_ids, faces_per_cell: int = 64,
+                 tol: TruthTolerances = TruthTolerances()) -> None:
+        self.rig, self.tol = rig, tol
+        self.geometry = hinge_geometry(rig)
+        self.pose = sensor_pose(rig)
+        self.vertices = np.ascontiguousarray(vertices_part_mm, dtype=np.float64)
+        self.faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self.face_ids = np.asarray(face_ids)
+        tri = self.vertices[self.faces]                                  # (m, 3, 3)
+        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(normals, axis=1)
+        self.normals = normals / np.where(length > 0, length, 1.0)[:, None]
+        self._build_cells(tri, faces_per_cell)
+
+    def _build_cells(self, tri: np.ndarray, faces_per_cell: int) -> None:
+        """Faces in Morton order of their centroids, in blocks of ``faces_per_cell`` with AABBs."""
+        m = len(self.faces)
+        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        q = ((tri.mean(axis=1) - lo) / np.maximum(hi - lo, 1e-9) * 1023).astype(np.uint64)
+        key = np.zeros(m, dtype=np.uint64)
+        for bit in range(10):
+            for axis in range(3):
+                key |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+        self._order = np.argsort(key, kind="stable")
+        self._starts = np.arange(0, m, max(1, faces_per_cell))
+        self._counts = np.diff(np.r_[self._starts, m])
+        sorted_tri = tri[self._order]
+        self._cell_lo = np.minimum.reduceat(sorted_tri.min(axis=1), self._starts, axis=0)
+        self._cell_hi = np.maximum.reduceat(sorted_tri.max(axis=1), self._starts, axis=0)
+        self._eps = 1e-9 * (1.0 + float(np.abs(self.vertices).max(initial=0.0)))
+
+    def candidate_faces(self, plane_point_mm, plane_normal) -> np.ndarray:
+        """Indices of the faces in blocks whose bounding box the plane meets (Morton order).
+
+        Parameters
+        ----------
+        plane_point_mm : (3,) float
+            A point of the plane, part frame [mm].
+        plane_normal : (3,) float
+            Its unit normal.
+
+        Returns
+        -------
+        (k,) int64
+            A superset of the faces the plane cuts.
+        """
+        n = np.asarray(plane_normal, dtype=np.float64)
+        centre = 0.5 * (self._cell_lo + self._cell_hi)
+        radius = 0.5 * (self._cell_hi - self._cell_lo) @ np.abs(n)
+        d = centre @ n - np.asarray(plane_point_mm, dtype=np.float64) @ n
+        hit = np.flatnonzero(np.abs(d) <= radius + self._eps)
+        if len(hit) == 0:
+            return np.zeros(0, dtype=np.int64)
+        counts = self._counts[hit]
+        offsets = np.repeat(self._starts[hit] - np.cumsum(counts) + counts, counts)
+        return self._order[offsets + np.arange(counts.sum())]
+
+    def frame(self, rig_from_part, ref_from_part, caster: RayCaster) -> tuple[StripeTruth, dict]:
+        """Per-row truth of the frame with the scene posed by ``rig_from_part``.
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) float
+            Pose of the scene in the rig frame.
+        ref_from_part : (4, 4) float
+            Part frame → truth reference frame.
+        caster : RayCaster
+            First-hit queries for the scene posed by ``rig_from_part``.
+
+        Returns
+        -------
+        truth : StripeTruth
+            As :func:`stripe_truth`.
+        extra : dict
+            ``stripe_distance_mm`` (rows,) float64: D of the stripe point along the sheet
+            from the object hinge [mm], NaN = none; ``stripe_incidence_deg`` (rows,) float64:
+            angle between the laser ray and the normal of the face the point lies on
+            [deg], NaN = none.
+        """
+        rig, g, tol = self.rig, self.geometry, self.tol
+        part_from_rig = invert(rig_from_part)
+        point = transform_points(part_from_rig, g.object_hinge_mm)
+        normal = part_from_rig[:3, :3] @ g.sheet_normal
+        normal = normal / np.linalg.norm(normal)
+        seg, face_of = _section_faces(self.vertices, self.faces,
+                                      self.candidate_faces(point, normal), point, normal)
+        seg = transform_points(rig_from_part, seg)
+        front = (seg[:, :, 0] > rig.lens.focal_length_mm).all(axis=1)
+        seg, face_of = seg[front], face_of[front]
+        rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose)
+        faces = face_of[idx]
+        keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts)
+        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
+        keep = self._visible_and_lit(caster, pts)
+        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
+        truth, first = _primary_rows(rig.sensor.rows, rows, u,
+                                     transform_points(ref_from_part @ part_from_rig, pts),
+                                     self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
+        return truth, self._extras(rows[first], pts[first], faces[first], rig_from_part)
+
+    def _visible_and_lit(self, caster: RayCaster, pts: np.ndarray) -> np.ndarray:
+        """(n,) bool: seen from the lens centre and lit by the laser (one ray query)."""
+        n = len(pts)
+        if n == 0:
+            return np.zeros(0, dtype=bool)
+        origins = np.concatenate([np.zeros((n, 3)), np.broadcast_to(laser_origin_mm(self.rig), (n, 3))])
+        delta = np.concatenate([pts, pts]) - origins
+        dist = np.linalg.norm(delta, axis=1)
+        hit_t, _ = caster.first_hit(origins, delta / dist[:, None])
+        ok = hit_t >= dist - self.tol.visibility_mm
+        return ok[:n] & ok[n:]
+
+    def _extras(self, rows, pts, faces, rig_from_part) -> dict:
+        n_rows = self.rig.sensor.rows
+        distance = np.full(n_rows, np.nan)
+        incidence = np.full(n_rows, np.nan)
+        if len(rows):
+            distance[rows] = (pts - self.geometry.object_hinge_mm) @ self.geometry.propagation_dir
+            normal = self.normals[faces] @ np.asarray(rig_from_part)[:3, :3].T
+            ray = pts - laser_origin_mm(self.rig)
+            ray /= np.linalg.norm(ray, axis=1)[:, None]
+            cos = np.clip(np.abs(np.sum(normal * ray, axis=1)), 0.0, 1.0)
+            incidence[rows] = np.degrees(np.arccos(cos))
+        return {"stripe_distance_mm": distance, "stripe_incidence_deg": incidence}
+
+
+def _primary_rows(n_rows, rows, u, pts_ref, ids) -> tuple[StripeTruth, np.ndarray]:
+    """:func:`_primary_per_row` that also returns which crossings were kept (one per row)."""
+    stripe_u = np.full(n_rows, np.nan)
+    points = np.full((n_rows, 3), np.nan)
+    obj = np.zeros(n_rows, dtype=np.int16)
+    count = np.minimum(np.bincount(rows, minlength=n_rows), 255).astype(np.uint8)
+    order = np.lexsort((u, rows))
+    first = order[np.unique(rows[order], return_index=True)[1]]
+    stripe_u[rows[first]] = u[first]
+    points[rows[first]] = pts_ref[first]
+    obj[rows[first]] = ids[first]
+    return StripeTruth(stripe_u, points, obj, count), first

@@ -8,6 +8,8 @@ Layout::
     DIR/truth/mesh.ply       the scene in the truth reference frame (object_id per face)
     DIR/truth/mesh_NNNNN.ply calibration only: the plate at frame NNNNN's stage position
     DIR/truth/rig_truth.json closed-form u_h, v_h, F², C, d0, axis of the rig (sim.truth.rig_truth)
+    DIR/checksums.jsonl      size and SHA-256 of each finished frame's PNG and truth file
+    DIR/.scheimpflug.lock    while a run writes the folder: its pid, host, start, program
 
 ``manifest.json`` keys: ``format``, ``complete`` (false while rendering),
 ``rig`` (rig_to_dict), ``scenario``, ``scenario_params``, ``seed``, ``render``
@@ -18,14 +20,24 @@ maps), ``generator`` (program and library versions) and ``frames``:
 "angle_deg": θ, "exposure_ms": ..., "seed": ..., "pixel_truth": bool}, ...]``.
 When finished it also lists ``frames_without_stripe``.
 
+One writer at a time: a run holds ``DIR/.scheimpflug.lock`` (pid, host, start,
+program; :class:`scheimpflug.io.folder.FolderLock`) from start to end; a second
+run into the same folder is refused with :class:`RenderError` naming the owner,
+and a lock left by a killed run is taken over with a warning.
+
 Restart: the manifest is written first (``"complete": false``) listing every
 frame, and rewritten with ``"complete": true`` at the end.  A frame is complete
 when both its truth file and its PNG exist (each is written atomically, truth
-first).  Rendering into a folder that already has a manifest resumes it — frames
-already complete are skipped — if, and only if, the manifest describes the same
-run (same rig, scenario, parameters, seed, render settings, variant and frames); otherwise
-:class:`RenderError` names the first difference.  A non-empty folder without a
-manifest is refused.
+first) and match the size and SHA-256 recorded for them in ``DIR/checksums.jsonl``
+when they were written (:class:`scheimpflug.io.folder.FileLedger`).  Rendering into
+a folder that already has a manifest resumes it — frames already complete are
+skipped, a frame whose files are missing, truncated, altered or were never
+recorded is rendered again (with a warning) — if, and only if, the manifest
+describes the same run (same rig, scenario, parameters, seed, render settings,
+variant and frames); otherwise :class:`RenderError` names the first difference.
+A non-empty folder without a manifest is refused.  A write that fails (a full
+disk) raises :class:`RenderError` naming the folder; nothing is half-written
+and the run resumes.
 """
 
 from __future__ import annotations
@@ -34,6 +46,7 @@ import io
 import json
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -45,6 +58,7 @@ import numpy as np
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import RenderError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
+from scheimpflug.io.folder import LEDGER_NAME, LOCK_NAME, FileLedger, FolderLock
 from scheimpflug.model.rig import Rig, rig_to_dict
 
 from .scenarios import FrameSpec, Scenario
@@ -58,8 +72,11 @@ __all__ = [
     "PNG_COMPRESSION",
     "RenderStats",
     "Twin",
+    "JobEstimate",
     "build_manifest",
+    "encode_npz",
     "encode_png16",
+    "estimate_job",
     "frame_paths",
     "generator_info",
     "prepare_folder",
@@ -147,6 +164,8 @@ class MitsubaTwin:
         lit sensor row); None = the renderer's default.
     settings : sim.render.RenderSettings, optional
         Render settings; ``spp`` overrides its samples.
+    materials : sim.materials.MaterialSettings, optional
+        Albedos and roughnesses of the material tags (default: MaterialSettings()).
 
     Attributes
     ----------
@@ -169,7 +188,8 @@ class MitsubaTwin:
         For an invalid part mesh or material.
     """
 
-    def __init__(self, rig: Rig, assembly, spp: int | None = None, settings=None) -> None:
+    def __init__(self, rig: Rig, assembly, spp: int | None = None, settings=None,
+                 materials=None) -> None:
         import dataclasses
 
         from .render import Renderer, RenderSettings
@@ -187,7 +207,8 @@ class MitsubaTwin:
         self.spp_field = next(n for n in _SPP_FIELDS if n in field_names)
         if spp is not None:
             settings = dataclasses.replace(settings, **{self.spp_field: int(spp)})
-        self.scene = SimScene(assembly.parts, subsurface=rig.twin.subsurface)
+        self.scene = SimScene(assembly.parts, materials=materials, subsurface=rig.twin.subsurface)
+        self.materials = materials
         self.renderer = Renderer(rig, self.scene, settings)
         self.settings = settings
         self.variant = self.scene.variant
@@ -206,8 +227,11 @@ class MitsubaTwin:
         """
         import dataclasses
 
-        return {"spp": self.spp, "spp_means": f"RenderSettings.{self.spp_field}",
-                "variant": self.variant, "settings": dataclasses.asdict(self.settings)}
+        out = {"spp": self.spp, "spp_means": f"RenderSettings.{self.spp_field}",
+               "variant": self.variant, "settings": dataclasses.asdict(self.settings)}
+        if self.materials is not None:
+            out["materials"] = dataclasses.asdict(self.materials)
+        return out
 
     def render(self, frame: FrameSpec) -> np.ndarray:
         """Expected electrons of a frame; poses the scene for it.
@@ -429,21 +453,110 @@ def read_png(path) -> np.ndarray:
     return img
 
 
-def _write_npz(path: Path, arrays: dict) -> None:
-    """Write a compressed ``.npz`` at zlib level 1, atomically.
+def encode_npz(arrays: dict) -> bytes:
+    """A compressed, byte-reproducible ``.npz`` at zlib level 1.
 
-    The format ``np.savez_compressed`` writes (read with ``np.load``); for the
-    per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB.
+    What ``np.savez_compressed`` writes (read with ``np.load``).  Level 1: for the
+    per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB.  Every member
+    carries the same fixed time stamp (1980-01-01), so the same arrays always give
+    the same bytes (``np.savez_compressed`` stamps the current time) and the same
+    SHA-256 in the folder's ledger.
+
+    Parameters
+    ----------
+    arrays : dict
+        Name → array (``name.npy`` in the archive).
+
+    Returns
+    -------
+    bytes
+        The archive.
     """
     import zipfile
 
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
         for key, value in arrays.items():
-            with zf.open(f"{key}.npy", "w", force_zip64=True) as fh:
-                np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, member.getbuffer(), compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
+    return buf.getvalue()
+
+
+def _write_npz(path: Path, arrays: dict) -> None:
+    """Write :func:`encode_npz` of ``arrays`` to ``path`` atomically."""
+    data = encode_npz(arrays)
     with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.getvalue())
+        tmp.write_bytes(data)
+
+
+# ------------------------------------------------------------------ job size
+
+
+@dataclass(frozen=True)
+class JobEstimate:
+    """What a render will take, estimated before it starts (:func:`estimate_job`).
+
+    Parameters
+    ----------
+    frames : int
+        Frames to render [-].
+    output_bytes : int
+        Expected size of the frame folder [B] (16-bit PNG of noisy frames ≈ 0.5 B/px,
+        compressed per-pixel truth ≈ 3 B/px, per-row truth; measured on the paper rig).
+    memory_bytes : int
+        Expected peak memory of the renderer [B] (≈ 400 MB for Mitsuba and the
+        scene, plus ≈ 120 B per pixel of one frame; measured: 350 MB at 0.15 Mpx,
+        600 MB at 2.35 Mpx).
+    """
+
+    frames: int
+    output_bytes: int
+    memory_bytes: int
+
+    def describe(self) -> str:
+        """One line: frames, output size and memory.
+
+        Returns
+        -------
+        str
+            E.g. ``"720 frames, about 1.1 GB on disk, 0.7 GB of memory"``.
+        """
+        return (f"{self.frames:,} frames, about {_size(self.output_bytes)} on disk, "
+                f"{_size(self.memory_bytes)} of memory")
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n / 1e6:.2g} MB"
+
+
+def estimate_job(rig: Rig, frames: int, truth_pixels_every: int) -> JobEstimate:
+    """Estimate a render's output size and memory from the sensor and the frame count.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (binned already, if wanted): its sensor rows × columns.
+    frames : int
+        Frames to render [-].
+    truth_pixels_every : int
+        Per-pixel truth every N-th frame (0 = never) [-].
+
+    Returns
+    -------
+    JobEstimate
+        Frames, expected folder size and peak memory [B].
+    """
+    px = rig.sensor.rows * rig.sensor.columns
+    pixel_truth = 0 if truth_pixels_every <= 0 else -(-frames // truth_pixels_every)
+    output = frames * (0.5 * px + 40 * rig.sensor.rows + 2000) + pixel_truth * 3.0 * px
+    return JobEstimate(frames=int(frames), output_bytes=int(output),
+                       memory_bytes=int(400e6 + 120 * px))
 
 
 # ------------------------------------------------------------------ manifest
@@ -574,13 +687,7 @@ def prepare_folder(out, manifest: dict) -> set[int]:
         (the message names the first differing key).
     """
     out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-probe-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise RenderError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+    _writable_folder(out)
     done = _existing_run(out, manifest)
     for sub in ("frames", "truth"):
         (out / sub).mkdir(exist_ok=True)
@@ -589,10 +696,26 @@ def prepare_folder(out, manifest: dict) -> set[int]:
     return done
 
 
+_PROBE = ".write-probe-"
+
+
+def _writable_folder(out: Path) -> None:
+    """Create ``out`` and check that a file can be written in it (RenderError if not)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f"{_PROBE}{os.getpid()}-{threading.get_ident()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise RenderError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+
+
 def _existing_run(out: Path, manifest: dict) -> set[int]:
     path = out / "manifest.json"
     if not path.exists():
-        others = [p.name for p in out.iterdir() if p.name not in ("frames", "truth")]
+        others = [p.name for p in out.iterdir()          # a waiting writer's probe is no content
+                  if p.name not in ("frames", "truth", LOCK_NAME, LEDGER_NAME)
+                  and not p.name.startswith(_PROBE)]
         others += [f"{d}/{p.name}" for d in ("frames", "truth") if (out / d).is_dir()
                    for p in (out / d).iterdir()]
         if others:
@@ -739,24 +862,58 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     Raises
     ------
     RenderError
-        When the folder is unusable (:func:`prepare_folder`), a file cannot be
-        written, or frames are missing at the end.
+        When another run is writing the folder (the message names it), the
+        folder is unusable (:func:`prepare_folder`), a file cannot be written
+        (a full disk: the folder stays resumable), or frames are missing at the end.
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
+    _writable_folder(out)
+    with FolderLock(out, error=RenderError) as lock:
+        if lock.stale_owner:
+            warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
+                 f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
+        try:
+            return _render_locked(rig, scenario, out, twin, manifest, progress, warn, overlap)
+        except OSError as exc:
+            raise RenderError(f"cannot write into the frame folder {str(out)!r}: "
+                              f"{exc.strerror or exc}{f' ({exc.filename})' if exc.filename else ''}; "
+                              "nothing is half-written: fix the cause and rerun to resume") from None
+
+
+def _render_locked(rig, scenario, out, twin, manifest, progress, warn, overlap) -> RenderStats:
+    """The body of :func:`render_scenario`, run while holding the folder's lock."""
     done = prepare_folder(out, manifest)
+    ledger = FileLedger(out)
+    done = _verified(done, ledger, warn)
     _scene_truth_files(out, rig, scenario)
     stats = RenderStats(frames_total=len(scenario.frames), frames_skipped=len(done))
     t_start = time.perf_counter()
     todo = [f for f in scenario.frames if f.index not in done]
     bar = _Counter(progress, len(todo))
-    _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar)
+    _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger)
     stats.wall_s = time.perf_counter() - t_start
+    ledger.write_sorted()
     _finish(out, manifest, scenario, stats, done)
     if stats.frames_without_stripe:
         warn(f"{len(stats.frames_without_stripe)} of {stats.frames_rendered} rendered frames hold "
              f"no stripe: {_ranges(stats.frames_without_stripe)}")
     return stats
+
+
+def _frame_files(index: int) -> list[str]:
+    """A frame's files relative to its folder (PNG, truth), as the ledger records them."""
+    return [p.as_posix() for p in frame_paths(Path(), index)]
+
+
+def _verified(done: set[int], ledger: FileLedger, warn) -> set[int]:
+    """The frames of ``done`` whose files match their ledger record; warns about the others."""
+    bad = {i: reason for i in sorted(done) if (reason := ledger.mismatch(i, _frame_files(i)))}
+    if bad:
+        first = min(bad)
+        warn(f"rendering again {len(bad)} frame(s) whose files do not match {LEDGER_NAME}: "
+             f"{_ranges(bad)} (frame {first}: {bad[first]})")
+    return done - set(bad)
 
 
 class _Counter:
@@ -771,7 +928,7 @@ class _Counter:
         report(self.progress, self.done, self.total)
 
 
-def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar) -> None:
+def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger=None) -> None:
     from concurrent.futures import ThreadPoolExecutor
 
     model = SensorModel.from_rig(rig)
@@ -784,7 +941,7 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar) -> No
             # (measured ≈ 40 ms/frame slower on 2 cores just after Dr.Jit's ray casts)
             image = _noise(electrons, model, frame, stats)
             arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh)
-            job = (out, model, frame, None, image, arrays, stats)
+            job = (out, model, frame, None, image, arrays, stats, ledger)
             if not overlap:
                 _finish_frame(*job)
                 bar.update()
@@ -837,16 +994,19 @@ def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
     return arrays
 
 
-def _finish_frame(out, model, frame, electrons, image, arrays, stats) -> None:
+def _finish_frame(out, model, frame, electrons, image, arrays, stats, ledger=None) -> None:
     """Finish one frame: sensor noise (unless ``image`` is given), truth file, then PNG.
 
-    The PNG's presence marks the frame complete.
+    The PNG's presence marks the frame complete; then the size and SHA-256 of
+    both files go to the folder's ledger (what a resumed run verifies).
     """
     png, npz = frame_paths(out, frame.index)
     if image is None:
         image = _noise(electrons, model, frame, stats)
     _timed(stats, "truth_write", _write_npz, npz, arrays)
     _timed(stats, "png", write_png, png, image)
+    if ledger is not None:
+        ledger.record(frame.index, _frame_files(frame.index))
 
 
 def _describe(frame: FrameSpec) -> str:
@@ -920,12 +1080,12 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     from .scenarios import build_scenario
 
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
-    scenario = build_scenario(scenario_name, rig, seed=seed, **scenario_options)
+    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
+        warnings.simplefilter("always")
+        scenario = build_scenario(scenario_name, rig, seed=seed, **scenario_options)
+        twin = MitsubaTwin(rig, scenario.assembly, spp=spp)
     for msg in scenario.warnings:
         warn(msg)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        twin = MitsubaTwin(rig, scenario.assembly, spp=spp)
     for w in caught:
         warn(str(w.message))
     manifest = build_manifest(rig, scenario, seed, twin.spp, twin.variant, generator_info(),

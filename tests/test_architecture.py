@@ -30,14 +30,16 @@ DOCUMENTED_MODULES = [
     "scheimpflug.axis", "scheimpflug.reconstruct", "scheimpflug.scoring", "scheimpflug.fitting",
     "scheimpflug.budget", "scheimpflug.model.rig", "scheimpflug.model.hinge", "scheimpflug.model.camera",
     "scheimpflug.model.design", "scheimpflug.model.binning", "scheimpflug.io.frames", "scheimpflug.io.ply",
-    "scheimpflug.io.atomic", "scheimpflug.io.opencv", "scheimpflug.io.importer", "scheimpflug.sheet_model",
-    "scheimpflug.tilted_camera", "scheimpflug.acceptance", "sim.acceptance",
+    "scheimpflug.io.atomic", "scheimpflug.io.folder", "scheimpflug.io.opencv", "scheimpflug.io.importer",
+    "scheimpflug.sheet_model", "scheimpflug.tilted_camera", "scheimpflug.acceptance", "sim.acceptance",
     "sim.variant", "sim.scene", "sim.materials", "sim.lightsheet", "sim.render",
     "sim.sensor", "sim.stages", "sim.truth", "sim.scenarios", "sim.writer", "sim.lens", "sim.speckle",
     "sim.transport", "sim.subsurface",
     "scenes.part", "scenes.generators", "scenes.presets", "scenes.loading", "scenes.meshfile",
     "scenes.scenefile", "scenes.section", "scenes.knurl", "scenes.revolve",
     "scheimpflug.meshing", "scheimpflug.volumetry", "scheimpflug.io.meshfile", "scheimpflug.poisson",
+    "scheimpflug.dataset", "sim.dataset.spec", "sim.dataset.sample", "sim.dataset.engine",
+    "sim.dataset.make",
 ]
 #: numpydoc checks that must pass (numpydoc.validate.ERROR_MSGS): a docstring exists, every
 #: parameter is documented with a type and a description and no unknown one is, a function that

@@ -78,7 +78,7 @@ def test_axis_cli_bad_inputs(tmp_path, capsys):
     assert main(["axis", str(p), "--calibration", str(tmp_path / "nope.json")]) == 2
     assert "does not exist" in capsys.readouterr().err
     blank = write_folder(tmp_path / "blank", [np.full((GEO.rows, GEO.columns), 16, np.uint16)],
-                         [{"angle_deg": 0.0}], rig=rig_dict(GEO))
+                         [{"angle_deg": 0.0}], scenario="blocker", rig=rig_dict(GEO))
     assert main(["axis", str(blank), "--calibration", str(tmp_path / "cal.json")]) == 2
     assert "no usable blocker frame" in capsys.readouterr().err
 

@@ -139,7 +139,7 @@ def _dark_scan(path, n=5):
 
 def test_scan_without_usable_frames_is_one_error_and_writes_nothing(tmp_path, capsys):
     scan = _dark_scan(tmp_path / "dark")
-    status = main(["reconstruct", str(scan), "--calibration", str(scan / "cal.json"), "--axis-mm", "80",
+    status = main(["reconstruct", str(scan), "--calibration", str(scan / "cal.json"), "--axis-mm", "30",
                    "--out", str(tmp_path / "c.ply"), "--model", str(tmp_path / "m.stl"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(err) == 1 and "no usable frame" in err[0]

@@ -12,7 +12,15 @@ from scheimpflug.app.cli import main
 from scheimpflug.errors import RigError
 from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.hinge import hinge_geometry
-from scheimpflug.model.rig import load_preset, load_rig, rig_from_dict, rig_to_toml
+from scheimpflug.model.rig import (
+    DERIVED_KEYS,
+    DERIVED_STAGE_KEYS,
+    load_preset,
+    load_rig,
+    rig_from_dict,
+    rig_to_dict,
+    rig_to_toml,
+)
 
 BAD = [
     ({"lens": {"focal_length_mm": 0.0}}, "focal_length_mm"),
@@ -50,8 +58,14 @@ def test_rig_file_round_trip(tmp_path, paper_rig):
 def test_rig_file_errors(tmp_path, text, msg):
     path = tmp_path / "rig.toml"
     path.write_text(text)
-    if msg is None:  # an empty file is the default (paper) rig
-        assert load_rig(path) == load_preset("paper")
+    if msg is None:  # an empty file: the paper's geometry; stages, laser waist and exposure derived
+        rig, paper = load_rig(path), load_preset("paper")
+        derived = {"laser": ("waist_distance_mm",), "sensor": ("exposure_ms",), "stage": DERIVED_STAGE_KEYS}
+        for table in ("lens", "laser", "sensor", "stage", "environment"):
+            a, b = rig_to_dict(rig)[table], rig_to_dict(paper)[table]
+            assert {k: v for k, v in a.items() if k not in derived.get(table, ())} == \
+                   {k: v for k, v in b.items() if k not in derived.get(table, ())}
+        assert rig.derived == DERIVED_KEYS and paper.derived == ()
     else:
         with pytest.raises(RigError, match=msg):
             load_rig(path)

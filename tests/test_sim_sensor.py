@@ -133,3 +133,13 @@ def test_inversion_branch_matches_the_numpy_reference():
     sensor_module._inversion_kernel(np.float32([9.0, 10.0, 5e4]), u[:3], b[:3],
                                     sensor_module._INV_K, sensor_module._PTRS_LAMBDA)
     assert b[0] >= 0 and b[1] == -1 and b[2] == -1          # λ ≥ 10 is left to PTRS
+
+
+def test_read_noise_quantile_is_finite_at_a_zero_uniform():
+    """Dr.Jit's next_float32() can return exactly 0 (once in 2**24 pixels): erfinv(−1) = NaN
+    then read as an out-of-range 65535 pixel.  The quantile must stay finite there."""
+    llvm = sensor_module._backend("drjit")
+    u = llvm.Float([0.0, 0.5, 1.0 - 2.0 ** -24])
+    z = np.asarray(sensor_module._dr_standard_normal(llvm, u))
+    assert np.all(np.isfinite(z))
+    assert z[0] == pytest.approx(stats.norm.ppf(2.0 ** -25), rel=1e-4) and z[1] == 0.0

@@ -205,3 +205,45 @@ def test_peak_choices_counts_against_truth():
     assert c.secondary_rate == pytest.approx(0.2)
     with pytest.raises(ValueError):
         peak_choices(p, truth, secondary, tol_px=0.0)
+
+
+# ---------------------------------------------------------------- "auto" window (issue 16)
+
+
+@pytest.mark.parametrize("sigma", [0.5, 1.0, 4.0, 6.0])
+def test_auto_window_holds_three_sigma(sigma):
+    """'auto' measures the stripe's width and uses ±(⌈3σ⌉ + 1) (at least ±3): near the Cramér–Rao bound on
+    narrow and wide stripes alike, where the fixed ±7 window loses on both (noise of its background
+    pixels on narrow stripes, cut tails on wide ones)."""
+    rng = np.random.default_rng(int(10 * sigma))
+    frame, uc = _frame(rng, sigma, 10000.0, rows=2000, centre=32.0)
+    auto = extract_stripes(frame, "cog", window_px="auto")
+    assert len(auto) == frame.shape[0]
+    err = auto.u - uc[auto.rows]
+    assert abs(err.mean()) <= 0.01
+    assert np.sqrt(np.mean(err ** 2)) <= 1.3 * crb_px(sigma, 10000.0, centre=32.0)
+    fixed = extract_stripes(frame, "cog")
+    fixed_rms = np.sqrt(np.mean((fixed.u - uc[fixed.rows]) ** 2))
+    assert np.sqrt(np.mean(err ** 2)) <= fixed_rms * (1.0 if sigma in (1.0, 4.0) else 0.8)
+
+
+def test_stripe_narrower_than_a_pixel_is_not_a_hot_pixel():
+    """A stripe of σ = 0.2 px leaves its neighbours under 10 % of the peak: still a stripe, because the
+    rows above and below are lit at the same column; an isolated pixel stays a hot pixel."""
+    rng = np.random.default_rng(4)
+    uc = np.full(200, 30.0)  # centred on a pixel: the worst case
+    frame = to_dn(BG_E + 20000.0 * stripe_profile(uc, 0.2, COLS), rng, Camera())
+    assert len(extract_stripes(frame, "cog", window_px="auto")) == 200
+    frame[100] = frame[100, 0]   # row 100: background only, and one hot pixel
+    frame[100, 10] = 4000
+    p = extract_stripes(frame, "cog", window_px="auto")
+    assert 100 not in p.rows.tolist() and len(p) == 199
+
+
+def test_isolated_rows():
+    from scheimpflug.reconstruct import isolated_rows
+
+    rows = np.array([3, 4, 5, 9, 20, 21])
+    u = np.array([10.0, 10.5, 11.0, 10.0, 40.0, 45.0])
+    assert isolated_rows(rows, u).tolist() == [False, False, False, True, True, True]
+    assert isolated_rows(np.array([], dtype=int), np.array([])).shape == (0,)

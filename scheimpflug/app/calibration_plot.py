@@ -25,8 +25,8 @@ def plot_calibration(result: CalibrationResult, path: str | Path) -> None:
     import matplotlib.pyplot as plt
 
     cal, pap = result.best, result.paper
-    top = np.array([m.top_px for m in result.measurements])
-    bot = np.array([m.bottom_px for m in result.measurements])
+    top = np.array([m.top_px for m in result.measurements if m.top_px is not None])
+    bot = np.array([m.bottom_px for m in result.measurements if m.bottom_px is not None])
     s = np.array([m.stage_mm for m in result.measurements])
     u = np.array([m.u_mean_px for m in result.measurements])
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))

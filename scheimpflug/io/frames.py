@@ -27,8 +27,13 @@ import cv2
 import numpy as np
 
 from scheimpflug.errors import FrameError
+from scheimpflug.model.rig import KEY_RANGES, key_in_range
 
-__all__ = ["FrameFolder", "FrameRecord", "open_frame_folder", "read_frame"]
+__all__ = ["MAX_SIDE_PX", "FrameFolder", "FrameRecord", "open_frame_folder", "read_frame",
+           "scenario_number"]
+
+MAX_SIDE_PX = 65535
+"""Largest frame side a manifest may declare (the rig's ``sensor.rows``/``columns`` range) [px]."""
 
 
 @dataclass(frozen=True)
@@ -173,6 +178,39 @@ class FrameFolder:
             while pending:
                 yield pending.popleft().result()
 
+    def rig_value(self, table: str, key: str) -> float | None:
+        """A positive number of the manifest's rig tables, or None where the manifest has none.
+
+        Parameters
+        ----------
+        table, key : str
+            E.g. ``"lens"``, ``"focal_length_mm"``.
+
+        Returns
+        -------
+        float or None
+            The value; None when the manifest has no rig, no such table or no such key.
+
+        Raises
+        ------
+        FrameError
+            Naming the key, when the table is not an object or the value is not a
+            finite number > 0 within the key's range (:data:`scheimpflug.model.rig.KEY_RANGES`).
+        """
+        tab = (self.rig or {}).get(table)
+        if tab is None:
+            return None
+        if not isinstance(tab, dict):
+            raise FrameError(f"{str(self.path / 'manifest.json')!r}: rig.{table} must be an object")
+        value = tab.get(key)
+        if value is None:
+            return None
+        if not (_finite_number(value) and value > 0 and key_in_range(table, key, value)):
+            where = KEY_RANGES.get(table, {}).get(key, "(0, inf)")
+            raise FrameError(f"{str(self.path / 'manifest.json')!r}: rig.{table}.{key} = {value!r:.40} "
+                             f"must be a finite number > 0 in {where}")
+        return float(value)
+
     def saturation_dn(self, frame: np.ndarray) -> float:
         """Saturation level of a frame of this folder.
 
@@ -255,12 +293,22 @@ def _load_manifest(folder: Path) -> dict:
     return data
 
 
+def _finite_number(value: Any) -> bool:
+    """A JSON number that is finite as a float (not a boolean, string, NaN, ±inf or a huge integer)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:          # an integer beyond the float range
+        return False
+
+
 def _number(mpath: Path, i: int, entry: dict, key: str) -> float | None:
     value = entry.get(key)
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise FrameError(f"{str(mpath)!r}: frames[{i}].{key} = {value!r} must be a finite number")
+    if not _finite_number(value):
+        raise FrameError(f"{str(mpath)!r}: frames[{i}].{key} = {value!r:.40} must be a finite number")
     return float(value)
 
 
@@ -276,18 +324,29 @@ def _record(mpath: Path, i: int, entry: Any) -> FrameRecord:
                        extra={k: v for k, v in entry.items() if k not in known})
 
 
+def _whole(mpath: Path, sensor: dict, key: str, lo: int, hi: int, required: bool,
+           where: str = "rig.sensor.") -> int | None:
+    """sensor[key] as an integer in [lo, hi] (an integral float is fine), or FrameError."""
+    value = sensor.get(key)
+    if value is None and not required:
+        return None
+    ok = _finite_number(value) and float(value).is_integer() and lo <= value <= hi
+    if not ok:
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:20] + "…"
+        raise FrameError(f"{str(mpath)!r}: {where}{key} = {shown} must be an integer in "
+                         f"[{lo}, {hi}]")
+    return int(value)
+
+
 def _sensor_shape(mpath: Path, rig: Any) -> tuple[int, int, int | None] | None:
     if rig is None:
         return None
     sensor = rig.get("sensor") if isinstance(rig, dict) else None
     if not isinstance(sensor, dict):
         raise FrameError(f"{str(mpath)!r}: 'rig' must hold a 'sensor' table")
-    try:
-        rows, cols = int(sensor["rows"]), int(sensor["columns"])
-    except (KeyError, TypeError, ValueError):
-        raise FrameError(f"{str(mpath)!r}: rig.sensor needs integer 'rows' and 'columns'") from None
-    bits = sensor.get("adc_bits")
-    return rows, cols, int(bits) if isinstance(bits, (int, float)) else None
+    rows = _whole(mpath, sensor, "rows", 1, MAX_SIDE_PX, True)
+    cols = _whole(mpath, sensor, "columns", 1, MAX_SIDE_PX, True)
+    return rows, cols, _whole(mpath, sensor, "adc_bits", 1, 16, False)
 
 
 def open_frame_folder(path: str | Path) -> FrameFolder:
@@ -329,8 +388,43 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     if not isinstance(params, dict):
         raise FrameError(f"{str(mpath)!r}: 'scenario_params' must be an object")
     bits = shape[2] if shape else None
-    if bits is None and isinstance(data.get("adc_bits"), int) and not isinstance(data.get("adc_bits"), bool):
-        bits = int(data["adc_bits"])        # real frames imported without a rig (scheimpflug import)
+    if bits is None and data.get("adc_bits") is not None:   # real frames imported without a rig
+        bits = _whole(mpath, data, "adc_bits", 1, 16, True, where="")
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
                        adc_bits=bits)
+
+
+def scenario_number(folder: FrameFolder, key: str, default: float, lo: float, hi: float) -> float:
+    """A number of the manifest's ``scenario_params`` checked against its range.
+
+    Parameters
+    ----------
+    folder : FrameFolder
+        The opened folder.
+    key : str
+        Key in ``scenario_params`` (e.g. ``plate_height_mm``).
+    default : float
+        Value when the key is absent.
+    lo, hi : float
+        The value must be finite and in (lo, hi].
+
+    Returns
+    -------
+    float
+        The value, or ``default``.
+
+    Raises
+    ------
+    FrameError
+        Naming the manifest and the key, for a value that is not a finite
+        number in (lo, hi] (a string, null, an object, NaN …).
+    """
+    if key not in folder.scenario_params:
+        return float(default)
+    value = folder.scenario_params[key]
+    ok = _finite_number(value) and lo < value <= hi
+    if not ok:
+        raise FrameError(f"{str(folder.path / 'manifest.json')!r}: scenario_params.{key} = "
+                         f"{value!r:.40} must be a finite number in ({lo:g}, {hi:g}]")
+    return float(value)

@@ -97,8 +97,10 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
         Points in the part frame [mm] with angle, row, intensity and frame
         index (stored as float32 / int32; frame −1 when unknown).
     comment : str, optional
-        Extra header comment (one line: whitespace runs are collapsed; e.g.
-        the command that made it).
+        Extra header comment (one line: whitespace runs are collapsed, and
+        non-ASCII characters escaped as Python's ``backslashreplace`` does, a
+        PLY header being ASCII;
+        e.g. the command that made it).
 
     Returns
     -------
@@ -114,7 +116,7 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     data["frame"] = cloud.frame if cloud.frame is not None else -1
     lines = ["ply", "format binary_little_endian 1.0",
              "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
-    lines += [f"comment {' '.join(comment.split())}"] if comment else []
+    lines += [f"comment {_ascii(comment)}"] if comment else []
     lines += [f"element vertex {len(cloud)}"]
     lines += [f"property {_PLY_NAME[data.dtype[n].str[1:]]} {n}" for n in data.dtype.names]
     header = "\n".join(lines + ["end_header"]) + "\n"
@@ -147,7 +149,8 @@ def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id=N
     face_object_id : (m,) array_like int or None
         Object id of each face (None: no ``object_id`` property).
     comments : tuple of str, optional
-        Header comment lines (newlines are replaced by spaces).
+        Header comment lines (newlines are replaced by spaces, non-ASCII
+        characters escaped as Python's ``backslashreplace`` does).
     face_properties : dict of str to (m,) array_like, optional
         More scalar face properties, written as ``uchar`` (uint8 arrays),
         ``int`` (other integers) or ``double``.
@@ -181,7 +184,7 @@ def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id=N
         table[k] = a
     names = {"u1": "uchar", "<i4": "int", "<f8": "double"}
     lines = ["ply", "format binary_little_endian 1.0"]
-    lines += [f"comment {' '.join(str(c).split())}" for c in comments]
+    lines += [f"comment {_ascii(c)}" for c in comments]
     lines += [f"element vertex {len(v)}", "property double x", "property double y", "property double z",
               f"element face {len(f)}", "property list uchar int vertex_indices"]
     lines += [f"property {names[kind]} {k}" for k, kind in kinds.items()] + ["end_header"]
@@ -192,8 +195,17 @@ def write_mesh_ply(path: str | os.PathLike, vertices_mm, faces, face_object_id=N
     return Path(path)
 
 
+def _ascii(text) -> str:
+    """One header comment line in ASCII (PLY headers are ASCII), non-ASCII backslash-escaped."""
+    return " ".join(str(text).split()).encode("ascii", "backslashreplace").decode("ascii")
+
+
 def _check_ply_header(path: Path) -> list[tuple[str, int]]:
-    """The (element, count) list of a PLY header; MeshError for a file that is not a PLY."""
+    """The (element, count) list of a PLY header; MeshError for a file that is not a PLY.
+
+    Also refuses counts the file cannot hold (every item of an element takes at
+    least one byte in binary, two in ASCII), before any reader allocates for them.
+    """
     with open(path, "rb") as fh:
         head = fh.read(65536)
     end = head.find(b"end_header")
@@ -201,13 +213,21 @@ def _check_ply_header(path: Path) -> list[tuple[str, int]]:
         raise MeshError(f"{str(path)!r} is not a PLY file (no 'ply' magic line)")
     if end < 0:
         raise MeshError(f"{str(path)!r}: PLY header has no 'end_header'")
-    elements = []
+    elements, ascii_body = [], False
     for line in head[:end].decode("ascii", "replace").splitlines():
         words = line.split()
+        if len(words) >= 2 and words[0] == "format":
+            ascii_body = words[1] == "ascii"
         if len(words) == 3 and words[0] == "element":
             if not words[2].isdigit():
                 raise MeshError(f"{str(path)!r}: malformed PLY header line {line.strip()!r}")
             elements.append((words[1], int(words[2])))
+    body = path.stat().st_size - (head.find(b"\n", end) + 1)
+    items = sum(n for _, n in elements) * (2 if ascii_body else 1)
+    if items > body:
+        what = ", ".join(f"{n} {name}" for name, n in elements)
+        raise MeshError(f"{str(path)!r}: the PLY header announces {what} but only {max(body, 0)} bytes "
+                        "follow it: the file is truncated, empty or corrupt")
     return elements
 
 
@@ -216,6 +236,10 @@ def _load(path: str | os.PathLike, what: str):
     import trimesh
 
     p = Path(path)
+    if p.is_dir():
+        truth = p / "truth" / "mesh.ply"
+        hint = f" (did you mean {str(truth)!r}?)" if truth.is_file() else ""
+        raise MeshError(f"{what} {str(p)!r} is a folder, not a file{hint}")
     if not p.is_file():
         raise MeshError(f"{what} {str(p)!r} does not exist")
     elements = _check_ply_header(p) if p.suffix.lower() == ".ply" else None

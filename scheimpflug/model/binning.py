@@ -39,7 +39,11 @@ def binned_rig(rig: Rig, k: int) -> Rig:
     a binned pixel has k² times the area, so the exposure time is divided by k²
     — a binned pixel collects the charge an unbinned one would (the operator
     re-exposes), and frames stay as far from saturation as at full resolution;
-    full well, read noise and ADC are those of the rig's sensor table.
+    full well, read noise and ADC are those of the rig's sensor table.  Keys
+    that the rule derived for ``rig`` (stage positions, exposure) are derived
+    again for the binned sensor (:mod:`scheimpflug.model.plan`: its pixel
+    margins are in the pixels the pipeline reads, its exposure is the one that
+    suits the binned pixels); keys the rig sets are kept.
     """
     if not isinstance(k, int) or isinstance(k, bool) or k < 1:
         raise ValueError(f"binning must be an integer >= 1, got {k!r}")
@@ -53,4 +57,4 @@ def binned_rig(rig: Rig, k: int) -> Rig:
         "pixel_pitch_um": s.pixel_pitch_um * k, "columns": s.columns // k, "rows": s.rows // k,
         "hinge_column": (s.hinge_column - c) / k, "axis_row": (s.axis_row - c) / k,
         "offset_u_px": s.offset_u_px / k, "offset_v_px": s.offset_v_px / k,
-        "exposure_ms": s.exposure_ms / (k * k)})
+        "exposure_ms": None if "sensor.exposure_ms" in rig.derived else s.exposure_ms / (k * k)})

@@ -17,7 +17,8 @@ from scipy.optimize import brentq
 
 from scheimpflug.errors import RigError
 from scheimpflug.model.hinge import HingeGeometry, hinge_geometry, stage_from_pixel, stage_jacobian, tilt_rad
-from scheimpflug.model.rig import Rig
+from scheimpflug.model.plan import calibration_plan, rotary_plan, stage_warnings
+from scheimpflug.model.rig import DERIVED_STAGE_KEYS, Rig
 
 __all__ = [
     "DesignChoice",
@@ -94,14 +95,20 @@ def design_report(rig: Rig) -> dict:
         [mm], ``axis_distance_mm`` (rotary axis from the object hinge) [mm],
         ``axis_column_px`` and ``stage_zero_column_px`` (columns that see the
         rotary axis and stage coordinate 0) [px], ``focal_length_check_mm``
-        (:func:`focal_length_from_endpoint` at stage 0) [mm].
+        (:func:`focal_length_from_endpoint` at stage 0) [mm]; ``stage`` (the
+        stage position keys) [mm] and ``derived`` (the keys the rule derived,
+        as ``"table.key"``); ``calibration_plan`` and ``rotary_plan``
+        (:mod:`scheimpflug.model.plan`); ``warnings`` (stage settings that put
+        the axis or the plate out of view, naming the key).  Figures that do
+        not exist (the columns of stage zero and the f check when stage zero is
+        not in front of the hinge, e.g. d0 = 0) are None.
     """
     g = hinge_geometry(rig)
     s = rig.sensor
     cov = coverage(s.hinge_column, s.axis_row, g.F2_px_mm, g.C_mm, s.columns, s.rows)
     d_near, d_far = cov["distance_range_mm"]
     d_hinge_stage0 = -rig.stage.d0_mm
-    u_stage0 = float(g.column_from_distance(d_hinge_stage0))
+    u_stage0 = float(g.column_from_distance(d_hinge_stage0)) if d_hinge_stage0 > 0 else None
     return {
         "tilt_deg": g.tilt_deg,
         "tan_beta": g.tan_beta,
@@ -114,10 +121,21 @@ def design_report(rig: Rig) -> dict:
         "sensor_distance_to_lens_mm": _sensor_centre_distance(rig, g),
         "stage_range_mm": [d_near + rig.stage.d0_mm, d_far + rig.stage.d0_mm],
         "axis_distance_mm": rig.stage.axis_mm - rig.stage.d0_mm,
-        "axis_column_px": float(g.column_from_distance(rig.stage.axis_mm - rig.stage.d0_mm)),
+        "axis_column_px": _finite_or_none(g.column_from_distance(rig.stage.axis_mm - rig.stage.d0_mm)),
         "stage_zero_column_px": u_stage0,
-        "focal_length_check_mm": focal_length_from_endpoint(g, u_stage0, d_hinge_stage0),
+        "focal_length_check_mm": (None if u_stage0 is None
+                                  else _finite_or_none(focal_length_from_endpoint(g, u_stage0, d_hinge_stage0))),
+        "stage": {k: getattr(rig.stage, k) for k in DERIVED_STAGE_KEYS},
+        "derived": list(rig.derived),
+        "calibration_plan": calibration_plan(rig).to_json_dict(),
+        "rotary_plan": rotary_plan(rig).to_json_dict(),
+        "warnings": stage_warnings(rig),
     }
+
+
+def _finite_or_none(x) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
 
 
 def _sensor_centre_distance(rig: Rig, g: HingeGeometry) -> float:

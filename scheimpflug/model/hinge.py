@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scheimpflug.model._checks import check_broadcast, check_last_dim
-from scheimpflug.model.rig import Rig
+
+if TYPE_CHECKING:  # the rig imports this module (its stage plan needs the closed forms)
+    from scheimpflug.model.rig import Rig
 
 __all__ = [
     "HingeGeometry",

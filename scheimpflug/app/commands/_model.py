@@ -6,6 +6,8 @@ import argparse
 
 import numpy as np
 
+from scheimpflug.app.commands._common import number
+
 __all__ = ["add_model_options", "check_model_args", "make_model", "model_summary", "table_z_from_folder",
            "write_model"]
 
@@ -20,15 +22,15 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--model-method", choices=_METHODS, default="grid",
                    help="grid: meshed on the scan's frame × row grid (default); poisson: Open3D's "
                         "screened Poisson reconstruction (optional: pip install '.[poisson]')")
-    g.add_argument("--table-z-mm", type=float, metavar="Z",
+    g.add_argument("--table-z-mm", type=number(-1e5, 1e5, unit="mm"), metavar="Z",
                    help="rotary-table plane in the part frame [mm] (default: the manifest rig's "
                         "stage.rotary_table_z_mm; none: every open bottom is capped)")
-    g.add_argument("--max-step-mm", type=float, metavar="D",
+    g.add_argument("--max-step-mm", type=number(0, 1e5, lo_open=True, unit="mm"), metavar="D",
                    help="largest step between consecutive points of one profile [mm] "
                         "(default: 20 × the scan's median row-to-row step)")
-    g.add_argument("--max-gap-deg", type=float, metavar="A",
+    g.add_argument("--max-gap-deg", type=number(0, 360, lo_open=True, unit="deg"), metavar="A",
                    help="largest angle bridged between two profiles of a body [deg] (default 3 × the step)")
-    g.add_argument("--section-z", type=float, action="append", default=[], metavar="Z",
+    g.add_argument("--section-z", type=number(-1e5, 1e5, unit="mm"), action="append", default=[], metavar="Z",
                    help="report the cross-section at this height [mm, part frame] (repeatable; "
                         "default: 5 heights evenly inside the model)")
     g.add_argument("--sections-plot", metavar="FILE.png", help="plot the sections and the area over height")
@@ -50,7 +52,8 @@ def table_z_from_folder(args, folder) -> float | None:
         return float(args.table_z_mm)
     stage = (folder.rig or {}).get("stage") if folder is not None else None
     z = stage.get("rotary_table_z_mm") if isinstance(stage, dict) else None
-    return float(z) if isinstance(z, (int, float)) else None
+    ok = isinstance(z, (int, float)) and not isinstance(z, bool) and abs(z) <= 1e5   # NaN fails too
+    return float(z) if ok else None
 
 
 def make_model(cloud, args, table_z_mm):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._common import number, print_json
 
 
 def add_parser(sub):
@@ -17,12 +17,12 @@ def add_parser(sub):
                    help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
                         "or '--opencv'")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
-    p.add_argument("--blocker-thickness-mm", type=float, default=None,
+    p.add_argument("--blocker-thickness-mm", type=number(0, 100, hi_open=True, unit="mm"), default=None,
                    help="blocker thickness [mm] (default: manifest scenario_params."
                         "blocker_thickness_mm, else 2.0)")
     p.add_argument("--cylinder-scan", metavar="DIR2",
                    help="cross-check: frame folder of a cylinder turning on the stage")
-    p.add_argument("--cylinder-radius-mm", type=float, default=50.0,
+    p.add_argument("--cylinder-radius-mm", type=number(0, 1e4, lo_open=True, unit="mm"), default=50.0,
                    help="radius of that cylinder [mm] (default 50: the paper's Ø100 mm)")
     p.set_defaults(func=_run)
     return p
@@ -42,6 +42,8 @@ def _run(args) -> int:
         out["cylinder_minus_blocker_mm"] = cyl.axis_mm - res.axis_mm
     for name, reason in res.skipped:
         print(f"warning: {name}: skipped: {reason}", file=sys.stderr)
+    for note in res.warnings:
+        print(f"warning: {note}", file=sys.stderr)
     if args.json:
         print_json(out)
         return 0

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import warnings
 
-from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._common import (
+    add_force_option,
+    check_output,
+    check_plot,
+    finite_json,
+    number,
+    print_json,
+)
 
 
 def add_parser(sub):
@@ -14,9 +22,10 @@ def add_parser(sub):
                                    "sheet: image hinge, F², d0 and C (paper Eqs. 11–12) by the "
                                    "paper's endpoint method and a refined joint fit, and a general "
                                    "model (sheet homography + radial distortion) for rigs with "
-                                   "sensor roll or lens distortion.")
+                                   "sensor roll or lens distortion; with the standard errors of "
+                                   "the paper form's constants.")
     p.add_argument("dir", metavar="DIR", help="frame folder (manifest.json + frames/)")
-    p.add_argument("--plate-height-mm", type=float, default=None,
+    p.add_argument("--plate-height-mm", type=number(0, 1e4, lo_open=True, unit="mm"), default=None,
                    help="plate height [mm] (default: manifest scenario_params or 89)")
     p.add_argument("--out", metavar="CAL.json", help="write the calibration here")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
@@ -38,9 +47,20 @@ def add_parser(sub):
                    help="rig file for the lens focal length and pixel pitch (default: the manifest's "
                         "rig, else the paper's, assumed); they set the camera intrinsics of the "
                         "general model and of the OpenCV export")
+    g = p.add_argument_group("stated accuracy (a warning when 2 standard errors exceed it)")
+    g.add_argument("--accuracy-hinge-px", type=float, default=0.5, help="u_h and v_h [px] (default 0.5)")
+    g.add_argument("--accuracy-relative", type=float, default=5e-4,
+                   help="F² and C, relative (default 5e-4 = 0.05 %%)")
+    g.add_argument("--accuracy-d0-resolution", type=float, default=0.1,
+                   help="d0, in units of the distance resolution at the centre column (default 0.1)")
+    add_force_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=_run)
     return p
+
+
+def _pm(x: float, fmt: str) -> str:
+    return "–" if not math.isfinite(x) else format(x, fmt)
 
 
 def _summary(res) -> str:
@@ -48,9 +68,14 @@ def _summary(res) -> str:
     lines = []
     for c in (pr.paper, pr.refined):
         mark = "*" if c is res.chosen else " "
-        lines.append(f"{mark} {c.method:8s} hinge = ({c.hinge_u_px:9.2f}, {c.hinge_v_px:8.2f}) px "
-                     f"(σu {c.hinge_u_sigma_px:.3g})  F² = {c.F2_px_mm:.6g} ± {c.F2_sigma_px_mm:.3g} "
-                     f"px·mm  d0 = {c.d0_mm:.3f} mm  C = {c.C_mm:.4f} ± {c.C_sigma_mm:.3g} mm")
+        lines.append(f"{mark} {c.method:8s} hinge = ({c.hinge_u_px:9.2f} ± {_pm(c.hinge_u_sigma_px, '.3g')}, "
+                     f"{c.hinge_v_px:8.2f} ± {_pm(c.hinge_v_sigma_px, '.3g')}) px  "
+                     f"F² = {c.F2_px_mm:.6g} ± {_pm(c.F2_stderr_px_mm, '.3g')} px·mm  "
+                     f"d0 = {c.d0_mm:.3f} ± {_pm(c.d0_sigma_mm, '.3g')} mm  "
+                     f"C = {c.C_mm:.4f} ± {_pm(c.C_stderr_mm, '.3g')} mm")
+    b = pr.best
+    lines.append("  (± standard errors)  per-frame spread σ(F²) = "
+                 f"{_pm(b.F2_sigma_px_mm, '.3g')} px·mm, σ(C) = {_pm(b.C_sigma_mm, '.3g')} mm")
     g = res.general
     cam = g.camera if g is not None else None
     mark = "*" if g is not None and res.chosen is g else " "
@@ -61,7 +86,7 @@ def _summary(res) -> str:
                  f"{g.field_sigma_mm.get('height_rms', float('nan')):.3g} mm (height)")
     r2 = pr.paper.endpoint_fit_r2
     lines.append(f"  endpoint fits R² = {r2[0]:.6f} (top), {r2[1]:.6f} (bottom); "
-                 f"{len(res.measurements)} frames with a stripe, {len(pr.measurements)} with both edges, "
+                 f"{len(res.measurements)} frames with a stripe, {pr.best.n_frames_both_edges} with both edges, "
                  f"{len(res.skipped)} skipped")
     lines.append(f"  model: {res.selection.reason}")
     return "\n".join(lines)
@@ -76,8 +101,7 @@ def _optics(args, folder):
 
         rig = load_rig(args.rig)
         return rig.lens.focal_length_mm, rig.sensor.pixel_pitch_um, False
-    r = folder.rig or {}
-    f, p = (r.get("lens") or {}).get("focal_length_mm"), (r.get("sensor") or {}).get("pixel_pitch_um")
+    f, p = folder.rig_value("lens", "focal_length_mm"), folder.rig_value("sensor", "pixel_pitch_um")
     if f is None or p is None:
         return DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM, True
     return float(f), float(p), False
@@ -94,25 +118,38 @@ def _result_dict(res) -> dict:
 
 def _run(args) -> int:
     from scheimpflug.app.progress import Progress
+    from scheimpflug.calibration import CalibrationAccuracy
     from scheimpflug.io.atomic import write_json_atomic
     from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.sheet_model import calibrate_sheet_folder
 
+    acc = CalibrationAccuracy(hinge_px=args.accuracy_hinge_px, relative=args.accuracy_relative,
+                              d0_resolution=args.accuracy_d0_resolution)
+    check_output(args.out, "--out", force=args.force, inputs=[args.rig], folders=[args.dir])
+    check_output(args.opencv, "--opencv", force=args.force, inputs=[args.rig, args.out], folders=[args.dir])
+    check_plot(args.plot, force=args.force, inputs=[args.rig, args.out, args.opencv], folders=[args.dir])
     folder = open_frame_folder(args.dir)
     f_mm, p_um, assumed = _optics(args, folder)
     with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
         warnings.simplefilter("ignore")
         res = calibrate_sheet_folder(folder, args.plate_height_mm, model=args.model, method=args.method,
                                      detector=args.detector, focal_length_mm=f_mm, pixel_pitch_um=p_um,
-                                     progress=bar)
+                                     progress=bar, accuracy=acc)
     for name, reason in res.paper.skipped:
         print(f"warning: {name}: skipped: {reason}", file=sys.stderr)
+    if res.paper.partial:
+        names = ", ".join(f"{f} (no {edge} edge)" for f, edge in res.paper.partial)
+        print(f"note: {len(res.paper.partial)} frame(s) show one plate edge only; they give the distance "
+              f"relation and that edge: {names}", file=sys.stderr)
+    for w in res.paper.warnings + res.paper.best.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     if assumed and (args.opencv or res.chosen is res.general):
         print(f"warning: no rig: the camera intrinsics assume f = {f_mm:g} mm and a {p_um:g} µm pixel "
               f"pitch (give --rig)", file=sys.stderr)
     d = _result_dict(res)
+    d["warnings"] = list(res.paper.warnings) + list(d.get("warnings", []))
     if args.out:
-        write_json_atomic(args.out, d)
+        write_json_atomic(args.out, finite_json(d))     # undefined numbers as null
     if args.opencv:
         from scheimpflug.io.opencv import write_opencv
 
@@ -122,6 +159,7 @@ def _run(args) -> int:
         plot_calibration(res.paper, args.plot)
     if args.json:
         d["skipped"] = [{"file": f, "reason": r} for f, r in res.paper.skipped]
+        d["one_edge"] = [{"file": f, "missing": e} for f, e in res.paper.partial]
         print_json(d)
     else:
         print(_summary(res))

@@ -6,7 +6,15 @@ import argparse
 import math
 import sys
 
-from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.app.commands._common import (
+    add_force_option,
+    add_rig_options,
+    check_output,
+    check_plot,
+    number,
+    print_json,
+    rig_from_args,
+)
 from scheimpflug.errors import RigError
 from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.rig import Rig, rig_to_toml
@@ -45,17 +53,23 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--plot", metavar="FILE.png", help="draw the meridian-plane layout and resolution curves")
     inv = p.add_argument_group("inverse design (distances along the sheet from the Scheimpflug line / laser)")
-    inv.add_argument("--near-mm", type=float, help="wanted near end of the working range [mm]")
-    inv.add_argument("--far-mm", type=float, help="wanted far end of the working range [mm]")
+    length = number(0, 1e6, lo_open=True, unit="mm")
+    inv.add_argument("--near-mm", type=length, help="wanted near end of the working range [mm]")
+    inv.add_argument("--far-mm", type=length, help="wanted far end of the working range [mm]")
     pick = inv.add_mutually_exclusive_group()
-    pick.add_argument("--tan-phi", type=float, help="keep this sheet angle, solve the baseline d")
-    pick.add_argument("--baseline-mm", type=float, help="keep this baseline d, solve the sheet angle")
+    pick.add_argument("--tan-phi", type=number(-100, 100),
+                      help="keep this sheet angle, solve the baseline d")
+    pick.add_argument("--baseline-mm", type=number(0, 1e5, lo_open=True, unit="mm"),
+                      help="keep this baseline d, solve the sheet angle")
     inv.add_argument("--write-rig", metavar="RIG.toml", help="write the designed rig file")
+    add_force_option(p)
     p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.write_rig, "--write-rig", force=args.force, inputs=[args.rig])
+    check_plot(args.plot, force=args.force, inputs=[args.rig, args.write_rig])
     rig = rig_from_args(args)
     source = args.rig or f"preset '{args.preset or 'paper'}'"
     if args.near_mm is not None or args.far_mm is not None:
@@ -63,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         source = (f"inverse design for {args.near_mm:g}–{args.far_mm:g} mm along the sheet, "
                   f"lens and sensor of {source}")
     report = design_report(rig)
+    for w in report["warnings"]:
+        print(f"scheimpflug design: warning: {w}", file=sys.stderr)
     if args.plot:
         from scheimpflug.app.design_plot import plot_design
 
@@ -112,7 +128,8 @@ def format_report(rig: Rig, rep: dict, source: str) -> str:
     lines.append(f"  {'distance range (D from hinge)':<32s} {f'{d_near:.2f} … {d_far:.2f}':>14s}  "
                  f"{'mm':<6s} F²/(u − u_h) at columns 0 and {s.columns - 1}  [Eq. 11]")
     for key, label, unit, ref, fmt in _ROWS:
-        lines.append(f"  {label:<32s} {fmt.format(rep[key]):>14s}  {unit:<6s} {ref}")
+        value = "–" if rep[key] is None else fmt.format(rep[key])
+        lines.append(f"  {label:<32s} {value:>14s}  {unit:<6s} {ref}")
     oh, ih = rep["object_hinge_mm"], rep["image_hinge_mm"]
     lines += [
         "",
@@ -122,5 +139,35 @@ def format_report(rig: Rig, rep: dict, source: str) -> str:
         f"(d0 = {rig.stage.d0_mm:g} mm)",
         "  frame: origin at the lens centre, +x optical axis, +z up; D along the sheet from the object hinge",
         "",
+        *_plan_lines(rig, rep),
     ]
     return "\n".join(lines)
+
+
+def _plan_lines(rig: Rig, rep: dict) -> list[str]:
+    """The stage settings, the calibration plan and the rotary plan, with the warnings."""
+    derived = set(rep["derived"])
+    keys = ", ".join(f"{k} = {v:g}{' (derived)' if f'stage.{k}' in derived else ''}"
+                     for k, v in rep["stage"].items())
+    optics = (f"  laser waist at {rig.laser.waist_distance_mm:g} mm from the origin"
+              f"{' (derived)' if 'laser.waist_distance_mm' in derived else ''}; exposure "
+              f"{rig.sensor.exposure_ms:g} ms{' (derived)' if 'sensor.exposure_ms' in derived else ''}")
+    c, r = rep["calibration_plan"], rep["rotary_plan"]
+    last = c["start_mm"] + (c["steps"] - 1) * c["step_mm"]
+    lines = [f"  stage   {keys}", optics,
+             "          (derived: by the rule of scheimpflug.model.plan, from the working volume)" if derived else "",
+             f"  calibration plan  plate {c['plate_height_mm']:g} mm on a table at {c['table_z_mm']:g} mm; "
+             f"{c['steps']} frames, s = {c['start_mm']:g} … {last:.6g} mm in steps of {c['step_mm']:g} mm; "
+             f"both plate edges in view in {c['both_edges_frames']} of {c['steps']}"]
+    if c["note"]:
+        lines.append(f"                    {c['note']}")
+    if r["in_view"]:
+        lines += [f"  rotary plan       axis at s = {r['axis_mm']:g} mm (D = {r['axis_distance_mm']:.2f} mm, "
+                  f"column {rep['axis_column_px']:.1f}), table at {r['table_z_mm']:g} mm",
+                  f"                    in view at every angle: a cylinder of radius {r['part_radius_mm']:.1f} mm "
+                  f"and height {r['part_height_mm']:.1f} mm; a flat part up to radius "
+                  f"{r['max_radius_mm']:.1f} mm, a thin one up to {r['max_height_mm']:.1f} mm high"]
+    else:
+        lines.append(f"  rotary plan       axis at s = {r['axis_mm']:g} mm: OUT OF VIEW (see the warning)")
+    lines += [f"  WARNING: {w}" for w in rep["warnings"]]
+    return [line for line in lines if line] + [""]

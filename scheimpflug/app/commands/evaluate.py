@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._common import number, print_json
 
 _FITS = ("plane", "plane-paper", "cylinder", "circle")
 
@@ -23,7 +23,7 @@ def add_parser(sub):
                         "region's points)")
     p.add_argument("--region", action="append", type=int, default=None, metavar="ID",
                    help="score and fit only the points nearest to this object id / body (repeatable)")
-    p.add_argument("--z-range", nargs=2, type=float, metavar=("ZMIN", "ZMAX"),
+    p.add_argument("--z-range", nargs=2, type=number(-1e6, 1e6, unit="mm"), metavar=("ZMIN", "ZMAX"),
                    help="keep only points with ZMIN <= z <= ZMAX [mm] (e.g. the smooth band)")
     g = p.add_argument_group("two-sided scoring of a surface model (README: 'From profiles to a model')")
     g.add_argument("--model", metavar="MODEL.ply|stl",
@@ -54,7 +54,7 @@ def _fits(names, xyz) -> dict:
 
 
 def _select(args, cloud):
-    """Points kept by --z-range."""
+    """Points kept by --z-range, and the number of non-finite points left out."""
     import numpy as np
 
     from scheimpflug.errors import MeshError
@@ -62,15 +62,25 @@ def _select(args, cloud):
     xyz = cloud.xyz_mm
     if len(xyz) == 0:
         raise MeshError(f"point cloud {args.cloud!r} is empty")
-    if not np.all(np.isfinite(xyz)):
-        xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    from scheimpflug.scoring import MAX_COORDINATE_MM
+
+    finite = np.all(np.isfinite(xyz), axis=1)
+    dropped = int((~finite).sum())
+    with np.errstate(invalid="ignore"):
+        far = finite & np.any(np.abs(xyz) > MAX_COORDINATE_MM, axis=1)
+    if dropped or far.any():
+        print(f"warning: {dropped + int(far.sum())} of {len(xyz)} points of {args.cloud!r} have a "
+              f"non-finite coordinate (NaN or inf: {dropped}) or one beyond ±{MAX_COORDINATE_MM:g} mm "
+              f"({int(far.sum())}) and are left out", file=sys.stderr)
+        xyz = xyz[finite & ~far]
+        dropped += int(far.sum())
     if args.z_range:
         lo, hi = sorted(args.z_range)
         xyz = xyz[(xyz[:, 2] >= lo) & (xyz[:, 2] <= hi)]
     if len(xyz) == 0:
         raise MeshError(f"no finite points of {args.cloud!r} left to score"
                         + (f" in z {args.z_range}" if args.z_range else ""))
-    return xyz
+    return xyz, dropped
 
 
 def _run(args) -> int:
@@ -80,7 +90,7 @@ def _run(args) -> int:
     from scheimpflug.scoring import PointToMesh, body_labels, distance_stats
 
     cloud = read_point_cloud(args.cloud)
-    xyz = _select(args, cloud)
+    xyz, dropped = _select(args, cloud)
     vertices, faces, ids = read_mesh(args.mesh)
     pm = PointToMesh(vertices, faces)
     res = pm.query(xyz)
@@ -98,7 +108,8 @@ def _run(args) -> int:
                             f"(known: {sorted(set(labels_all.tolist()))})")
     d = res.distance_mm[keep]
     out = {**distance_stats(d, res.signed), "distance_kind": "signed" if res.signed else "unsigned",
-           "cloud": str(args.cloud), "mesh": str(args.mesh), "n_faces": int(len(pm.faces))}
+           "cloud": str(args.cloud), "mesh": str(args.mesh), "n_faces": int(len(pm.faces)),
+           "n_points_read": len(cloud), "n_dropped": dropped}
     if args.region:
         out["region_filter"] = list(args.region)
     unique = np.unique(labels_all)

@@ -9,7 +9,13 @@ from __future__ import annotations
 import sys
 import time
 
-from scheimpflug.app.commands._common import print_json
+from scheimpflug.app.commands._common import (
+    add_force_option,
+    check_output,
+    check_plot,
+    number,
+    print_json,
+)
 from scheimpflug.app.commands._model import add_model_options
 
 _METHODS = ("gaussian3", "cog", "blais-rioux", "edge")
@@ -30,20 +36,24 @@ def add_parser(sub):
                    help="calibration written by 'scheimpflug calibrate --out' (paper or general model) "
                         "or '--opencv' (needed for a folder)")
     axis = p.add_mutually_exclusive_group()
-    axis.add_argument("--axis-mm", type=float, metavar="A",
+    axis.add_argument("--axis-mm", type=number(-1e6, 1e6, unit="mm"), metavar="A",
                       help="rotary axis position, stage coordinate [mm]")
     axis.add_argument("--axis-from", metavar="DIR", help="locate the axis from a blocker folder")
     p.add_argument("--out", metavar="CLOUD.ply", help="output point cloud (needed for a folder)")
+    add_force_option(p)
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
                         "and on speckled stripes, benchmarks/RESULTS.md)")
     p.add_argument("--multi-peak", choices=("nearest", "strongest", "track"), default="nearest",
                    help="rule for rows with several peaks (inter-reflections): 'track' picks the "
                         "most continuous, narrow, bright one (default nearest)")
-    p.add_argument("--min-snr", type=float, default=6.0,
+    p.add_argument("--min-snr", type=number(0, 1e4, lo_open=True), default=6.0,
                    help="detection threshold, peak over background noise [-] (default 6)")
     p.add_argument("--keep-saturated", action="store_true",
                    help="keep rows whose stripe peak is saturated (dropped by default: biased)")
+    p.add_argument("--drop-isolated", action="store_true",
+                   help="drop a row's stripe when neither adjacent row has one within 2 px "
+                        "(lone detections: noise or stray light at a part's edge)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     add_model_options(p)
@@ -51,12 +61,28 @@ def add_parser(sub):
     return p
 
 
-def _axis_mm(args, calibration) -> tuple[float, str]:
+def _axis_mm(args, calibration, folder) -> tuple[float, str]:
     if args.axis_mm is not None:
+        _warn_axis_outside(args.axis_mm, calibration, folder)
         return float(args.axis_mm), "option"
     from scheimpflug.axis import locate_axis
 
-    return float(locate_axis(args.axis_from, calibration).axis_mm), f"located from {args.axis_from}"
+    res = locate_axis(args.axis_from, calibration)
+    for note in res.warnings:
+        print(f"warning: --axis-from: {note}", file=sys.stderr)
+    return float(res.axis_mm), f"located from {args.axis_from}"
+
+
+def _warn_axis_outside(axis_mm: float, calibration, folder) -> None:
+    """A rotary axis outside the depth range the calibration covers is almost surely a typo."""
+    import numpy as np
+
+    ends, _ = calibration.stage_from_pixel(np.array([-0.5, folder.columns - 0.5]),
+                                           np.full(2, 0.5 * (folder.rows - 1)))
+    lo, hi = float(np.nanmin(ends)), float(np.nanmax(ends))
+    if not lo <= axis_mm <= hi:
+        print(f"warning: --axis-mm {axis_mm:g} lies outside the depth range the calibration covers "
+              f"({lo:.2f} … {hi:.2f} mm): the cloud will be far from the part", file=sys.stderr)
 
 
 def _check_folder(folder, calibration) -> None:
@@ -70,6 +96,9 @@ def _check_folder(folder, calibration) -> None:
     if all(cal_shape) and cal_shape != (folder.rows, folder.columns):
         raise CalibrationError(f"calibration was made for {cal_shape[0]} × {cal_shape[1]} frames, "
                                f"the scan has {folder.rows} × {folder.columns}")
+    problem = calibration.problem(folder.columns) if hasattr(calibration, "problem") else None
+    if problem:
+        raise CalibrationError(f"the calibration cannot be applied to {str(folder.path)!r}: {problem}")
 
 
 def _extract(folder, args):
@@ -80,7 +109,7 @@ def _extract(folder, args):
     with Progress(0, label="extract", quiet=args.quiet) as bar:
         return extract_folder(folder, args.method, min_snr=args.min_snr,
                               keep_saturated=args.keep_saturated, progress=bar,
-                              multi_peak=args.multi_peak)
+                              multi_peak=args.multi_peak, drop_isolated=args.drop_isolated)
 
 
 def _check_args(args) -> bool:
@@ -100,7 +129,19 @@ def _check_args(args) -> bool:
         if missing:
             raise ScheimpflugError(f"reconstructing the folder {args.dir} needs {', '.join(missing)}")
     check_model_args(args)
+    _check_outputs(args, is_cloud)
     return is_cloud
+
+
+def _check_outputs(args, is_cloud: bool) -> None:
+    """Refuse outputs that are inputs, folders or existing files (without --force), before any work."""
+    inputs = [args.dir] if is_cloud else [args.calibration]
+    folders = [] if is_cloud else [args.dir, args.axis_from]
+    if not is_cloud:
+        check_output(args.out, "--out", force=args.force, inputs=inputs, folders=folders)
+    check_output(args.model, "--model", force=args.force, inputs=inputs + [args.out], folders=folders)
+    check_plot(args.sections_plot, "--sections-plot", force=args.force,
+               inputs=inputs + [args.out, args.model], folders=folders)
 
 
 def _from_folder(args, t0: float):
@@ -113,13 +154,15 @@ def _from_folder(args, t0: float):
     calibration = load_calibration(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
-    axis_mm, axis_source = _axis_mm(args, calibration)
+    axis_mm, axis_source = _axis_mm(args, calibration, folder)
     rows, us, peaks, stats = _extract(folder, args)
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in folder.frames], calibration,
                                  axis_mm, intensity=peaks)
     if len(cloud) == 0:
+        saturated = (f"; {stats['saturated_frames']} of them saturated (most pixels at the saturation "
+                     "level): lower the exposure" if stats["saturated_frames"] else "")
         raise FrameError(f"{args.dir}: no stripe found in any of the {len(folder)} frames "
-                         f"({stats['saturated_rows']} saturated rows dropped): no usable frame")
+                         f"({stats['saturated_rows']} saturated rows dropped{saturated}): no usable frame")
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
                **stats, "seconds": round(time.perf_counter() - t0, 3)}

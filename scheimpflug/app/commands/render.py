@@ -8,16 +8,27 @@ documented in :mod:`sim.writer` and :mod:`sim.truth`.
 ``--binning K`` renders a reduced sensor with the same geometry (k × k
 binning: pitch × k, columns, rows, hinge column and axis row / k; see
 :func:`scheimpflug.model.binning.binned_rig`): the quick mode of the demo and of tests.
+
+Before any rendering the job is sized (:func:`sim.writer.estimate_job`: frames,
+folder size, memory): a job that cannot fit (more memory than the machine has,
+more output than the free disk space) is refused with the numbers, and one
+above :data:`CONFIRM_FRAMES` frames or :data:`CONFIRM_BYTES` bytes needs
+``--yes``.
 """
 
 from __future__ import annotations
 
 import sys
 
-from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.app.commands._common import add_rig_options, integer, number, print_json, rig_from_args
 from scheimpflug.errors import RenderError, ScheimpflugError
 
-__all__ = ["add_parser"]
+__all__ = ["CONFIRM_BYTES", "CONFIRM_FRAMES", "add_parser"]
+
+CONFIRM_FRAMES = 10_000
+"""A render of more frames than this needs ``--yes`` (the paper's largest scan has 720)."""
+CONFIRM_BYTES = 20e9
+"""A render expected to write more than this [B] needs ``--yes``."""
 
 _SCENARIOS = ("blocker", "calibration", "rotary")
 # option → scenarios it applies to
@@ -37,34 +48,43 @@ def add_parser(sub):
     p.add_argument("scenario", metavar="SCENARIO", help="calibration | blocker | rotary")
     add_rig_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output frame folder")
-    p.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
-    p.add_argument("--spp", type=int, default=None,
+    p.add_argument("--seed", type=integer(0, 2**31 - 1), default=0, help="run seed (default 0)")
+    p.add_argument("--spp", type=integer(1, 10**6), default=None,
                    help="laser samples per sensor row of the light tracer "
                         "(RenderSettings.samples_per_row; default: the renderer's)")
-    p.add_argument("--bounces", type=int, default=None, metavar="N",
+    p.add_argument("--bounces", type=integer(1, 64), default=None, metavar="N",
                    help="light-path depth of the laser: 1 = first surface only, N > 1 follows "
                         "inter-reflections (default: the rig's [twin] bounces, 1 in the presets)")
     p.add_argument("--subsurface", action="store_true", default=None,
                    help="translucent materials scatter light inside (rig key [twin] subsurface)")
-    p.add_argument("--binning", type=int, default=1, metavar="K",
+    p.add_argument("--binning", type=integer(1, 4096), default=1, metavar="K",
                    help="k × k binned sensor, same geometry (quick mode; default 1)")
     p.add_argument("--truth-pixels", default=None, metavar="every|N|none",
                    help="per-pixel truth maps: every frame, every N-th, or none "
                         "(default: every frame for calibration/blocker, every 30th for rotary)")
     g = p.add_argument_group("calibration")
-    g.add_argument("--steps", type=int, help="number of plate positions (default 27)")
-    g.add_argument("--step-mm", type=float, help="stage step [mm] (default 10; the paper used 20)")
-    g.add_argument("--start-mm", type=float,
-                   help="first stage position s [mm] (default −10: with 27 × 10 mm, every frame of the "
-                        "paper rig in view)")
-    g.add_argument("--plate-height-mm", type=float, help="plate height [mm] (default 89)")
+    g.add_argument("--steps", type=integer(1, 10**9),
+                   help="number of plate positions (default: the rig's plan, 27)")
+    g.add_argument("--step-mm", type=number(0, 1e5, lo_open=True, unit="mm"),
+                   help="stage step [mm] (default: the rig's plan, spanning the positions where both plate "
+                        "edges are in view; see 'scheimpflug design')")
+    g.add_argument("--start-mm", type=number(-1e6, 1e6, unit="mm"),
+                   help="first stage position s [mm] (default: the rig's plan)")
+    g.add_argument("--plate-height-mm", type=number(0, 1e4, lo_open=True, unit="mm"),
+                   help="plate height [mm] (default: the rig's [stage] calibration_plate_height_mm)")
     g = p.add_argument_group("blocker and rotary")
     g.add_argument("--part", help="rotary: part name or mesh file (default cylinder)")
-    g.add_argument("--step-deg", type=float, help="rotary: angle step [deg] (default 0.5)")
-    g.add_argument("--axis-mm", type=float, help="rotary axis position [mm] (default: the rig's)")
-    g.add_argument("--frames", type=int, help="blocker: number of frames (default 1); "
-                                              "rotary: render only the first N")
-    g.add_argument("--blocker-thickness-mm", type=float, help="blocker thickness [mm] (default 2)")
+    g.add_argument("--step-deg", type=number(0, 360, lo_open=True, unit="deg"),
+                   help="rotary: angle step [deg] (default 0.5)")
+    g.add_argument("--axis-mm", type=number(-1e6, 1e6, unit="mm"),
+                   help="rotary axis position [mm] (default: the rig's)")
+    g.add_argument("--frames", type=integer(1, 10**9), help="blocker: number of frames (default 1); "
+                                                            "rotary: render only the first N")
+    g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
+                   help="blocker thickness [mm] (default 2)")
+    p.add_argument("--yes", action="store_true",
+                   help=f"start a job above {CONFIRM_FRAMES:,} frames or {CONFIRM_BYTES / 1e9:g} GB of "
+                        "output without asking (it is refused otherwise)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=_run)
@@ -136,6 +156,33 @@ def _check_out(path: str) -> None:
         raise RenderError(f"output folder {path!r} is not writable: {str(probe)!r} {what}")
 
 
+def _check_job(args, rig, opts: dict) -> None:
+    """Size the job before anything is built or written; refuse what cannot fit, ask above a size."""
+    import os
+    import shutil
+    from pathlib import Path
+
+    from sim.scenarios import frame_count
+    from sim.writer import estimate_job
+
+    job = estimate_job(rig, frame_count(args.scenario, **opts), opts["truth_pixels_every"])
+    ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if job.memory_bytes > ram:
+        raise RenderError(f"this job needs about {job.memory_bytes / 1e9:.3g} GB of memory "
+                          f"({job.describe()}), this machine has {ram / 1e9:.3g} GB: use --binning")
+    probe = Path(args.out)
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free if probe.is_dir() else None
+    if free is not None and job.output_bytes > free:
+        raise RenderError(f"this job writes about {job.output_bytes / 1e9:.3g} GB ({job.describe()}) "
+                          f"but {str(probe)!r} has {free / 1e9:.3g} GB free")
+    if (job.frames > CONFIRM_FRAMES or job.output_bytes > CONFIRM_BYTES) and not args.yes:
+        raise RenderError(f"a large job: {job.describe()}; pass --yes to start it")
+    if not args.quiet:
+        print(f"scheimpflug render: {job.describe()}", file=sys.stderr)
+
+
 def _run(args) -> int:
     from scheimpflug.app.progress import Progress
     from sim.scenarios import SCENARIOS
@@ -149,6 +196,7 @@ def _run(args) -> int:
     if args.spp is not None and args.spp < 1:
         raise ScheimpflugError(f"--spp {args.spp}: must be >= 1")
     rig = _rig(args)
+    _check_job(args, rig, opts)
     _check_out(args.out)
 
     def warn(msg):

@@ -1,0 +1,509 @@
+"""``scheimpflug dataset make``: every sample of a spec into a dataset folder, resumable.
+
+Order of work (nothing is written before the spec, every sample's draw and the
+output folder have been checked):
+
+1. parse the spec and draw every sample (:mod:`sim.dataset.spec`);
+2. check the output folder: writable; empty, or a dataset of the *same* spec,
+   storage and input files (else one :class:`DatasetError` naming the difference);
+3. write ``dataset.json`` (``"complete": false``) and, for Zarr, create the store;
+4. make the samples not yet complete (:func:`sim.dataset.sample.make_sample`) on the
+   :class:`~sim.dataset.engine.Engine`; a sample that fails is retried, and if it
+   fails again its reason is recorded in ``dataset.json`` while the rest go on;
+5. rewrite ``index.parquet`` and ``files.parquet`` atomically (every 30 s while
+   running, on Ctrl-C, at the end) from the complete samples' ``sample.json``;
+   write the dataset card ``README.md`` and the final ``dataset.json``.
+
+Rerunning the same command resumes: complete samples are kept, partial ones
+resume frame by frame, nothing is made twice.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from scheimpflug.callbacks import ProgressCallback
+from scheimpflug.dataset import (
+    CARD_FILE,
+    DATASET_FORMAT,
+    FILES_FILE,
+    INDEX_FILE,
+    META_FILE,
+    TRUTH_ARRAYS,
+    ZARR_STORE,
+    file_sha256,
+)
+from scheimpflug.errors import DatasetError
+from scheimpflug.io.atomic import atomic_path, write_json_atomic, write_text_atomic
+from scheimpflug.io.folder import LOCK_NAME, FolderLock
+
+from ..writer import generator_info
+from .engine import Engine
+from .sample import SAMPLE_FILE, ZarrLayout, make_sample, sample_folder
+from .spec import DatasetSpec, SamplePlan, plan_sample
+
+__all__ = ["STORAGES", "ZARR_CODEC", "MakeResult", "make_dataset"]
+
+STORAGES = ("png", "zarr")
+#: Blosc settings of every Zarr array: zstd level 1 with bit-shuffle, 2 MiB blocks (lossless).
+#: On a full noisy paper frame (4.7 MB raw): ≈ 3.6 ms and 0.95 MB with one thread; Blosc's
+#: automatic block size gave ≈ 6.5 ms and 1.07 MB, lz4 2.6 ms and 1.35 MB, PNG (libdeflate
+#: level 1) ≈ 20 ms and 0.97 MB (benchmarks/RESULTS.md).
+ZARR_CODEC = {"cname": "zstd", "clevel": 1, "shuffle": "bitshuffle", "blocksize": 1 << 21}
+_IDENTITY = ("format", "spec", "storage", "inputs")
+_FLUSH_S = 30.0
+_STORAGE_TEXT = {"png": "16-bit PNG frame folders in samples/",
+                 "zarr": "Zarr store frames.zarr, Blosc/zstd + bit-shuffle, one frame per chunk"}
+
+
+@dataclass
+class MakeResult:
+    """What :func:`make_dataset` did.
+
+    Parameters
+    ----------
+    path : Path
+        The dataset folder.
+    samples : int
+        Samples in the spec [-].
+    samples_done : int
+        Samples complete now [-].
+    samples_made : int
+        Samples completed by this run [-].
+    failures : list of dict
+        ``{"sample": k, "error": reason}`` of the samples that failed twice.
+    frames : int
+        Frames of the complete samples [-].
+    frames_rendered : int
+        Frames rendered by this run [-].
+    seconds : dict
+        ``wall`` and the sum over samples of ``setup``, ``render``, ``noise``, ``truth``,
+        ``write`` [s].
+    """
+
+    path: Path
+    samples: int
+    samples_done: int = 0
+    samples_made: int = 0
+    failures: list = field(default_factory=list)
+    frames: int = 0
+    frames_rendered: int = 0
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        """Every sample of the spec is made."""
+        return self.samples_done == self.samples
+
+
+# ------------------------------------------------------------------ checks
+
+
+def _plans(spec: DatasetSpec, storage: str) -> list[SamplePlan]:
+    if storage not in STORAGES:
+        raise DatasetError(f"--format {storage!r}: unknown (known: {', '.join(STORAGES)})")
+    plans = [plan_sample(spec, k) for k in range(spec.samples)]
+    if storage == "zarr":
+        shapes = {(p.rig["sensor"]["rows"], p.rig["sensor"]["columns"]) for p in plans}
+        if len(shapes) > 1:
+            raise DatasetError(f"--format zarr needs one frame size for every sample, but the spec "
+                               f"draws {len(shapes)} (binning or sensor size varies); use --format png")
+        if any(p.truth_pixels_every for p in plans):
+            raise DatasetError("scenario.truth_pixels: per-pixel truth maps are written with "
+                               "--format png only")
+    return plans
+
+
+def _check_writable(out: Path) -> None:
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        what = "is not a folder" if not probe.is_dir() else "is not writable"
+        raise DatasetError(f"output folder {str(out)!r} is not writable: {str(probe)!r} {what}")
+
+
+def _inputs(spec: DatasetSpec) -> dict:
+    out = {}
+    for p in spec.input_files():
+        try:
+            name = p.relative_to(spec.folder).as_posix()
+        except ValueError:
+            name = str(p)
+        out[name] = file_sha256(p)
+    return out
+
+
+def _identity(spec: DatasetSpec, storage: str) -> dict:
+    return {"format": DATASET_FORMAT, "spec": spec.raw, "storage": storage, "inputs": _inputs(spec)}
+
+
+def _first_difference(old, new, prefix: str = "") -> str:
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new), key=str):
+            if json.dumps(old.get(key), sort_keys=True) != json.dumps(new.get(key), sort_keys=True):
+                return _first_difference(old.get(key), new.get(key), f"{prefix}{key}.")
+    return prefix.rstrip(".")
+
+
+def _check_existing(out: Path, identity: dict) -> dict | None:
+    """The existing ``dataset.json`` of the same spec, None for an empty/new folder; else raise."""
+    if not out.exists():
+        return None
+    meta = out / META_FILE
+    if not meta.is_file():
+        others = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME) if out.is_dir() else []
+        if others:
+            first = others[0]
+            raise DatasetError(f"output folder {str(out)!r} is not empty and holds no {META_FILE} "
+                               f"(found {first!r}); choose a new or empty folder")
+        return None
+    try:
+        old = json.loads(meta.read_text("utf-8"))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{str(meta)!r} cannot be read ({exc}); remove the folder or choose "
+                           "another --out") from None
+    for key in _IDENTITY:
+        before, now = old.get(key), identity[key]
+        if key == "inputs" and isinstance(before, dict):    # a file missing before may appear now
+            before = {k: v for k, v in before.items() if k in now}
+            now = {k: v for k, v in now.items() if k in before}
+        if json.dumps(before, sort_keys=True) != json.dumps(now, sort_keys=True):
+            where = _first_difference({key: before}, {key: now})
+            what = {"spec": "a different spec", "storage": "another --format",
+                    "inputs": "other input files (a rig, mesh or scene file changed)",
+                    "format": "another version of this program"}[key]
+            raise DatasetError(f"output folder {str(out)!r} holds a dataset made with {what} "
+                               f"({where!r} differs); choose another --out or delete the folder")
+    return old
+
+
+# ------------------------------------------------------------------ the store
+
+
+def _create_store(out: Path, plans: list[SamplePlan], name: str) -> list[int]:
+    """Create the Zarr arrays (if absent); return each sample's frame offset."""
+    import zarr
+    from zarr.codecs import BloscCodec
+
+    offsets, n = [], 0
+    for p in plans:
+        offsets.append(n)
+        n += p.frames
+    rows, cols = plans[0].rig["sensor"]["rows"], plans[0].rig["sensor"]["columns"]
+    path = out / ZARR_STORE
+    group = zarr.open_group(str(path), mode="a", attributes={"format": DATASET_FORMAT, "dataset": name})
+    codec = BloscCodec(**ZARR_CODEC)
+    arrays = {"frames": ("uint16", (rows, cols), 0, ("frame", "row", "column"))}
+    for key, (dtype, tail, fill) in TRUTH_ARRAYS.items():
+        arrays[key] = (dtype, (rows, *tail), fill, ("frame", "row", *(["xyz"] if tail else [])))
+    for key, (dtype, tail, fill, dims) in arrays.items():
+        if key in group:
+            if group[key].shape != (n, *tail):
+                raise DatasetError(f"{str(path)!r}: array {key!r} has shape {group[key].shape}, "
+                                   f"expected {(n, *tail)}; delete the folder to start over")
+            continue
+        group.create_array(key, shape=(n, *tail), chunks=(1, *tail), dtype=dtype, fill_value=fill,
+                           compressors=codec, dimension_names=dims,
+                           chunk_key_encoding={"name": "default", "separator": "."})
+    return offsets
+
+
+def _remove_temporaries(out: Path) -> None:
+    """Temporary files of killed writers (atomic_path's ``.*.tmp*``, Zarr's ``*.partial``)."""
+    for base in (out, out / "samples", out / ZARR_STORE):
+        if not base.is_dir():
+            continue
+        pattern = "**/*" if base.name == ZARR_STORE else "*"
+        for p in base.glob(pattern):
+            if p.is_file() and ((p.name.startswith(".") and ".tmp" in p.name)
+                                or (base.name == ZARR_STORE and p.name.endswith(".partial"))):
+                p.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------ index and ledger
+
+
+@dataclass
+class _Part:
+    """A complete sample's share of the index and the ledger, as Arrow tables."""
+
+    rows: object
+    files: object
+    frames: int
+    lit_rows: int
+    bytes: dict
+    pool: dict
+
+
+def _part(out: Path, k: int, record: dict) -> _Part:
+    import pyarrow as pa
+
+    sj = sample_folder(out, k) / SAMPLE_FILE
+    files = [*record["files"], {"path": sj.relative_to(out).as_posix(), "sha256": file_sha256(sj),
+                                "bytes": sj.stat().st_size, "sample": k, "frame": -1, "link": None}]
+    frame_files = {r["file"] for r in record["rows"]}
+    kinds = {"frames": 0, "truth": 0, "other": 0}
+    pool = {}
+    for f in files:
+        if f.get("link"):
+            pool[f["link"]] = (f["sha256"], f["bytes"])
+            continue
+        kinds["frames" if f["path"] in frame_files else "truth" if f["frame"] >= 0 else "other"] += f["bytes"]
+    return _Part(pa.Table.from_pylist(record["rows"]), pa.Table.from_pylist(files), len(record["rows"]),
+                 sum(r["lit_rows"] for r in record["rows"]), kinds, pool)
+
+
+def _load_parts(out: Path, plans: list[SamplePlan]) -> dict[int, _Part]:
+    parts = {}
+    for p in plans:
+        path = sample_folder(out, p.index) / SAMPLE_FILE
+        if path.is_file():
+            try:
+                parts[p.index] = _part(out, p.index, json.loads(path.read_text("utf-8")))
+            except (OSError, ValueError, KeyError) as exc:
+                raise DatasetError(f"{str(path)!r} cannot be read ({exc}): delete that sample "
+                                   "folder and rerun to make it again") from None
+    return parts
+
+
+def _write_parquet(path: Path, tables: list) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.concat_tables(tables, promote_options="default")
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp)
+
+
+def _write_index(out: Path, parts: dict[int, _Part]) -> dict:
+    if not parts:
+        return {"frames": 0, "lit_rows": 0, "bytes": {}}
+    import pyarrow as pa
+
+    keys = sorted(parts)
+    pool = {}
+    for k in keys:
+        pool.update(parts[k].pool)
+    shared = pa.Table.from_pylist([{"path": p, "sha256": s, "bytes": b, "sample": -1, "frame": -1,
+                                    "link": None} for p, (s, b) in sorted(pool.items())])
+    _write_parquet(out / INDEX_FILE, [parts[k].rows for k in keys])
+    _write_parquet(out / FILES_FILE, [parts[k].files for k in keys] + ([shared] if pool else []))
+    kinds = {kind: sum(parts[k].bytes[kind] for k in keys) for kind in ("frames", "truth", "other")}
+    kinds["truth"] += sum(b for _, b in pool.values())
+    return {"frames": sum(parts[k].frames for k in keys), "lit_rows": sum(parts[k].lit_rows for k in keys),
+            "bytes": {**kinds, "total": sum(kinds.values())}}
+
+
+# ------------------------------------------------------------------ the job
+
+
+def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int = 1,
+                 scheduler: str | None = None, retries: int = 1, connect_timeout_s: float = 10.0,
+                 progress: ProgressCallback | None = None,
+                 warn: Callable[[str], None] | None = None) -> MakeResult:
+    """Make (or resume) the dataset of ``spec`` in ``out``.
+
+    Parameters
+    ----------
+    spec : DatasetSpec
+        The parsed spec (:func:`sim.dataset.spec.load_spec`).
+    out : path
+        The dataset folder (created).
+    storage : {"png", "zarr"}
+        16-bit PNG frame folders, or one Zarr store (Blosc/zstd, bit-shuffle, one frame
+        per chunk).
+    workers : int
+        1 = in this process; N ≥ 2 = a local Dask cluster of N spawned workers.
+    scheduler : str, optional
+        Address of a running Dask scheduler to use instead.
+    retries : int
+        How often a failed sample is tried again before it is recorded as failed.
+    connect_timeout_s : float
+        How long to wait for ``scheduler`` [s].
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` over all frames of the spec.
+    warn : callable, optional
+        Receives warnings, one line each (default: stderr).
+
+    Returns
+    -------
+    MakeResult
+        Counts, failures and timings.
+
+    Raises
+    ------
+    DatasetError
+        A bad storage, a drawn rig that is impossible, an unwritable output folder, a
+        folder holding another dataset.
+    EngineError
+        A cluster that cannot start or a scheduler that cannot be reached.
+    """
+    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    out = Path(out)
+    plans = _plans(spec, storage)
+    _check_writable(out)
+    identity = _identity(spec, storage)
+    _check_existing(out, identity)                  # before anything is created in ``out``
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+    try:
+        with FolderLock(out, error=DatasetError) as lock:   # one `make` per dataset folder at a time
+            if lock.stale_owner:
+                warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
+                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
+            return _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries,
+                                connect_timeout_s, progress, warn)
+    except BaseException:
+        if created:                     # a failure before anything was written leaves no folder
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
+
+
+def _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries, connect_timeout_s,
+                 progress, warn) -> MakeResult:
+    old = _check_existing(out, identity)
+    if old is not None and old.get("generator", {}).get("versions") != generator_info()["versions"]:
+        warn("the dataset was started with other library versions; frames made now may differ")
+    t0 = time.perf_counter()
+    with Engine(workers=workers, scheduler=scheduler, timeout_s=connect_timeout_s,
+                progress=progress) as engine:
+        try:
+            (out / "samples").mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
+        _remove_temporaries(out)
+        offsets = _create_store(out, plans, spec.name) if storage == "zarr" else [0] * len(plans)
+        info = _info(spec, identity, plans, storage, engine)
+        write_json_atomic(out / META_FILE, info)
+        result = MakeResult(out, spec.samples)
+        records = _load_parts(out, plans)
+        try:
+            _run(engine, plans, offsets, out, storage, records, result, retries, warn)
+        except KeyboardInterrupt:
+            _finish(out, spec, info, plans, records, result, storage, time.perf_counter() - t0)
+            raise
+    _finish(out, spec, info, plans, records, result, storage, time.perf_counter() - t0)
+    return result
+
+
+def _info(spec, identity, plans, storage, engine) -> dict:
+    sensor = plans[0].rig["sensor"]
+    info = {**identity, "complete": False, "name": spec.name, "description": spec.description,
+            "spec_sha256": spec.sha256(), "generator": generator_info(),
+            "adc_bits": sensor["adc_bits"],
+            "planned": {"samples": spec.samples, "frames": sum(p.frames for p in plans)},
+            "engine": {"workers": engine.workers, "scheduler": engine.scheduler}}
+    if storage == "zarr":
+        info["zarr"] = {"store": ZARR_STORE, "codec": {"blosc": ZARR_CODEC},
+                        "arrays": ["frames", *TRUTH_ARRAYS], "chunks": "one frame per chunk",
+                        "frame_shape": [sensor["rows"], sensor["columns"]]}
+    return info
+
+
+class _Job:
+    """Picklable ``plan → SampleResult`` for the engine."""
+
+    def __init__(self, out: str, storage: str, offsets: list[int]) -> None:
+        self.out, self.storage, self.offsets = out, storage, offsets
+
+    def __call__(self, plan: SamplePlan, progress=None, threads=None):
+        layout = ZarrLayout(self.offsets[plan.index], ZARR_CODEC) if self.storage == "zarr" else None
+        return make_sample(plan, self.out, self.storage, layout, progress=progress, threads=threads)
+
+
+def _run(engine, plans, offsets, out, storage, records, result, retries, warn) -> None:
+    todo = [p for p in plans if p.index not in records]
+    base = sum(p.frames for p in plans if p.index in records)
+    total = sum(p.frames for p in plans)
+    job = _Job(str(out), storage, offsets)
+    errors: dict[int, str] = {}
+    last_flush = time.monotonic()
+    for attempt in range(retries + 1):
+        if not todo:
+            break
+        failed = []
+        for plan, res in engine.map(job, todo, key=lambda p: f"sample-{p.index:06d}",
+                                    sizes=lambda p: p.frames, base=base, grand_total=total):
+            if isinstance(res, BaseException):
+                errors[plan.index] = _reason(res)
+                failed.append(plan)
+                if attempt < retries:
+                    warn(f"sample {plan.index} failed ({errors[plan.index]}); it will be tried again")
+                continue
+            errors.pop(plan.index, None)
+            records[plan.index] = _part(out, plan.index, res.record)
+            base += plan.frames
+            result.samples_made += 1
+            result.frames_rendered += res.frames_rendered
+            for k, v in res.seconds.items():
+                result.seconds[k] = result.seconds.get(k, 0.0) + v
+            if time.monotonic() - last_flush > _FLUSH_S:
+                _write_index(out, records)
+                last_flush = time.monotonic()
+        todo = failed
+    result.failures = [{"sample": k, "error": errors[k]} for k in sorted(errors)]
+    for f in result.failures:
+        warn(f"sample {f['sample']} failed: {f['error']}")
+
+
+def _reason(exc: BaseException) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())
+
+
+def _finish(out, spec, info, plans, records, result, storage, wall_s) -> None:
+    counts = _write_index(out, records)
+    result.samples_done = len(records)
+    result.frames = counts["frames"]
+    result.seconds["wall"] = wall_s
+    final = dict(info, complete=result.complete,
+                 counts={"samples": spec.samples, "samples_done": len(records),
+                         "samples_failed": len(result.failures), "frames": counts["frames"],
+                         "lit_rows": counts.get("lit_rows", 0)},
+                 bytes=counts["bytes"], failures=result.failures,
+                 last_run={"wall_s": round(wall_s, 3), "samples_made": result.samples_made,
+                           "frames_rendered": result.frames_rendered})
+    write_json_atomic(out / META_FILE, final)
+    write_text_atomic(out / CARD_FILE, _card(spec, final, storage))
+    if result.complete:
+        partial_root = out / "samples"
+        for p in partial_root.glob(".*.partial"):
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def _card(spec: DatasetSpec, info: dict, storage: str) -> str:
+    c, b = info["counts"], info.get("bytes", {})
+    lines = [f"# {spec.name}", "", spec.description or "A regression dataset made by "
+             "`scheimpflug dataset make`.", "",
+             f"- {c['samples_done']} of {c['samples']} samples, {c['frames']} frames, "
+             f"{c['lit_rows']} rows with a stripe; {'complete' if info['complete'] else 'INCOMPLETE'}",
+             f"- storage: {storage} ({_STORAGE_TEXT[storage]})",
+             f"- size: {b.get('total', 0) / 1e6:.1f} MB (frames {b.get('frames', 0) / 1e6:.1f} MB, "
+             f"truth {b.get('truth', 0) / 1e6:.1f} MB)",
+             f"- base seed {spec.seed}; sample k's seed derives from (seed, k) only",
+             f"- generator: scheimpflug {info['generator']['versions'].get('scheimpflug')}, "
+             f"mitsuba {info['generator']['versions'].get('mitsuba')}, "
+             f"drjit {info['generator']['versions'].get('drjit')}", ""]
+    if info["failures"]:
+        lines += ["## Failed samples", ""] + [f"- {f['sample']}: {f['error']}" for f in info["failures"]] + [""]
+    lines += ["## Spec", "", "```json", json.dumps(spec.raw, indent=2), "```", "",
+              "## Reading it", "", "```python", "from scheimpflug.dataset import open_dataset",
+              "ds = open_dataset('.')", "frame = ds[0]            # .image, .truth, .meta",
+              "metal = ds.filter(materials='metal')", "```", "",
+              "Files: `dataset.json` (spec, versions, counts), `index.parquet` (one row per frame), "
+              "`files.parquet` (every file with its SHA-256; `scheimpflug dataset verify` checks "
+              "them), `samples/NNNNNN/` (manifest, truth" + (", frames" if storage == "png" else "")
+              + ")" + (", `frames.zarr/`" if storage == "zarr" else "") + ".", ""]
+    return "\n".join(lines)
