@@ -201,6 +201,7 @@ class SurfaceSpeckle:
         radius = math.ceil(_RING * lam_nw_max * self.fine / pose.pitch_mm * stretch_max * 1.02)
         self.margin_px = int(math.ceil((radius + 1) / self.fine))   # pixels whose scatterers matter
         self._kernels: dict = {}
+        self._buffers: dict = {}
         self._directions = None       # chief rays of all pixels (rows, columns, 3), on first use
         self.last_fine: dict | None = None
 
@@ -294,8 +295,8 @@ class SurfaceSpeckle:
         tiles = _lit_tiles(lit, TILE_PX)
         kernels, kidx = self._tile_kernels(tiles)
         need = _needed_pixels(lit, self.margin_px)
-        index, part_pt, part_n, m12, part_idx = self._hits(need, rows, cols)
-        slot, grid, occ, corr = self._deposit(index, part_pt, part_n, m12, part_idx)
+        index, part_pt, part_n, m12, part_idx, base_tiles = self._hits(need, rows, cols)
+        slot, grid, occ, corr = self._deposit(index, part_pt, part_n, m12, part_idx, base_tiles)
         n_taps = max(len(k.values) for k in kernels)
         offsets = np.zeros((len(kernels), n_taps, 2), np.int64)
         values = np.zeros((len(kernels), n_taps), np.complex128)
@@ -312,7 +313,7 @@ class SurfaceSpeckle:
         return out
 
     # ------------------------------------------------------------ internals
-    def _deposit(self, index, part_pt, part_n, m12, part_idx):
+    def _deposit(self, index, part_pt, part_n, m12, part_idx, base_tiles):
         """Scatterers of the needed pixels, deposited on per-tile fine grids.
 
         Each tile's grid has a one-sample halo; halos are folded into their neighbours and
@@ -323,21 +324,28 @@ class SurfaceSpeckle:
         neighbour correlations (n, 4)).
         """
         t, s = TILE_PX, self.fine
-        base_tiles = _lit_tiles(index >= 0, t)
         slot = -np.ones((-(-index.shape[0] // t), -(-index.shape[1] // t)), np.int64)
         slot[base_tiles[:, 0], base_tiles[:, 1]] = np.arange(len(base_tiles))
-        b = t * s + 2
-        grid = np.zeros((len(base_tiles), b, b), np.complex128)
-        w2 = np.zeros((len(base_tiles), b, b))
-        cross = np.zeros((len(base_tiles), 4, b, b))
+        b, n = t * s + 2, len(base_tiles)
+        grid = self._scratch("grid", (n, b, b), np.complex128)     # zeroed per tile in parallel
+        w2 = self._scratch("w2", (n, b, b), np.float64)
+        cross = self._scratch("cross", (n, 4, b, b), np.float64)
         _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, self.lattice_mm,
                       self.seed, self._camera_params(), self.laser_origin_mm,
                       2 * math.pi / self.wavelength_mm, grid, w2, cross, _CIS)
         _fold_halos(base_tiles, slot, t * s, grid, w2, cross)
-        occ = np.zeros((len(base_tiles), b, b))
-        corr = np.zeros((len(base_tiles), 4))
+        occ = self._scratch("occ", (n, b, b), np.float64)
+        corr = np.zeros((n, 4))
         _normalise(grid, w2, cross, occ, corr)
         return slot, grid, occ, corr
+
+    def _scratch(self, name: str, shape: tuple, dtype) -> np.ndarray:
+        """An uninitialised array kept from frame to frame (no page faults for each frame)."""
+        size = int(np.prod(shape))
+        buf = self._buffers.get(name)
+        if buf is None or buf.size < size:
+            buf = self._buffers[name] = np.empty(size + size // 4, dtype)
+        return buf[:size].reshape(shape)
 
     def _camera_params(self) -> np.ndarray:
         p, lens = self.pose, self.rig.lens
@@ -367,11 +375,13 @@ class SurfaceSpeckle:
     def _hits(self, need: np.ndarray, rows: int, cols: int):
         """Chief-ray hits of the needed pixels, in compact arrays.
 
-        Returns index (rows, columns) int64 into the arrays (−1 = no hit or not needed),
+        Returns index (rows, columns) int32 into the arrays (−1 = no hit or not needed),
         part-frame point (n, 3) and normal (n, 3, toward the lens), rig_from_part rows
-        (n, 12), part index (n,).
+        (n, 12), part index (n,), and the (tile row, tile column) of the tiles holding
+        hits, in row-major order.
         """
-        index = -np.ones((rows, cols), np.int64)
+        index = self._scratch("index", (rows, cols), np.int32)
+        index.fill(-1)
         rr, cc = np.nonzero(need)
         if self._directions is None:
             self._directions = pixel_directions(self.rig).reshape(rows, cols, 3)
@@ -384,8 +394,11 @@ class SurfaceSpeckle:
         n = np.where((np.sum(n * p, 1) > 0)[:, None], -n, n)
         rot, trans = m[:, :3, :3], m[:, :3, 3]
         index[rr[sel], cc[sel]] = np.arange(sel.size)
+        n_tile_cols = -(-cols // TILE_PX)
+        tiles = np.unique((rr[sel] // TILE_PX) * n_tile_cols + cc[sel] // TILE_PX)
         return (index, np.einsum("kji,kj->ki", rot, p - trans), np.einsum("kji,kj->ki", rot, n),
-                np.ascontiguousarray(m[:, :3, :].reshape(-1, 12)), idx[sel].astype(np.int64))
+                np.ascontiguousarray(m[:, :3, :].reshape(-1, 12)), idx[sel].astype(np.int64),
+                np.stack([tiles // n_tile_cols, tiles % n_tile_cols], 1).astype(np.int64))
 
 
 def _lit_tiles(lit: np.ndarray, t: int) -> np.ndarray:
@@ -461,15 +474,15 @@ def _affine(m, p0, p1, p2):  # pragma: no cover - compiled
 
 @nb.njit(cache=True, nogil=True)
 def _tangents(n):  # pragma: no cover - compiled
+    """Two unit tangents (t1, t2) of the normal n, as tuples (no allocation)."""
     if abs(n[0]) < 0.9:
         a0, a1, a2 = 1.0, 0.0, 0.0
     else:
         a0, a1, a2 = 0.0, 1.0, 0.0
-    t1 = np.array([n[1] * a2 - n[2] * a1, n[2] * a0 - n[0] * a2, n[0] * a1 - n[1] * a0])
-    t1 /= math.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
-    t2 = np.array([n[1] * t1[2] - n[2] * t1[1], n[2] * t1[0] - n[0] * t1[2],
-                   n[0] * t1[1] - n[1] * t1[0]])
-    return t1, t2
+    x, y, z = n[1] * a2 - n[2] * a1, n[2] * a0 - n[0] * a2, n[0] * a1 - n[1] * a0
+    length = math.sqrt(x ** 2 + y ** 2 + z ** 2)
+    x, y, z = x / length, y / length, z / length
+    return (x, y, z), (n[1] * z - n[2] * y, n[2] * x - n[0] * z, n[0] * y - n[1] * x)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -547,13 +560,16 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
     dl = math.sqrt((x0[0] - lo[0]) ** 2 + (x0[1] - lo[1]) ** 2 + (x0[2] - lo[2]) ** 2)
     dc = math.sqrt(x0[0] ** 2 + x0[1] ** 2 + x0[2] ** 2)
     phase0 = (k_wave * (dl + dc)) % (2 * math.pi)
-    grad = np.empty(3)      # ∇ of the path in the part frame: R^T·(unit(x0 − L) + unit(x0))
+    # ∇ of the path in the part frame: R^T·(unit(x0 − L) + unit(x0)), along t1 and t2
+    e0 = (x0[0] - lo[0]) / dl + x0[0] / dc
+    e1 = (x0[1] - lo[1]) / dl + x0[1] / dc
+    e2 = (x0[2] - lo[2]) / dl + x0[2] / dc
+    g1 = 0.0
+    g2 = 0.0
     for a in range(3):
-        grad[a] = k_wave * (m12[a] * ((x0[0] - lo[0]) / dl + x0[0] / dc)
-                            + m12[4 + a] * ((x0[1] - lo[1]) / dl + x0[1] / dc)
-                            + m12[8 + a] * ((x0[2] - lo[2]) / dl + x0[2] / dc))
-    g1 = grad[0] * t1[0] + grad[1] * t1[1] + grad[2] * t1[2]
-    g2 = grad[0] * t2[0] + grad[1] * t2[1] + grad[2] * t2[2]
+        grad = k_wave * (m12[a] * e0 + m12[4 + a] * e1 + m12[8 + a] * e2)
+        g1 += grad * t1[a]
+        g2 += grad * t2[a]
     scale = 1.0 / 4294967296.0
     key = _mix((np.uint64(part + 1) * np.uint64(0x9E3779B97F4A7C15)) ^ np.uint64(seed)
                ^ (np.uint64(axis + 1) << np.uint64(61)))
@@ -561,16 +577,20 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
     m32 = np.uint64(0xFFFFFFFF)
     u16 = 1.0 / 65536.0
     root3 = math.sqrt(3.0)
-    d = np.empty(3)
     for p1 in range(lo1, hi1 + 1):
         for p2 in range(lo2, hi2 + 1):
             # the scatterer of lattice column (p1, p2): jittered in the a1–a2 plane, on the
             # surface along the part's `axis` (the axis nearest the normal)
             hj = _cell_hash(p1, p2, 0, key)
-            d[a1] = (p1 + ((hj & m32) + 0.5) * scale) * delta - y[a1]
-            d[a2] = (p2 + ((hj >> np.uint64(32)) + 0.5) * scale) * delta - y[a2]
-            d[axis] = -(n[a1] * d[a1] + n[a2] * d[a2]) / n[axis]
-            d0, d1, d2 = d[0], d[1], d[2]
+            da1 = (p1 + ((hj & m32) + 0.5) * scale) * delta - y[a1]
+            da2 = (p2 + ((hj >> np.uint64(32)) + 0.5) * scale) * delta - y[a2]
+            dax = -(n[a1] * da1 + n[a2] * da2) / n[axis]
+            if axis == 0:
+                d0, d1, d2 = dax, da1, da2
+            elif axis == 1:
+                d0, d1, d2 = da2, dax, da1
+            else:
+                d0, d1, d2 = da1, da2, dax
             s1 = t1[0] * d0 + t1[1] * d1 + t1[2] * d2      # tangent coordinates
             s2 = t2[0] * d0 + t2[1] * d1 + t2[2] * d2
             du = du0 + j11 * s1 + j12 * s2
@@ -591,9 +611,15 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
 @nb.njit(cache=True, parallel=True)
 def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, lattice, seed, cam,
                   lo, k_wave, grid, w2, cross, table):  # pragma: no cover - compiled
-    """Each needed pixel's scatterers, once, on the fine grid of its own tile (offset 1)."""
+    """Each needed pixel's scatterers, once, on the fine grid of its own tile (offset 1).
+
+    The tile's grids are zeroed first (they arrive uninitialised).
+    """
     rows, cols = index.shape
     for i in nb.prange(base_tiles.shape[0]):
+        grid[i] = 0.0
+        w2[i] = 0.0
+        cross[i] = 0.0
         tr, tc = base_tiles[i, 0], base_tiles[i, 1]
         for r in range(tr * t, min(rows, tr * t + t)):
             for c in range(tc * t, min(cols, tc * t + t)):
@@ -634,6 +660,7 @@ def _normalise(grid, w2, cross, occ, corr):  # pragma: no cover - compiled
     """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile."""
     n = grid.shape[1] - 2
     for i in nb.prange(grid.shape[0]):
+        occ[i] = 0.0
         sums = np.zeros(4)
         counts = np.zeros(4)
         for a in range(1, n + 1):
