@@ -326,7 +326,7 @@ class LightTransport:
         key = 1 if depth == 1 else 2
         img = result.subsurface.get(key)
         if img is None:
-            img = result.subsurface[key] = np.zeros(self.shape, np.float64)
+            img = result.subsurface[key] = np.zeros(self.shape, np.float32)
         _convolve_groups(img, geo, self._tables, self.electrons_per_watt, coarse=depth > 1)
         return True
 
@@ -543,7 +543,7 @@ class LightTransport:
         out = {}
         for key, img in result.subsurface.items():
             if isinstance(img, np.ndarray):
-                out[key] = img.astype(np.float32)
+                out[key] = img.astype(np.float32, copy=False)
                 continue
             a = np.asarray(img).reshape(self.shape).astype(np.float32)
             out[key] = a * np.float32(1.0 / FIXED_POINT_SCALE)
@@ -582,26 +582,29 @@ def _convolve_groups(img, geo, tables, electrons_per_watt, coarse: bool = False)
     keys = np.stack([part[order], tile[order]], 1)
     starts = np.flatnonzero(np.r_[True, np.any(np.diff(keys, axis=0) != 0, axis=1)])
     ends = np.r_[starts[1:], len(order)]
-    for a, b in zip(starts, ends):
-        sel = order[a:b]
-        w = geo[1, sel]
-        total = w.sum()
-        if total <= 0:
+    w_sorted = geo[1, order]
+    totals = np.add.reduceat(w_sorted, starts)
+    means = np.add.reduceat(geo[:, order] * w_sorted, starts, axis=1) \
+        / np.where(totals > 0, totals, 1.0)
+    u_sorted, v_sorted = geo[2, order], geo[3, order]
+    scaled = w_sorted * electrons_per_watt
+    for g, (a, b) in enumerate(zip(starts, ends)):
+        if totals[g] <= 0:
             continue
-        mean = (geo[:, sel] * w).sum(axis=1) / total
+        mean = means[:, g]
         psi_in = math.atan2(mean[11], mean[10])      # forward direction of the incidence plane
         psi_view = math.atan2(mean[13], mean[12])
         azim = math.degrees(psi_view - psi_in)
         c, s_ = math.cos(psi_in), math.sin(psi_in)    # incidence frame → (b1, b2)
         j = mean[4:8]
-        jac = np.array([j[0] * c + j[2] * s_, j[1] * c + j[3] * s_,
-                        -j[0] * s_ + j[2] * c, -j[1] * s_ + j[3] * c])
-        table = tables[int(part[sel[0]])]
-        image_kernel, r0, c0 = _cached_sensor_kernel(table, np.degrees(mean[8]),
-                                                     np.degrees(mean[9]), azim, jac, coarse)
+        jac = (j[0] * c + j[2] * s_, j[1] * c + j[3] * s_, -j[0] * s_ + j[2] * c,
+               -j[1] * s_ + j[3] * c)
+        table = tables[int(keys[a, 0])]
+        image_kernel, r0, c0 = _cached_sensor_kernel(table, math.degrees(mean[8]),
+                                                     math.degrees(mean[9]), azim, jac, coarse)
         if image_kernel is None:
             continue
-        _splat_convolved(img, geo[2, sel], geo[3, sel], w * electrons_per_watt, image_kernel, r0, c0)
+        _splat_convolved(img, u_sorted[a:b], v_sorted[a:b], scaled[a:b], image_kernel, r0, c0)
 
 
 _SENSOR_KERNELS: dict = {}
@@ -618,9 +621,9 @@ def _cached_sensor_kernel(table, incidence_deg, view_deg, azimuth_deg, jac, coar
     steps = (5.0, 5.0, 30.0, 10.0) if coarse else (1.0, 2.5, 10.0, 50.0)
     angles = (round(incidence_deg / steps[0]) * steps[0], round(view_deg / steps[1]) * steps[1],
               round(azimuth_deg / steps[2]) * steps[2])
-    level = round(math.log(max(float(np.abs(jac).max()), 1e-9)) * steps[3])
+    level = round(math.log(max(max(abs(float(x)) for x in jac), 1e-9)) * steps[3])
     scale = math.exp(level / steps[3])
-    shape = tuple(int(x) for x in np.round(np.asarray(jac) / scale * steps[3]))
+    shape = tuple(round(float(x) / scale * steps[3]) for x in jac)
     key = (id(table), *angles, *shape, level)
     if key not in _SENSOR_KERNELS:
         # built from the key alone, so that a frame does not depend on the frames before
