@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 #: Material tags the renderer maps to BSDFs.
-MATERIALS = ("metal", "knurled-metal", "cardboard", "tape")
+MATERIALS = ("metal", "knurled-metal", "cardboard", "tape", "paper", "white-plastic", "marble")
 
 
 class MeshWarning(UserWarning):

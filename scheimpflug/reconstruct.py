@@ -284,7 +284,8 @@ def isolated_rows(rows: np.ndarray, u: np.ndarray, max_gap_px: float = ISOLATION
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
                    keep_saturated: bool = False, progress: ProgressCallback | None = None,
-                   window_px: int | str = "auto", drop_isolated: bool = False):
+                   multi_peak: str = "nearest", window_px: int | str = "auto",
+                   drop_isolated: bool = False):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -301,6 +302,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Keep rows whose stripe is saturated (dropped by default).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    multi_peak : str
+        Rule for rows with several peaks (:data:`scheimpflug.stripe.MULTI_PEAK_RULES`).
     window_px : int or "auto", default "auto"
         Detector window (:func:`scheimpflug.stripe.extract_stripes`): "auto"
         widens it beyond 7 px, frame by frame, for stripes wider than σ = 7/3 px.
@@ -329,7 +332,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
     """
     def one(rec, frame):
         sat = folder.saturation_dn(frame)
-        return extract_stripes(frame, method, min_snr=min_snr, saturation_dn=sat, window_px=window_px), \
+        return extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
+                               saturation_dn=sat, window_px=window_px), \
             saturated_fraction(frame, sat) > 0.5
 
     rows, us, peaks = [], [], []

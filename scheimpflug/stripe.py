@@ -38,6 +38,21 @@ Per row
    ray is in that surface's shadow and can only be lit by interreflection.
    ``multi_peak="strongest"`` keeps the strongest peak.  ``n_peaks`` records
    whether a second significant peak was seen (2) or not (1).
+
+   ``multi_peak="track"`` (for inter-reflections, which can land on either side):
+   every row keeps up to four separate peaks (local maxima above the detection
+   threshold and ``multi_peak_ratio`` × the strongest, split by a dip below 70 % of
+   the lower one), each with its sub-pixel centre, height and RMS width.  One peak
+   per row is then chosen by dynamic programming down the rows (Viterbi), minimising
+   −log(height/highest) + 2·(width/w₀ − 1.5)₊² + (order among the row's peaks,
+   0 … 1: nearer preferred) per row and 2·min((Δu/1.5 px)², 9) between neighbouring
+   rows, w₀ the frame's median width of single-peak rows.  A secondary reflection
+   is usually dimmer, wider (it comes from off the sheet, out of the Scheimpflug
+   focus) or breaks the stripe's continuity; a true depth step costs one capped
+   jump.  Options: ``prior_u`` (e.g. the previous frame's stripe of a rotary scan,
+   a further cost min(((u − prior)/2 px)², 9)) and ``expected_u`` (columns outside
+   are never chosen).  On the twin's knurled ring with three bounces it halves the
+   wrong-peak choices (``benchmarks/RESULTS.md``).
 5. **Saturation.**  A row whose peak pixel reaches ``saturation_dn`` is
    flagged; its centre is then the middle of the run of saturated pixels
    (every profile fit is meaningless on a clipped top).
@@ -81,17 +96,19 @@ __all__ = [
     "MIN_WINDOW_PX",
     "METHODS",
     "MULTI_PEAK_RULES",
+    "PeakChoices",
     "StripeProfile",
     "extract_stripes",
     "extract_stripes_batch",
     "measured_stripe_sigma_px",
+    "peak_choices",
     "saturated_fraction",
     "stripe_window_px",
 ]
 
 METHODS = ("blais-rioux", "cog", "edge", "gaussian3")
 """Sub-pixel methods of :func:`extract_stripes` (module docstring, step 6)."""
-MULTI_PEAK_RULES = ("nearest", "strongest")
+MULTI_PEAK_RULES = ("nearest", "strongest", "track")
 """Rules for rows with several peaks (module docstring, step 4)."""
 _METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3}
 
@@ -374,6 +391,217 @@ def _extract_kernel(frame, is_int, method, window, flank, min_snr, nearest, rati
     return out
 
 
+# ---------------------------------------------------------------- the "track" rule
+_K = 4                 # candidate peaks kept per row
+_CAND = 8              # fields per candidate: valid, u, snr, amp, saturated, bg, width, noise
+
+
+@nb.njit(cache=True, nogil=True)
+def _separate_peaks(x, bg, thresh, dip, ks):
+    """Columns of the separate local maxima above ``thresh``, at most ks.size, by column.
+
+    Neighbouring maxima count as separate when the profile between them dips deeper than
+    ``dip`` × the lower one's height above ``bg``.
+    """
+    n = x.shape[0]
+    m = 0
+    for k in range(1, n - 1):
+        v = float(x[k])
+        if v < thresh or v < float(x[k - 1]) or v <= float(x[k + 1]):
+            continue
+        if m > 0:
+            j = ks[m - 1]
+            low = v
+            for q in range(j, k + 1):
+                low = min(low, float(x[q]))
+            if low - bg > dip * (min(v, float(x[j])) - bg):   # no real dip: same peak
+                if v > float(x[j]):
+                    ks[m - 1] = k
+                continue
+        if m == ks.shape[0]:
+            break
+        ks[m] = k
+        m += 1
+    return m
+
+
+@nb.njit(cache=True, nogil=True)
+def _peak_width(x, k, bg, window):
+    """RMS width of x − bg (positive part) over ±window around k [px]."""
+    n = x.shape[0]
+    sw = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for j in range(max(0, k - window), min(n, k + window + 1)):
+        w = max(float(x[j]) - bg, 0.0)
+        sw += w
+        s1 += w * j
+        s2 += w * j * j
+    if sw <= 0.0:
+        return 0.0
+    m = s1 / sw
+    return math.sqrt(max(s2 / sw - m * m, 0.0))
+
+
+@nb.njit(cache=True, nogil=True)
+def _row_candidates(x, is_int, method, window, flank, min_snr, ratio, dip, sat, edge_fraction,
+                    hot_fraction, cand, r):
+    """Fill cand[r, :, :] with up to _K separate significant peaks of row x (strongest first)."""
+    k0 = _coarse_peak(x, is_int)
+    bg0, var0 = _flank_stats(x, k0, window, flank)
+    if not np.isfinite(bg0):
+        return
+    noise0 = math.sqrt(var0 + 1.0 / 12.0)
+    thresh = bg0 + max(ratio * (float(x[k0]) - bg0), min_snr * noise0)
+    ks = np.empty(16, np.int64)
+    m = _separate_peaks(x, bg0, thresh, dip, ks)
+    heights = np.empty(m)
+    for i in range(m):
+        heights[i] = float(x[ks[i]])
+    order = np.argsort(-heights)
+    slot = 0
+    for oi in range(m):
+        if slot == _K:
+            break
+        k = min(max(ks[order[oi]], 1), x.shape[0] - 2)
+        bg, var = _flank_stats(x, k, window, flank)
+        if not np.isfinite(bg):
+            continue
+        noise = math.sqrt(var + 1.0 / 12.0)
+        amp = float(x[k]) - bg
+        if not amp / noise >= min_snr:
+            continue
+        if max(float(x[k - 1]), float(x[k + 1])) - bg < hot_fraction * amp:
+            continue
+        is_sat = float(x[k]) >= sat
+        u = _saturated_centre(x, k, sat) if is_sat and method != 3 else \
+            _subpixel(x, k, bg, method, window, edge_fraction)
+        if not np.isfinite(u):
+            continue
+        c = cand[r, slot]
+        c[0], c[1], c[2], c[3] = 1.0, u, amp / noise, amp
+        c[4], c[5], c[6], c[7] = 1.0 if is_sat else 0.0, bg, _peak_width(x, k, bg, window), noise
+        slot += 1
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _candidates_kernel(frame, is_int, method, window, flank, min_snr, ratio, dip, sat,
+                       edge_fraction, hot_fraction):
+    rows = frame.shape[0]
+    cand = np.zeros((rows, _K, _CAND))
+    for r in nb.prange(rows):
+        _row_candidates(frame[r], is_int, method, window, flank, min_snr, ratio, dip, sat,
+                        edge_fraction, hot_fraction, cand, r)
+    return cand
+
+
+@nb.njit(cache=True, nogil=True)
+def _unary(cand, r, j, w_ref, weights, prior_u):
+    """Cost of choosing candidate j of row r on its own (amplitude, width, order, prior)."""
+    a_max = 0.0
+    rank = 0
+    n = 0
+    for i in range(_K):
+        if cand[r, i, 0] > 0.5:
+            n += 1
+            a_max = max(a_max, cand[r, i, 3])
+            if cand[r, i, 1] < cand[r, j, 1]:
+                rank += 1
+    cost = weights[0] * math.log(a_max / max(cand[r, j, 3], 1e-12))
+    excess = cand[r, j, 6] / w_ref - 1.5
+    if excess > 0.0:
+        cost += weights[1] * excess * excess
+    if n > 1:
+        cost += weights[2] * rank / (n - 1)
+    if np.isfinite(prior_u[r]):
+        d = (cand[r, j, 1] - prior_u[r]) / weights[5]
+        cost += weights[4] * min(d * d, weights[6])
+    return cost
+
+
+@nb.njit(cache=True, nogil=True)
+def _track(cand, w_ref, weights, prior_u):
+    """Choose one candidate per row by dynamic programming over rows (Viterbi).
+
+    Path cost = Σ unary + Σ between consecutive rows with candidates
+    weights[3]·min(((u − u_prev)/σ_row)², cap_row); rows without candidates end a segment.
+    Returns the chosen candidate index per row (−1 = none).
+    """
+    rows = cand.shape[0]
+    cost = np.full((rows, _K), np.inf)
+    back = np.full((rows, _K), -1, np.int64)
+    choice = np.full(rows, -1, np.int64)
+    sigma, cap = weights[7], weights[8]
+    for r in range(rows):
+        for j in range(_K):
+            if cand[r, j, 0] < 0.5:
+                continue
+            u = _unary(cand, r, j, w_ref, weights, prior_u)
+            best, arg = 0.0, -1
+            if r > 0:
+                best = np.inf
+                for i in range(_K):
+                    if cand[r - 1, i, 0] < 0.5:
+                        continue
+                    d = (cand[r, j, 1] - cand[r - 1, i, 1]) / sigma
+                    c = cost[r - 1, i] + weights[3] * min(d * d, cap)
+                    if c < best:
+                        best, arg = c, i
+                if arg < 0:
+                    best = 0.0
+            cost[r, j] = best + u
+            back[r, j] = arg
+    r = rows - 1
+    while r >= 0:
+        j_best, c_best = -1, np.inf
+        for j in range(_K):
+            if cost[r, j] < c_best:
+                j_best, c_best = j, cost[r, j]
+        if j_best < 0:
+            r -= 1
+            continue
+        while r >= 0 and j_best >= 0:        # follow the segment back to its start
+            choice[r] = j_best
+            j_best = back[r, j_best]
+            r -= 1
+    return choice
+
+
+#: Weights of the "track" rule: amplitude (−log of the height ratio to the row's highest),
+#: width (excess over 1.5 × the frame's in-focus stripe width, squared), order (nearer
+#: peaks preferred, as in "nearest"), continuity between rows, prior weight, prior σ [px],
+#: prior cap, row σ [px], row cap.
+TRACK_WEIGHTS = (1.0, 2.0, 1.0, 2.0, 1.0, 2.0, 9.0, 1.5, 9.0)
+
+
+def _track_table(arr, is_int, method, window, flank, min_snr, ratio, sat, edge_fraction,
+                 hot_fraction, prior_u, expected_u) -> np.ndarray:
+    """The "track" rule: candidates per row, then the most continuous plausible choice."""
+    cand = _candidates_kernel(arr, is_int, method, window, flank, min_snr, ratio, 0.7, sat,
+                              edge_fraction, hot_fraction)
+    if expected_u is not None:
+        lo, hi = _range_bounds(expected_u, arr.shape[0])
+        cand[(cand[:, :, 1] < lo[:, None]) | (cand[:, :, 1] > hi[:, None]), 0] = 0.0
+    n_cand = (cand[:, :, 0] > 0.5).sum(axis=1)
+    single = cand[n_cand == 1, 0, 6]
+    widths = single[single > 0] if np.any(single > 0) else cand[n_cand > 0, 0, 6]
+    w_ref = float(np.median(widths)) if widths.size else 1.0
+    prior = np.full(arr.shape[0], np.nan) if prior_u is None else \
+        np.asarray(prior_u, dtype=np.float64).reshape(arr.shape[0])
+    choice = _track(cand, max(w_ref, 0.3), np.asarray(TRACK_WEIGHTS, np.float64), prior)
+    out = np.zeros((arr.shape[0], 8))
+    out[:, 7] = np.nan
+    rows = np.nonzero(choice >= 0)[0]
+    c = cand[rows, choice[rows]]
+    out[rows, 0] = 1.0
+    out[rows, 1:6] = c[:, 1:6]
+    out[rows, 6] = np.minimum(n_cand[rows], 2)
+    out[rows, 7] = c[:, 7]
+    has = n_cand > 0
+    out[has & (choice < 0), 7] = cand[has & (choice < 0), 0, 7]
+    return out
+
+
 # ---------------------------------------------------------------- public API
 
 
@@ -402,7 +630,8 @@ def _default_saturation(dtype: np.dtype) -> float:
 def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
                     window_px: int | str = 7, flank_px: int = 8, multi_peak: str = "nearest",
                     multi_peak_ratio: float = 0.3, saturation_dn: float | None = None,
-                    edge_fraction: float = 0.5, hot_pixel_fraction: float = 0.1) -> StripeProfile:
+                    edge_fraction: float = 0.5, hot_pixel_fraction: float = 0.1,
+                    prior_u=None, expected_u=None) -> StripeProfile:
     """Find the stripe in every row of ``frame``.
 
     Parameters
@@ -420,11 +649,12 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
         ⌈3σ⌉ + 1 (at least 3) for the frame's stripe (:func:`stripe_window_px`).
     flank_px : int, default 8
         Width of each background flank [px], >= 2.
-    multi_peak : {"nearest", "strongest"}, default "nearest"
-        Rule for rows with several peaks.
+    multi_peak : {"nearest", "strongest", "track"}, default "nearest"
+        Rule for rows with several peaks ("track": module docstring, step 4).
     multi_peak_ratio : float, default 0.3
         A nearer peak replaces the strongest when its height is at least this
-        fraction of the strongest's [-], in (0, 1].
+        fraction of the strongest's; for "track", candidates must reach it [-],
+        in (0, 1].
     saturation_dn : float, optional
         Level at which a pixel counts as saturated [DN]; default the dtype's
         maximum (255, 65535; none for floats).
@@ -434,6 +664,12 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     hot_pixel_fraction : float, default 0.1
         A peak whose neighbours are both below this fraction of its height is
         rejected as a hot pixel [-].
+    prior_u : (rows,) array_like float, optional
+        "track" only: the stripe expected in each row, e.g. the previous frame's of a
+        rotary scan (NaN where none) [px].
+    expected_u : (lo, hi) or (rows, 2) array_like float, optional
+        "track" only: columns where the stripe can be (the measuring range, a part's
+        known envelope); peaks outside are ignored [px].
 
     Returns
     -------
@@ -457,7 +693,8 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     if window_px == "auto":
         return _extract_auto(frame, method, min_snr=min_snr, flank_px=flank_px, multi_peak=multi_peak,
                              multi_peak_ratio=multi_peak_ratio, saturation_dn=saturation_dn,
-                             edge_fraction=edge_fraction, hot_pixel_fraction=hot_pixel_fraction)
+                             edge_fraction=edge_fraction, hot_pixel_fraction=hot_pixel_fraction,
+                             prior_u=prior_u, expected_u=expected_u)
     if not (isinstance(window_px, (int, np.integer)) and window_px >= 1 and flank_px >= 2
             and 0 < edge_fraction < 1 and min_snr > 0 and 0 < multi_peak_ratio <= 1):
         raise ValueError("need window_px >= 1 (or 'auto'), flank_px >= 2, 0 < edge_fraction < 1, "
@@ -465,11 +702,24 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     arr = _check_frame(frame)
     sat = _default_saturation(arr.dtype) if saturation_dn is None else float(saturation_dn)
     is_int = arr.dtype in (np.uint8, np.uint16)
-    out = _extract_kernel(arr, is_int, _METHOD_CODE[method], int(window_px), int(flank_px),
-                          float(min_snr), multi_peak == "nearest", float(multi_peak_ratio),
-                          sat, float(edge_fraction), float(hot_pixel_fraction))
+    args = (arr, is_int, _METHOD_CODE[method], int(window_px), int(flank_px), float(min_snr))
+    if multi_peak == "track":
+        out = _track_table(*args, float(multi_peak_ratio), sat, float(edge_fraction),
+                           float(hot_pixel_fraction), prior_u, expected_u)
+    else:
+        out = _extract_kernel(*args, multi_peak == "nearest", float(multi_peak_ratio),
+                              sat, float(edge_fraction), float(hot_pixel_fraction))
     _apply_frame_noise_floor(out, float(min_snr))
     return _profile_from_table(out, method)
+
+
+def _range_bounds(expected_u, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) per row from (lo, hi) or (rows, 2) expected columns."""
+    rng = np.asarray(expected_u, dtype=np.float64)
+    if rng.shape not in ((2,), (rows, 2)):
+        raise ValueError(f"expected_u must be (lo, hi) or ({rows}, 2), got shape {rng.shape}")
+    return (np.broadcast_to(rng[..., 0], (rows,)).copy(),
+            np.broadcast_to(rng[..., 1], (rows,)).copy())
 
 
 DEFAULT_WINDOW_PX = 7   # centre-of-gravity half window before the stripe's width is known [px]
@@ -639,3 +889,85 @@ def extract_stripes_batch(frames: Iterable, method: str = "gaussian3",
     """
     for frame in frames:
         yield extract_stripes(frame, method, **options)
+
+
+# ---------------------------------------------------------------- scoring against truth
+
+
+@dataclass(frozen=True)
+class PeakChoices:
+    """How a detector's per-row choices compare with the truth of one or more frames.
+
+    Parameters
+    ----------
+    rows : int
+        Rows where the truth has a stripe.
+    correct : int
+        Detections within the tolerance of the true stripe centre.
+    secondary : int
+        Wrong detections that sit on a peak of secondary light.
+    other : int
+        Other wrong detections (incl. detections in rows without a true stripe).
+    missed : int
+        Rows with a true stripe and no detection.
+    """
+
+    rows: int = 0
+    correct: int = 0
+    secondary: int = 0
+    other: int = 0
+    missed: int = 0
+
+    def __add__(self, other: PeakChoices) -> PeakChoices:
+        return PeakChoices(*(a + b for a, b in zip(
+            (self.rows, self.correct, self.secondary, self.other, self.missed),
+            (other.rows, other.correct, other.secondary, other.other, other.missed))))
+
+    @property
+    def secondary_rate(self) -> float:
+        """Share of the true stripe's rows where a secondary peak was chosen [-]."""
+        return self.secondary / self.rows if self.rows else 0.0
+
+
+def peak_choices(profile: StripeProfile, stripe_u, secondary_u=None,
+                 tol_px: float = 2.0) -> PeakChoices:
+    """Count a detector's correct, secondary-peak and other choices in one frame.
+
+    Parameters
+    ----------
+    profile : StripeProfile
+        The detections.
+    stripe_u : (rows,) float
+        True stripe centre per row, NaN where none (truth file ``stripe_u``) [px].
+    secondary_u : (rows, k) float, optional
+        Columns of the secondary-light peaks per row, NaN padded (truth file
+        ``secondary_u``) [px].
+    tol_px : float
+        A detection within this distance of the truth is correct; a wrong one within it
+        of a secondary peak counts as a secondary choice [px].
+
+    Returns
+    -------
+    PeakChoices
+        The counts of this frame (add them up over frames with ``+``).
+
+    Raises
+    ------
+    ValueError
+        If the arrays do not match (rows) or ``tol_px`` ≤ 0.
+    """
+    truth = np.asarray(stripe_u, dtype=np.float64)
+    if tol_px <= 0 or truth.ndim != 1 or (len(profile) and profile.rows.max() >= truth.size):
+        raise ValueError("peak_choices: need tol_px > 0 and stripe_u (rows,) covering the profile")
+    sec = np.full((truth.size, 1), np.nan) if secondary_u is None \
+        else np.asarray(secondary_u, dtype=np.float64).reshape(truth.size, -1)
+    has = np.isfinite(truth)
+    det_u = np.full(truth.size, np.nan)
+    det_u[profile.rows] = profile.u
+    found = np.isfinite(det_u)
+    right = found & has & (np.abs(det_u - truth) <= tol_px)
+    wrong = found & ~right
+    near_sec = np.any(np.abs(sec - det_u[:, None]) <= tol_px, axis=1)
+    return PeakChoices(rows=int(has.sum()), correct=int(right.sum()),
+                       secondary=int((wrong & near_sec).sum()),
+                       other=int((wrong & ~near_sec).sum()), missed=int((has & ~found).sum()))

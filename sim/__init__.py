@@ -5,7 +5,10 @@ Modules: :mod:`.variant` (Mitsuba variant and LLVM detection), :mod:`.scene`
 (the Gaussian light sheet), :mod:`.render` (light-tracing renderer onto the
 tilted thin-lens camera), :mod:`.sensor` (electrons → DN), :mod:`.stages`,
 :mod:`.truth` (exact ground truth from geometry), :mod:`.scenarios` and
-:mod:`.writer` (the frame folder).
+:mod:`.writer` (the frame folder); the physical light beyond the ideal twin:
+:mod:`.lens` (the light tracer's camera connection), :mod:`.transport`
+(inter-reflections), :mod:`.subsurface` (random walks in translucent
+materials), :mod:`.speckle` (speckle attached to the lit surface).
 
 Entry points: :func:`render_folder` (a named scenario of a rig into a frame
 folder: the library's ``render``), :func:`render_scenario` with a

@@ -75,6 +75,7 @@ scene transform) are opaque, so frames reuse the compiled kernels.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numba
@@ -91,15 +92,18 @@ from scheimpflug.model.camera import (
 )
 from scheimpflug.model.rig import Rig
 
+from .lens import LensConnection, floats
 from .lightsheet import light_sheet, speckle_grain_um, speckle_pattern, visible_fan_interval
-from .materials import channel_for_wavelength
+from .materials import SPECKLE_CONTRAST, channel_for_wavelength, is_translucent
 from .scene import SimScene
+from .transport import LightTransport, TransportResult
 from .variant import is_jit_variant
 
 __all__ = [
+    "FrameLight",
     "RenderSettings",
     "Renderer",
-    ]
+]
 
 PLANCK_J_S = 6.62607015e-34
 LIGHT_SPEED_M_S = 299792458.0
@@ -138,13 +142,28 @@ class RenderSettings:
         four nearest pixel centres, i.e. the pixel square convolved with a further 1-px box
         (adds 1/12 px² to the stripe's variance, like mild pixel crosstalk) but removes
         the quantisation noise of the box, so the stripe centre converges much faster.
+    rr_depth : int, default 3
+        Path depth up to which no Russian roulette is played (multi-bounce, rig key
+        ``[twin] bounces``) [-].
+    secondary_thinning : int, default 4
+        One laser path in this many (random within each block, its power multiplied
+        accordingly) continues beyond the first surface; 4 = 8 of the default 32 samples
+        per row carry the inter-reflected light [-].
+    subsurface_max_steps : int, default 512
+        Events after which a subsurface random walk is abandoned [-].
+    subsurface_thinning : int, default 2
+        One path in this many that enters a translucent material without a tabulated
+        response (g ≠ 0) walks in it (its power multiplied accordingly); a walk splats at
+        every scattering vertex [-].
 
     Raises
     ------
     RenderError
         When ``pixel_filter`` is not ``"box"`` or ``"tent"``, ``pilot_block`` is not
         a multiple of 4, or a count (``samples_per_row``, ``pilot_block``,
-        ``ambient_step_px``, ``ambient_bsdf_samples``) is not an integer ≥ 1.
+        ``ambient_step_px``, ``ambient_bsdf_samples``, ``rr_depth``,
+        ``secondary_thinning``, ``subsurface_max_steps``, ``subsurface_thinning``) is not an
+        integer ≥ 1.
     """
 
     samples_per_row: int = 32
@@ -156,6 +175,10 @@ class RenderSettings:
     speckle: bool = True
     seed: int = 0
     pixel_filter: str = "tent"
+    rr_depth: int = 3
+    secondary_thinning: int = 4
+    subsurface_max_steps: int = 512
+    subsurface_thinning: int = 2
 
     def __post_init__(self) -> None:
         if self.pixel_filter not in ("box", "tent"):
@@ -163,7 +186,9 @@ class RenderSettings:
         if self.pilot_block % 4:
             raise RenderError(f"pilot_block = {self.pilot_block}: must be a multiple of 4 "
                               "(samples come in mirrored groups of four)")
-        for name in ("samples_per_row", "pilot_block", "ambient_step_px", "ambient_bsdf_samples"):
+        for name in ("samples_per_row", "pilot_block", "ambient_step_px", "ambient_bsdf_samples",
+                     "rr_depth", "subsurface_max_steps", "secondary_thinning",
+                     "subsurface_thinning"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise RenderError(f"RenderSettings.{name} = {value!r}: must be an integer ≥ 1")
@@ -174,6 +199,35 @@ class RenderSettings:
 # lattice), plastic-number R2 pair (aperture disc), √2 − 1 (angle within the beam).
 _KRONECKER_U32 = tuple(int(round(c * 2**32)) & 0xFFFFFFFF for c in (
     0.6180339887498949, 0.7548776662466927, 0.5698402909980532, 0.41421356237309503))
+
+
+@dataclass
+class FrameLight:
+    """A rendered frame and its laser light by origin (expected electrons).
+
+    Parameters
+    ----------
+    image : (rows, columns) float32
+        Laser (with speckle) + ambient [e⁻].
+    laser : (rows, columns) float32 or None
+        All laser light before speckle; None when not split (the ideal twin) [e⁻].
+    coherent : (rows, columns) float32 or None
+        Laser light weighted by each splat's speckle contrast [e⁻].
+    secondary : (rows, columns) float32 or None
+        Light that reached the imaged surface after ≥ 1 earlier surface
+        (inter-reflections; their subsurface light included) [e⁻].
+    subsurface : (rows, columns) float32 or None
+        Light that entered the first lit surface and left it elsewhere [e⁻].
+    walks : tuple
+        (number of subsurface walks, their total events).
+    """
+
+    image: np.ndarray
+    laser: np.ndarray | None = None
+    coherent: np.ndarray | None = None
+    secondary: np.ndarray | None = None
+    subsurface: np.ndarray | None = None
+    walks: tuple = (0, 0)
 
 
 def _border_pixels(pose: SensorPose, n: int = 33) -> np.ndarray:
@@ -246,10 +300,29 @@ class Renderer:
         self.electrons_per_watt = rig.sensor.exposure_ms * 1e-3 * rig.sensor.quantum_efficiency \
             / photon_j  # [e⁻ per W of flux over the exposure]
         self.channel = channel_for_wavelength(rig.laser.wavelength_nm)
+        self.lens = LensConnection(rig, self.pose, mi, dr)
+        self._contrast = self._part_contrast()
+        self.transport = LightTransport(
+            mi, dr, sim_scene, self.lens, self.channel, rig.twin.bounces, self.shape,
+            self.electrons_per_watt, self.settings.rr_depth, self.settings.subsurface_max_steps,
+            self._contrast, self.settings.secondary_thinning, self.settings.subsurface_thinning)
         self._setup_laser()
         self._setup_ambient()
         self._frame = sim_scene.transforms_dr()  # (scene_from_rig, rig_from_scene) of the frame
         self._laser_tf = None                    # this frame's sheet pose (pointing), opaque
+        self._speckle_model = None
+        #: wall time [s] spent per stage since construction (``benchmarks/bench_optics.py``)
+        self.timings = {"ambient": 0.0, "first_hit": 0.0, "transport": 0.0, "accumulate": 0.0,
+                        "speckle": 0.0}
+
+    def _part_contrast(self) -> np.ndarray:
+        """Speckle contrast of each part's surface light, indexed by part index + 1."""
+        c = [1.0]
+        for spec, medium in zip(self.scene.specs, self.scene.media):
+            surface_gloss = medium is not None          # a dielectric boundary's reflection
+            c.append(1.0 if surface_gloss or not is_translucent(spec.material)
+                     else SPECKLE_CONTRAST[spec.material])
+        return np.asarray(c, np.float32)
 
     # ------------------------------------------------------------ setup
     def _setup_laser(self) -> None:
@@ -281,8 +354,8 @@ class Renderer:
         """Expected photo-electrons per pixel of one frame (laser + ambient).
 
         Sets the scene's pose (:meth:`SimScene.set_pose`), then renders the
-        ambient pass and the laser pass (with speckle on the laser part when
-        enabled).
+        ambient pass and the laser pass (all bounces and subsurface light of the
+        rig's ``[twin]`` table, speckle on the laser part when enabled).
 
         Parameters
         ----------
@@ -298,7 +371,7 @@ class Renderer:
         Returns
         -------
         (rows, columns) float32
-            Expected electrons per pixel [e⁻].
+            Laser (all bounces, subsurface light, speckle) + ambient [e⁻].
 
         Raises
         ------
@@ -307,16 +380,45 @@ class Renderer:
         ValueError
             When ``rig_from_part`` has neither shape ``(4, 4)`` nor ``(n_parts, 4, 4)``.
         """
+        return self.render_light(rig_from_part, seed, rig_from_laser).image
+
+    def render_light(self, rig_from_part, seed: int, rig_from_laser=None) -> FrameLight:
+        """One frame with its light split by origin (for the truth of secondary light).
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) or (n_parts, 4, 4) float
+            Pose of the parts in the rig frame [mm].
+        seed : int
+            Frame seed (≥ 0), as in :meth:`render`.
+        rig_from_laser : (4, 4) float, optional
+            This frame's pose of the laser sheet, as in :meth:`render` [mm].
+
+        Returns
+        -------
+        FrameLight
+            The image and, beyond the ideal twin, its laser light by origin.
+        """
         self._pose_frame(rig_from_part, rig_from_laser)
         key = self._key(seed)
+        t0 = time.perf_counter()
         out = self._ambient_image(key)
-        splats = self._laser_splats(key)
-        if self._speckle_on():
-            laser = self._accumulate(*splats)
-            out += laser * self._speckle(key).astype(np.float32)
-        else:
-            self._splat_into(out, *splats)
-        return out
+        self.timings["ambient"] += time.perf_counter() - t0
+        first, extra = self._laser_paths(key)
+        t0 = time.perf_counter()
+        if extra is None and not self._speckle_on():
+            self._splat_into(out, first[0], first[1])      # the ideal twin, as it always was
+            return FrameLight(out)
+        if extra is None and self.rig.twin.speckle_model == "sensor":
+            out += self._accumulate(first[0], first[1]) * self._speckle(key).astype(np.float32)
+            return FrameLight(out)
+        light = self._combine(first, extra)
+        t1 = time.perf_counter()
+        self.timings["accumulate"] += t1 - t0
+        out += self._speckled(light, key) if self._speckle_on() else light.laser
+        self.timings["speckle"] += time.perf_counter() - t1
+        light.image = out
+        return light
 
     def render_components(self, rig_from_part, seed: int,
                           rig_from_laser=None) -> tuple[np.ndarray, np.ndarray]:
@@ -348,9 +450,9 @@ class Renderer:
         """
         self._pose_frame(rig_from_part, rig_from_laser)
         key = self._key(seed)
-        laser = self._accumulate(*self._laser_splats(key))
-        if self._speckle_on():
-            laser *= self._speckle(key).astype(np.float32)
+        first, extra = self._laser_paths(key)
+        light = self._combine(first, extra)
+        laser = self._speckled(light, key) if self._speckle_on() else light.laser
         return laser, self._ambient_image(key)
 
     def speckle_grain_px(self) -> float:
@@ -406,8 +508,8 @@ class Renderer:
         s = dr.opaque(mi.UInt32, self._key(seed))
         i = dr.arange(mi.UInt32, n_samples)
         u = mi.Point2f(*[_kronecker(mi, i, k + 1, s) for k in range(2)])
-        p = mi.Point3f(*_floats(point_mm))
-        geo, uv, ok, a = self._to_sensor(p, mi.Bool(True), u)
+        p = mi.Point3f(*floats(point_mm))
+        geo, uv, ok, a = self.lens.connect(p, mi.Bool(True), u)
         v = a - p
         length = dr.norm(v)
         to_scene = self.scene.transforms_dr()[0]
@@ -417,8 +519,68 @@ class Renderer:
         dr.eval(flux, uv)
         return self._accumulate(np.asarray(uv, np.float32), np.asarray(flux, np.float32))
 
+    def render_point_light(self, rig_from_part, point_mm, intensity_w_sr: float,
+                           cone_axis, cone_half_angle_deg: float, n_rays: int,
+                           seed: int = 0) -> FrameLight:
+        """Light an isotropic point source sheds on the scene, traced like the laser.
+
+        The source's rays (uniform within a cone, which must hold every part the
+        light should reach) go through the same first-hit splat, multi-bounce
+        transport and subsurface walks as the laser sheet's; no ambient light,
+        no speckle.  Used to compare the transport with Mitsuba's own integrators.
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) or (n_parts, 4, 4) float
+            Pose of the parts [mm].
+        point_mm : (3,) float
+            Source position, rig frame [mm].
+        intensity_w_sr : float
+            Radiant intensity [W/sr].
+        cone_axis : (3,) float
+            Axis of the emission cone (rig frame).
+        cone_half_angle_deg : float
+            Half-angle of the cone [deg].
+        n_rays : int
+            Rays (uniform in the cone's solid angle).
+        seed : int
+            Frame seed.
+
+        Returns
+        -------
+        FrameLight
+            ``laser`` and ``image`` hold the source's light (no ambient).
+        """
+        mi, dr = self._mi, self._dr
+        self.scene.set_pose(rig_from_part)
+        key = self._key(seed)
+        self._frame = self.scene.transforms_dr()
+        s = dr.opaque(mi.UInt32, key)
+        i = dr.arange(mi.UInt32, n_rays)
+        u = [mi.sample_tea_float32(i, s ^ mi.UInt32(0x1000193 * (k + 1)), 6) for k in range(4)]
+        cos_max = math.cos(math.radians(cone_half_angle_deg))
+        local = mi.warp.square_to_uniform_cone(mi.Point2f(u[0], u[1]), cos_max)
+        d = mi.Frame3f(mi.Vector3f(*floats(np.asarray(cone_axis) / np.linalg.norm(cone_axis))))
+        ray = mi.Ray3f(mi.Point3f(*floats(point_mm)), d.to_world(local))
+        solid_angle = 2.0 * math.pi * (1.0 - cos_max)
+        flux = mi.Float(intensity_w_sr * solid_angle / n_rays) + 0.0 * u[0]
+        first, extra = self._trace_from(ray, flux, mi.Point2f(u[2], u[3]), s)
+        return self._combine(first, extra)
+
     def _speckle_on(self) -> bool:
         return self.settings.speckle and self.sheet.speckle_contrast > 0
+
+    def _speckled(self, light: FrameLight, key: int) -> np.ndarray:
+        """Laser light with speckle: I + I_c·(S − 1), S the model's pixel speckle (mean 1)."""
+        if self.rig.twin.speckle_model == "sensor":
+            return light.laser * self._speckle(key).astype(np.float32)
+        if self._speckle_model is None:
+            from .speckle import SurfaceSpeckle
+
+            self._speckle_model = SurfaceSpeckle(self.rig, self.pose, self.scene,
+                                                 self.settings.seed)
+        c = self.sheet.speckle_contrast
+        return self._speckle_model.apply(light.laser, light.coherent * c)
 
     def _speckle(self, key: int) -> np.ndarray:
         return speckle_pattern(self.shape, self.sheet.speckle_contrast, self.speckle_grain_px(), key)
@@ -456,38 +618,8 @@ class Renderer:
         return img
 
     def _to_sensor(self, p, active, u_ap):
-        """Thin-lens splat of points p through aperture samples u_ap ∈ [0, 1)².
-
-        Returns (A_ap·cos θ_A/|P − A|² [-], pixel coordinates (u, v) [px], ok, A [mm]).
-        """
-        mi, dr, pose = self._mi, self._dr, self.pose
-        f, k1, k2 = self.focal_length_mm, self.rig.lens.k1, self.rig.lens.k2
-        disc = mi.warp.square_to_uniform_disk_concentric(u_ap) * self.aperture_radius_mm
-        cx = self.lens_centre_x_mm
-        a = mi.Point3f(cx, disc.x, disc.y)
-        v = p - a
-        dist2 = dr.squared_norm(v)
-        geo = self.aperture_area_mm2 * v.x * dr.rsqrt(dist2) / dist2
-        if cx == 0.0:
-            mag = -f / (p.x - f)
-            t2 = (p.y * p.y + p.z * p.z) / (p.x * p.x)
-            dist = 1.0 + k1 * t2 + k2 * t2 * t2
-            img = mi.Point3f(mag * p.x, mag * p.y * dist, mag * p.z * dist)
-        else:   # the real lens, focused (scheimpflug.model.camera.lens_state)
-            px = p.x - cx
-            mag = -f / (px - f)
-            t2 = (p.y * p.y + p.z * p.z) / (px * px)
-            dist = 1.0 + k1 * t2 + k2 * t2 * t2
-            img = mi.Point3f(mag * px + cx, mag * p.y * dist, mag * p.z * dist)
-        o, n = mi.Point3f(*_floats(pose.origin_mm)), mi.Vector3f(*_floats(pose.normal))
-        w = img - a
-        lam = dr.dot(o - a, n) / dr.dot(w, n)
-        rel = a + lam * w - o
-        uv = mi.Point2f(dr.dot(rel, mi.Vector3f(*_floats(pose.u_dir))),
-                        dr.dot(rel, mi.Vector3f(*_floats(pose.v_dir)))) / pose.pitch_mm
-        ok = active & (p.x - cx > f * 1.0001) & (lam > 0) & (uv.x > -1.0) & (uv.x < pose.columns) \
-            & (uv.y > -1.0) & (uv.y < pose.rows)
-        return geo, dr.select(ok, uv, -10.0), ok, a
+        """Thin-lens splat of points p (:meth:`sim.lens.LensConnection.connect`)."""
+        return self.lens.connect(p, active, u_ap)
 
     def _alpha(self, s, group_index):
         """Fan angle of sample group q: α = lo + (q + ξ)·Δα/N_groups, ξ one shift per frame [rad]."""
@@ -546,22 +678,77 @@ class Renderer:
         flux = _fan_intensity(dr, sh, alpha) * ((hi - lo) / (4 * self.n_groups))
         return ray, flux, mi.Point2f(u[1], u[2])
 
-    def _laser_splats(self, key: int) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel coordinates (2, n) float32 [px] and flux (n,) float32 [W] of the laser splats."""
+    def _laser_paths(self, key: int):
+        """The laser's light: first-surface splats and (if any) the transport beyond.
+
+        Returns ``((uv (2, n) float32 [px], flux (n,) float32 [W], contrast (n,) or None),
+        TransportResult or None)``.
+        """
         mi, dr = self._mi, self._dr
         s = dr.opaque(mi.UInt32, key)
-        to_scene, to_rig = self._frame
         ray, flux, u_ap = self._laser_rays(s, self._fan_rays(s))
-        si = self.scene.scene.ray_intersect(to_scene @ ray)
+        return self._trace_from(ray, flux, u_ap, s)
+
+    def _trace_from(self, ray, flux, u_ap, s):
+        """First hit + camera splat of rays (rig frame), then the transport beyond it."""
+        mi, dr = self._mi, self._dr
+        t0 = time.perf_counter()
+        to_scene, to_rig = self._frame
+        ray_s = to_scene @ ray
+        si = self.scene.scene.ray_intersect(ray_s)
         p = to_rig @ si.p
-        geo, uv, ok, a = self._to_sensor(p, si.is_valid(), u_ap)
+        geo, uv, ok, a = self.lens.connect(p, si.is_valid(), u_ap)
         wo = to_scene @ mi.Vector3f(dr.normalize(a - p))
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        if self.transport.has_media:
+            si = self.transport._outside_frame(si, ray_s.d, si.is_valid())
         f_cos = si.bsdf().eval(ctx, si, si.to_local(wo), ok)[self.channel]
         ok &= ~self.scene.scene.ray_test(si.spawn_ray_to(to_scene @ a), ok)
         value = dr.select(ok, flux * f_cos * geo, 0.0)
-        dr.eval(value, uv)
-        return np.asarray(uv, np.float32), np.asarray(value, np.float32)
+        contrast = None
+        if self.transport.active:
+            contrast = dr.gather(mi.Float, mi.Float(self._contrast), self.scene.part_index_dr(si))
+            dr.eval(value, uv, contrast, si)
+        elif self._speckle_on():
+            contrast = dr.gather(mi.Float, mi.Float(self._contrast), self.scene.part_index_dr(si))
+            dr.eval(value, uv, contrast)
+        else:
+            dr.eval(value, uv)
+        first = (np.asarray(uv, np.float32), np.asarray(value, np.float32),
+                 None if contrast is None else np.asarray(contrast, np.float32))
+        t1 = time.perf_counter()
+        self.timings["first_hit"] += t1 - t0
+        if not self.transport.active:
+            return first, None
+        beta = dr.select(si.is_valid(), flux, 0.0)
+        result = self.transport.trace(si, ray_s.d, beta, s, self._frame)
+        self.transport.subsurface_electrons(result)
+        self.timings["transport"] += time.perf_counter() - t1
+        return first, result
+
+    def _combine(self, first, extra: TransportResult | None) -> FrameLight:
+        """Accumulate the splats into images (sequential: deterministic)."""
+        uv, value, contrast = first
+        laser = self._accumulate(uv, value)
+        coherent = self._accumulate(uv, value * contrast) if contrast is not None else laser.copy()
+        light = FrameLight(laser, laser, coherent)
+        if extra is None:
+            return light
+        secondary = np.zeros(self.shape, np.float32)
+        for b in extra.batches:
+            self._splat_into(laser, b.uv, b.value)
+            self._splat_into(secondary, b.uv, b.value)
+            self._splat_into(coherent, b.uv, b.value * b.contrast)
+        volume_contrast = float(SPECKLE_CONTRAST["paper"])
+        for depth, img in sorted(extra.subsurface.items()):
+            laser += img
+            coherent += img * np.float32(volume_contrast)
+            if depth >= 2:
+                secondary += img
+        light.secondary = secondary
+        light.subsurface = extra.subsurface.get(1)
+        light.walks = extra.walks
+        return light
 
     def _ambient_image(self, key: int) -> np.ndarray:
         e_amb = self.rig.environment.ambient_irradiance_w_m2

@@ -109,9 +109,12 @@ class SimScene:
     parts : sequence of scenes.Part, or of (trimesh.Trimesh, material, object_id)
         Meshes in the part frame [mm] with their material tag and object id (≥ 1).
     materials : MaterialSettings, optional
-        Albedos/roughnesses of the material tags.
+        Albedos/roughnesses/media of the material tags.
     variant : str, optional
         Mitsuba variant; default :func:`sim.variant.select_variant`.
+    subsurface : bool
+        Translucent tags get their dielectric boundary and interior medium
+        (:mod:`sim.materials`, rig key ``[twin] subsurface``) instead of an opaque surface.
 
     Attributes
     ----------
@@ -144,7 +147,7 @@ class SimScene:
     """
 
     def __init__(self, parts: Sequence[Any], materials: MaterialSettings | None = None,
-                 variant: str | None = None) -> None:
+                 variant: str | None = None, subsurface: bool = False) -> None:
         if len(parts) == 0:
             raise MeshError("a scene needs at least one part")
         self.variant = variant or select_variant()
@@ -155,11 +158,16 @@ class SimScene:
         self._mi = mi
         self.specs = [_as_spec(p, i) for i, p in enumerate(parts)]
         self.materials = materials or MaterialSettings()
+        self.subsurface = bool(subsurface)
+        #: per part: its interior medium (subsurface on, translucent tag) or None
+        self.media = [self.materials.medium(sp.material) if self.subsurface else None
+                      for sp in self.specs]
         shapes = {f"s{i}": self._mesh(f"s{i}", s) for i, s in enumerate(self.specs)}
         self.scene = mi.load_dict({"type": "scene", **shapes})
         self.params = mi.traverse(self.scene)
         self._keys = [f"s{i}.vertex_positions" for i in range(len(self.specs))]
         self._id_table = self._object_id_table()
+        self._part_table = self._part_index_table()
         self.rig_from_part = [np.eye(4)] * len(self.specs)
         self.scene_from_rig = np.eye(4)  # (4, 4) float64: rig → Mitsuba scene coordinates
         self._vertices_in_part_frame = True
@@ -168,7 +176,7 @@ class SimScene:
     def _mesh(self, name: str, spec: _PartSpec):
         mi = self._mi
         props = mi.Properties()
-        props["bsdf"] = mi.load_dict(bsdf_dict(spec.material, self.materials))
+        props["bsdf"] = mi.load_dict(bsdf_dict(spec.material, self.materials, self.subsurface))
         mesh = mi.Mesh(name, len(spec.vertices), len(spec.faces), has_vertex_normals=False,
                        has_vertex_texcoords=False, props=props)
         p = mi.traverse(mesh)
@@ -179,6 +187,14 @@ class SimScene:
 
     def _object_id_table(self) -> np.ndarray:
         """Lookup: Dr.Jit registry id of a shape → object id (0 for none)."""
+        return self._registry_table([spec.object_id for spec in self.specs])
+
+    def _part_index_table(self) -> np.ndarray:
+        """Lookup: Dr.Jit registry id of a shape → part index + 1 (0 for none)."""
+        return self._registry_table(list(range(1, len(self.specs) + 1)))
+
+    def _registry_table(self, values: list[int]) -> np.ndarray:
+        """Lookup array: Dr.Jit registry id of part i's shape → values[i] (0 elsewhere)."""
         if not is_jit_variant(self.variant):
             return np.zeros(1, np.int32)
         import drjit as dr
@@ -187,9 +203,30 @@ class SimScene:
         by_name = {s.id(): i for i, s in enumerate(self.scene.shapes())}
         order = [by_name[f"s{i}"] for i in range(len(self.specs))]
         table = np.zeros(int(reg.max()) + 1, np.int32)
-        for i, spec in enumerate(self.specs):
-            table[reg[order[i]]] = spec.object_id
+        for i, value in enumerate(values):
+            table[reg[order[i]]] = value
         return table
+
+    def part_index_dr(self, si):
+        """Part index + 1 (0 = no hit) of Mitsuba SurfaceInteraction hits, as ``mi.UInt32``.
+
+        Parameters
+        ----------
+        si : mitsuba.SurfaceInteraction3f
+            Hits of this scene.
+
+        Returns
+        -------
+        mitsuba.UInt32
+            Index into ``specs`` plus one per hit.
+        """
+        import drjit as dr
+
+        mi = self._mi
+        reg = dr.reinterpret_array(mi.UInt32, si.shape)
+        table = mi.UInt32(self._part_table.astype(np.uint32))
+        idx = dr.minimum(reg, len(self._part_table) - 1)
+        return dr.select(si.is_valid(), dr.gather(mi.UInt32, table, idx), 0)
 
     # ------------------------------------------------------------ pose
     def set_pose(self, rig_from_part) -> None:
@@ -316,6 +353,40 @@ class SimScene:
         n = np.where(valid[:, None], np.asarray(si.n, np.float64).T @ rot, np.nan)
         ids = np.where(valid, self.object_ids(si), 0).astype(np.int32)
         return Hits(t, p, n, ids)
+
+    def first_hit_parts(self, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First hits of rays from the lens centre (the rig origin), for many rays at once.
+
+        Parameters
+        ----------
+        directions : (n, 3) float
+            Unit directions, rig frame.
+
+        Returns
+        -------
+        t : (n,) float64
+            Distance to the hit [mm] (inf where none).
+        part : (n,) int64
+            Index of the hit part in ``specs`` (−1 where none).
+        normal : (n, 3) float64
+            Unit geometric normal of the hit triangle, rig frame (NaN where none).
+        """
+        self._require_jit()
+        import drjit as dr
+
+        mi = self._mi
+        d = np.asarray(directions, dtype=np.float64)
+        o, ds = _to_scene(self.scene_from_rig, np.zeros((1, 3)), d)
+        ray = mi.Ray3f(mi.Point3f(*[float(c) for c in o[0]]), mi.Vector3f(ds.T.astype(np.float32)))
+        si = self.scene.ray_intersect(ray)
+        part = dr.select(si.is_valid(), mi.Int32(self.part_index_dr(si)) - 1, -1)
+        dr.eval(si.t, si.n, part)
+        t = np.asarray(si.t, np.float64)
+        idx = np.asarray(part, np.int64)
+        rot = self.scene_from_rig[:3, :3]
+        n = np.asarray(si.n, np.float64).T @ rot
+        t = np.where(idx >= 0, t, np.inf)
+        return t, idx, np.where((idx >= 0)[:, None], n, np.nan)
 
     def first_hit(self, origins, directions) -> tuple[np.ndarray, np.ndarray]:
         """Distance to and object id of the first hit of each ray, nothing else.

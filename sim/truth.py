@@ -38,7 +38,22 @@ key                     shape, dtype            meaning
 ``point_mm``            (rows, columns, 3) f32  per-pixel chief-ray hit, reference frame [mm]; NaN
                                                 = nothing (only in frames with pixel truth)
 ``object_id``           (rows, columns) uint16  per-pixel object id, 0 = nothing (same frames)
+``secondary_u``         (rows, 4) float32       columns of the peaks of secondary light in the
+                                                row, strongest first [px]; NaN = none
+``secondary_share``     (rows, 4) float32       each peak's light (±3 px) / the row's laser
+                                                light [-]
+``secondary_fraction``  (rows,) float32         all secondary light / the row's laser light [-]
+``subsurface_fraction`` (rows,) float32         light that entered the first lit surface and
+                                                left it elsewhere / the row's laser light [-]
 ======================  =====================  ==============================================
+
+**Secondary light** (:func:`secondary_truth`) is the one part of the truth that
+comes from the renderer, not from geometry: the expected (noise- and
+speckle-free) laser light of the frame split by origin — light that reached the
+imaged surface after at least one earlier surface (inter-reflections, rig key
+``[twin] bounces`` > 1) and light that left the first lit surface through its
+subsurface.  Its peaks per row let a detector's wrong-peak choices be counted
+against ``stripe_u``.  Without bounces or subsurface they are NaN / 0.
 
 Reference frame: the stage frame of :mod:`sim.stages` with the part at
 θ = 0 for the rotary stage (``truth/mesh.ply`` is in this frame, so truth points
@@ -78,8 +93,10 @@ __all__ = [
     "laser_origin_mm",
     "pixel_directions",
     "pixel_truth",
+    "SECONDARY_PEAKS",
     "rig_truth",
     "row_crossings",
+    "secondary_truth",
     "sheet_section",
     "stripe_truth",
     "surface_section",
@@ -787,6 +804,97 @@ class BruteForceCaster:
         t = np.where(ok, t, np.inf)
         k = np.argmin(t, axis=1)
         return t[np.arange(len(o)), k], k
+
+
+# ------------------------------------------------------------------ secondary light
+
+#: Number of secondary-light peaks kept per row.
+SECONDARY_PEAKS = 4
+
+
+def secondary_truth(rows: int, laser=None, secondary=None, subsurface=None,
+                    min_share: float = 0.02, half_window_px: int = 3) -> dict:
+    """Where the frame's secondary light lands, per row (truth-file arrays).
+
+    Parameters
+    ----------
+    rows : int
+        Sensor rows.
+    laser : (rows, columns) float, optional
+        All expected laser electrons (no speckle, no noise) [e⁻]; None: no split exists
+        (the ideal twin) and the arrays say "none".
+    secondary : (rows, columns) float, optional
+        The inter-reflected part of ``laser`` [e⁻].
+    subsurface : (rows, columns) float, optional
+        The first surface's subsurface part of ``laser`` [e⁻].
+    min_share : float
+        A peak must hold at least this share of the row's laser light [-].
+    half_window_px : int
+        A peak's light is summed over ±this many columns [px].
+
+    Returns
+    -------
+    dict
+        ``secondary_u`` (rows, 4) float32 [px], ``secondary_share`` (rows, 4) float32 [-],
+        ``secondary_fraction`` (rows,) float32 [-], ``subsurface_fraction`` (rows,)
+        float32 [-] (module docstring).
+    """
+    k = SECONDARY_PEAKS
+    out = {"secondary_u": np.full((rows, k), np.nan, np.float32),
+           "secondary_share": np.zeros((rows, k), np.float32),
+           "secondary_fraction": np.zeros(rows, np.float32),
+           "subsurface_fraction": np.zeros(rows, np.float32)}
+    if laser is None:
+        return out
+    total = np.asarray(laser, np.float64).sum(axis=1)
+    safe = np.where(total > 0, total, 1.0)
+    if subsurface is not None:
+        out["subsurface_fraction"][:] = np.asarray(subsurface, np.float64).sum(axis=1) / safe
+    if secondary is None:
+        return out
+    sec = np.asarray(secondary, np.float64)
+    out["secondary_fraction"][:] = sec.sum(axis=1) / safe
+    _row_peaks(sec, total, float(min_share), int(half_window_px), out["secondary_u"],
+               out["secondary_share"])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_peaks(sec, total, min_share, w, peak_u, peak_share):  # pragma: no cover - compiled
+    """Strongest local maxima (±w) of each row of ``sec`` holding ≥ min_share of the row."""
+    rows, cols = sec.shape
+    k = peak_u.shape[1]
+    for r in range(rows):
+        if total[r] <= 0.0:
+            continue
+        cs = np.zeros(cols + 1)
+        for c in range(cols):
+            cs[c + 1] = cs[c] + sec[r, c]
+        found = 0
+        used = np.zeros(cols, np.bool_)
+        while found < k:
+            best, arg = 0.0, -1
+            for c in range(cols):
+                if not used[c]:
+                    lo, hi = max(0, c - w), min(cols, c + w + 1)
+                    if sec[r, c] > best and sec[r, c] >= sec[r, lo:hi].max():
+                        best, arg = sec[r, c], c
+            if arg < 0 or (2 * w + 1) * best < min_share * total[r]:
+                break                       # no remaining peak can hold min_share of the row
+            lo, hi = max(0, arg - w), min(cols, arg + w + 1)
+            share = (cs[hi] - cs[lo]) / total[r]
+            for c in range(max(0, arg - 2 * w), min(cols, arg + 2 * w + 1)):
+                used[c] = True
+            if share < min_share:
+                continue
+            wsum = 0.0
+            usum = 0.0
+            for c in range(lo, hi):
+                wsum += sec[r, c]
+                usum += sec[r, c] * c
+            peak_u[r, found] = usum / wsum
+            peak_share[r, found] = share
+            found += 1
 
 
 # ------------------------------------------------------------------ many frames of one scene

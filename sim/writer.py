@@ -73,7 +73,7 @@ from scheimpflug.model.rig import Rig, rig_to_dict
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
 from .stages import invert
-from .truth import RayCaster, pixel_directions, pixel_truth, rig_truth, stripe_truth
+from .truth import RayCaster, pixel_directions, pixel_truth, rig_truth, secondary_truth, stripe_truth
 
 __all__ = [
     "FORMAT",
@@ -146,6 +146,12 @@ class Twin(Protocol):
         """
 
 
+def _twin_light(twin, frame: FrameSpec):
+    """The twin's light split of ``frame`` (:class:`sim.render.FrameLight`) if it keeps one."""
+    light = getattr(twin, "light", None)
+    return light(frame) if callable(light) else None
+
+
 #: RenderSettings field that ``--spp`` sets (the light tracer's laser samples per sensor row).
 _SPP_FIELDS = ("samples_per_row", "samples_per_fan_ray", "spp")
 
@@ -210,13 +216,14 @@ class MitsubaTwin:
         self.spp_field = next(n for n in _SPP_FIELDS if n in field_names)
         if spp is not None:
             settings = dataclasses.replace(settings, **{self.spp_field: int(spp)})
-        self.scene = SimScene(assembly.parts, materials=materials)
+        self.scene = SimScene(assembly.parts, materials=materials, subsurface=rig.twin.subsurface)
         self.materials = materials
         self.renderer = Renderer(rig, self.scene, settings)
         self.settings = settings
         self.variant = self.scene.variant
         self.spp = int(getattr(settings, self.spp_field))
         self._posed = None
+        self._light = (None, None)
 
     def describe(self) -> dict:
         """Render description for the manifest (part of a run's identity).
@@ -246,14 +253,28 @@ class MitsubaTwin:
         Returns
         -------
         (rows, columns) float32
-            Expected electrons per pixel [e⁻] (:meth:`Renderer.render`).
+            Expected electrons per pixel [e⁻] (:meth:`Renderer.render_light`).
         """
-        if frame.rig_from_laser is None:
-            image = self.renderer.render(frame.rig_from_part, frame.seed)
-        else:
-            image = self.renderer.render(frame.rig_from_part, frame.seed, frame.rig_from_laser)
+        light = self.renderer.render_light(frame.rig_from_part, frame.seed, frame.rig_from_laser)
         self._posed = frame.index
-        return image
+        self._light = (frame.index, light)
+        return light.image
+
+    def light(self, frame: FrameSpec):
+        """The light split (:class:`sim.render.FrameLight`) of ``frame`` if it was the last rendered.
+
+        Parameters
+        ----------
+        frame : FrameSpec
+            The frame.
+
+        Returns
+        -------
+        FrameLight or None
+            None if another frame was rendered since.
+        """
+        index, light = self._light
+        return light if index == frame.index else None
 
     def caster(self, frame: FrameSpec) -> RayCaster:
         """Ray queries on the scene posed for a frame.
@@ -618,9 +639,12 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
         "pixel_value": "raw ADC code in uint16, 0 … 2**adc_bits − 1 (not shifted to 16 bit)",
         "truth": {
             "per_frame": "truth/NNNNN.npz: stripe_u (rows,) f64 [px], stripe_point_mm (rows, 3) "
-                         "f64 [mm], stripe_object_id (rows,) i16, stripe_count (rows,) u8; frames "
-                         "with pixel_truth also point_mm (rows, columns, 3) f32 [mm] and "
-                         "object_id (rows, columns) u16. NaN / 0 = none. See sim/truth.py.",
+                         "f64 [mm], stripe_object_id (rows,) i16, stripe_count (rows,) u8; "
+                         "secondary_u (rows, 4) f32 [px], secondary_share (rows, 4) f32, "
+                         "secondary_fraction (rows,) f32, subsurface_fraction (rows,) f32 (from "
+                         "the renderer's light split); frames with pixel_truth also point_mm "
+                         "(rows, columns, 3) f32 [mm] and object_id (rows, columns) u16. "
+                         "NaN / 0 = none. See sim/truth.py.",
             "reference_frame": ("stage frame with the part at angle 0" if scenario.name != "calibration"
                                 else "stage frame (the plate moves in it)"),
             "stripe_rule": "sheet mid-plane ∩ mesh, visible from the lens centre and lit by the "
@@ -776,11 +800,14 @@ def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
                 scenario.assembly.transformed(f.ref_from_part).to_ply(p)
 
 
-def _frame_truth(rig, scenario, frame, caster, stats, mesh) -> dict:
+def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None) -> dict:
     t0 = time.perf_counter()
     arrays = stripe_truth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"],
                           frame.rig_from_part, frame.ref_from_part, caster,
                           rig_from_laser=frame.rig_from_laser).arrays()
+    split = light if light is not None and light.laser is not None else None
+    arrays.update(secondary_truth(rig.sensor.rows, *(
+        (split.laser, split.secondary, split.subsurface) if split is not None else ())))
     t1 = time.perf_counter()
     stats.seconds["truth"] += t1 - t0
     if scenario.wants_pixel_truth(frame.index):
@@ -972,7 +999,8 @@ def _noise(electrons, model, frame, stats) -> np.ndarray:
 
 def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
     """Truth arrays of one frame (main thread: uses the posed scene); warns if no stripe."""
-    arrays = _frame_truth(rig, scenario, frame, twin.caster(frame), stats, mesh)
+    arrays = _frame_truth(rig, scenario, frame, twin.caster(frame), stats, mesh,
+                          _twin_light(twin, frame))
     stats.frames_rendered += 1
     if not np.isfinite(arrays["stripe_u"]).any():
         stats.frames_without_stripe.append(frame.index)

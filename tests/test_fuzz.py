@@ -128,7 +128,9 @@ def rig_tables(draw):
         for key in chosen:
             default = base.get(table, {}).get(key, 1.0)
             kind = draw(st.integers(0, 9))
-            if kind < 5:          # plausible: the default scaled (most examples pass validation)
+            if kind < 5 and isinstance(default, (bool, str)):   # [twin] switches: as they are
+                v = default
+            elif kind < 5:        # plausible: the default scaled (most examples pass validation)
                 v = default * draw(st.floats(0.3, 3.0)) if isinstance(default, float) else \
                     max(1, int(default * draw(st.floats(0.3, 2.0))))
             elif kind < 8:

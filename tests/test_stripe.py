@@ -160,6 +160,53 @@ def test_bad_input():
     assert set(METHODS) == {"cog", "gaussian3", "blais-rioux", "edge"}
 
 
+def test_track_rule_follows_the_continuous_stripe_not_a_wide_secondary(rng):
+    """A nearer, wide (defocused) secondary peak in part of the rows: 'nearest' takes it, 'track'
+    keeps the continuous, narrow stripe; prior_u and expected_u steer the choice."""
+    rows = 60
+    uc = 50.0 + 0.05 * np.arange(rows)
+    frame = 100.0 + 8000.0 * stripe_profile(uc, 1.2, COLS)
+    ghost = np.zeros(rows)
+    ghost[20:35] = 1.0
+    frame += 30000.0 * ghost[:, None] * stripe_profile(np.full(rows, 20.0), 3.5, COLS)
+    frame = rng.poisson(frame).astype(np.float64)
+    near = extract_stripes(frame, "cog", window_px=5)
+    assert np.all(np.abs(near.u[20:35] - 20.0) < 1.0)          # the old rule takes the ghost
+    track = extract_stripes(frame, "cog", window_px=5, multi_peak="track")
+    assert len(track) == rows and np.max(np.abs(track.u - uc)) < 0.3
+    assert np.all(track.n_peaks[20:35] == 2)
+    # a prior at the ghost pulls those rows there; a range excluding the ghost forbids it
+    prior = np.where(ghost > 0, 20.0, np.nan)
+    pulled = extract_stripes(frame, "cog", window_px=5, multi_peak="track", prior_u=prior)
+    assert np.sum(np.abs(pulled.u - 20.0) < 1.0) >= 10
+    ranged = extract_stripes(frame, "cog", window_px=5, multi_peak="track", prior_u=prior,
+                             expected_u=(30.0, 80.0))
+    assert np.max(np.abs(ranged.u - uc)) < 0.3
+    # on a clean frame 'track' equals the default rule
+    clean = rng.poisson(100.0 + 8000.0 * stripe_profile(uc, 1.2, COLS)).astype(np.float64)
+    a, b = extract_stripes(clean, "cog", window_px=5), extract_stripes(clean, "cog", window_px=5,
+                                                                      multi_peak="track")
+    assert np.array_equal(a.rows, b.rows) and np.allclose(a.u, b.u)
+
+
+def test_peak_choices_counts_against_truth():
+    from scheimpflug.stripe import peak_choices
+
+    rows = 6
+    truth = np.array([10.0, 10.0, 10.0, 10.0, np.nan, 10.0])
+    secondary = np.full((rows, 4), np.nan)
+    secondary[1, 0] = 30.0
+    uc = np.array([10.2, 30.1, 50.0, 10.0, 55.0, 10.0])
+    frame = 100.0 + 5000.0 * stripe_profile(uc, 1.2, COLS)
+    frame[5] = 100.0                                  # nothing detected in row 5
+    p = extract_stripes(frame, "cog", window_px=5)
+    c = peak_choices(p, truth, secondary)
+    assert (c.rows, c.correct, c.secondary, c.other, c.missed) == (5, 2, 1, 2, 1)
+    assert c.secondary_rate == pytest.approx(0.2)
+    with pytest.raises(ValueError):
+        peak_choices(p, truth, secondary, tol_px=0.0)
+
+
 # ---------------------------------------------------------------- "auto" window (issue 16)
 
 

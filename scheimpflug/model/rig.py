@@ -41,6 +41,7 @@ __all__ = [
     "Sensor",
     "Stage",
     "active_error_models",
+    "Twin",
     "load_preset",
     "load_rig",
     "rig_from_dict",
@@ -385,6 +386,37 @@ class Environment:
     ambient_irradiance_w_m2: float = 0.02
 
 
+SPECKLE_MODELS = ("surface", "sensor")
+
+
+@dataclass(frozen=True)
+class Twin:
+    """How the digital twin renders this instrument (ignored by the measurement pipeline).
+
+    The defaults are the ideal twin: first-surface light only, opaque materials.
+
+    Parameters
+    ----------
+    bounces : int
+        Light-path depth of the laser pass: 1 = the first surface the sheet meets only;
+        N > 1 also follows the light N − 1 more times from surface to surface
+        (inter-reflections) [-], range [1, 64].
+    subsurface : bool
+        Translucent materials (cardboard, paper, tape, plastic, marble) carry a
+        scattering interior below a rough dielectric boundary and the light random-walks
+        inside (true), or are opaque Lambertian surfaces (false); range {true, false}.
+    speckle_model : str
+        ``"surface"`` — speckle formed by coherent imaging of scatterers attached to the
+        lit surface (moves with the part); ``"sensor"`` — a random pattern fixed to the
+        sensor.  Its strength is ``[laser] speckle_contrast`` (0 = no speckle); range
+        {"surface", "sensor"}.
+    """
+
+    bounces: int = 1
+    subsurface: bool = False
+    speckle_model: str = "surface"
+
+
 @dataclass(frozen=True)
 class Rig:
     """A whole instrument: one table of the rig file per field.
@@ -407,6 +439,8 @@ class Rig:
         The ``[stage]`` table; default: every position key derived.
     environment : Environment, optional
         The ``[environment]`` table; default the paper's ambient light.
+    twin : Twin, optional
+        The ``[twin]`` table (how the digital twin renders); default the ideal twin.
 
     Attributes
     ----------
@@ -426,6 +460,7 @@ class Rig:
     sensor: Sensor = field(default_factory=Sensor)
     stage: Stage = field(default_factory=Stage)
     environment: Environment = field(default_factory=Environment)
+    twin: Twin = field(default_factory=Twin)
     derived: tuple[str, ...] = field(default=(), init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -486,6 +521,7 @@ _TABLES: dict[str, type] = {
     "sensor": Sensor,
     "stage": Stage,
     "environment": Environment,
+    "twin": Twin,
 }
 
 PRESETS = ("paper", "paper-as-built")
@@ -526,8 +562,12 @@ KEY_RANGES: dict[str, dict[str, str]] = {
               "plate_flatness_um": "[-5000, 5000]", "plate_tilt_deg": "[-10, 10]",
               "plate_yaw_deg": "[-10, 10]"},
     "environment": {"ambient_irradiance_w_m2": "[0, 1e5]"},
+    "twin": {"bounces": "[1, 64]", "subsurface": "{true, false}",
+             "speckle_model": '{"surface", "sensor"}'},
 }
 """The physical range of every rig key, ``{table: {key: "[lo, hi]"}}`` (``(`` / ``)`` = open end).
+
+Keys that are not numbers give their allowed values as ``{a, b}``.
 
 One table for all keys, documented beside each key (the dataclass docstrings
 and ``presets/paper.toml``).  The ranges are wide — every real profiler lies far
@@ -569,7 +609,7 @@ def key_in_range(table: str, key: str, value: float) -> bool:
         True inside the range; also True for a key without a range.
     """
     text = KEY_RANGES.get(table, {}).get(key)
-    return text is None or _in_range(value, text)
+    return text is None or text[0] == "{" or _in_range(value, text)
 
 
 def _show(value: Any) -> str:
@@ -595,7 +635,11 @@ def _check_fields(table: str, obj: Any) -> None:
             if value is None:
                 continue
             kind = float
-        if kind is int:
+        if kind is bool:
+            _require(isinstance(value, bool), table, f.name, value, "must be true or false")
+        elif kind is str:
+            _require(isinstance(value, str), table, f.name, value, "must be a string")
+        elif kind is int:
             _require(isinstance(value, int) and not isinstance(value, bool), table, f.name,
                      value, "must be an integer")
         elif kind is float:
@@ -603,7 +647,7 @@ def _check_fields(table: str, obj: Any) -> None:
                      f.name, value, "must be a number")
             _require(not isinstance(value, float) or math.isfinite(value), table, f.name, value,
                      "must be a finite number")
-        if f.name in ranges:       # int vs float comparisons are exact: no overflow for huge ints
+        if f.name in ranges and kind in (int, float):   # exact int vs float: no overflow
             _require(_in_range(value, ranges[f.name]), table, f.name, value,
                      f"out of range: must be in {ranges[f.name]}")
 
@@ -637,6 +681,14 @@ def validate_rig(rig: Rig) -> None:
     _require(rig.environment.ambient_irradiance_w_m2 >= 0, "environment",
              "ambient_irradiance_w_m2", rig.environment.ambient_irradiance_w_m2,
              "must be >= 0")
+    _validate_twin(rig.twin)
+
+
+def _validate_twin(t: Twin) -> None:
+    _require(1 <= t.bounces <= 64, "twin", "bounces", t.bounces,
+             "must be 1 (first surface only) … 64")
+    _require(t.speckle_model in SPECKLE_MODELS, "twin", "speckle_model", t.speckle_model,
+             f"must be one of {', '.join(repr(m) for m in SPECKLE_MODELS)}")
 
 
 def _validate_lens(lens: Lens) -> None:
@@ -805,6 +857,14 @@ def _validate_error_models(rig: Rig) -> None:
 
 
 def _coerce(table: str, key: str, kind: Any, value: Any) -> Any:
+    if kind is bool:
+        if isinstance(value, bool):
+            return value
+        raise RigError(f"[{table}] {key} = {_show(value)}: must be true or false")
+    if kind is str:
+        if isinstance(value, str):
+            return value
+        raise RigError(f"[{table}] {key} = {_show(value)}: must be a string")
     if kind == float | None:
         if value is None:
             return None
@@ -906,9 +966,17 @@ def rig_to_toml(rig: Rig) -> str:
         lines.append(f"[{name}]")
         for k, v in table.items():
             note = "  # derived (scheimpflug.model.plan)" if f"{name}.{k}" in rig.derived else ""
-            lines.append(f"{k} = {v!r}{note}")
+            lines.append(f"{k} = {_toml_value(v)}{note}")
         lines.append("")
     return "\n".join(lines)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return repr(value)
 
 
 def load_rig(path: str | Path) -> Rig:

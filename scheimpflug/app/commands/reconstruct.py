@@ -44,6 +44,9 @@ def add_parser(sub):
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
                         "and on speckled stripes, benchmarks/RESULTS.md)")
+    p.add_argument("--multi-peak", choices=("nearest", "strongest", "track"), default="nearest",
+                   help="rule for rows with several peaks (inter-reflections): 'track' picks the "
+                        "most continuous, narrow, bright one (default nearest)")
     p.add_argument("--min-snr", type=number(0, 1e4, lo_open=True), default=6.0,
                    help="detection threshold, peak over background noise [-] (default 6)")
     p.add_argument("--keep-saturated", action="store_true",
@@ -106,7 +109,7 @@ def _extract(folder, args):
     with Progress(0, label="extract", quiet=args.quiet) as bar:
         return extract_folder(folder, args.method, min_snr=args.min_snr,
                               keep_saturated=args.keep_saturated, progress=bar,
-                              drop_isolated=args.drop_isolated)
+                              multi_peak=args.multi_peak, drop_isolated=args.drop_isolated)
 
 
 def _check_args(args) -> bool:

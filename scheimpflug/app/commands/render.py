@@ -52,6 +52,11 @@ def add_parser(sub):
     p.add_argument("--spp", type=integer(1, 10**6), default=None,
                    help="laser samples per sensor row of the light tracer "
                         "(RenderSettings.samples_per_row; default: the renderer's)")
+    p.add_argument("--bounces", type=integer(1, 64), default=None, metavar="N",
+                   help="light-path depth of the laser: 1 = first surface only, N > 1 follows "
+                        "inter-reflections (default: the rig's [twin] bounces, 1 in the presets)")
+    p.add_argument("--subsurface", action="store_true", default=None,
+                   help="translucent materials scatter light inside (rig key [twin] subsurface)")
     p.add_argument("--binning", type=integer(1, 4096), default=1, metavar="K",
                    help="k × k binned sensor, same geometry (quick mode; default 1)")
     p.add_argument("--truth-pixels", default=None, metavar="every|N|none",
@@ -121,6 +126,12 @@ def _rig(args):
     from scheimpflug.model.binning import binned_rig
 
     rig = rig_from_args(args)
+    if args.bounces is not None:
+        if args.bounces < 1:
+            raise ScheimpflugError(f"--bounces {args.bounces}: must be an integer >= 1")
+        rig = rig.replace(twin={"bounces": args.bounces})
+    if args.subsurface:
+        rig = rig.replace(twin={"subsurface": True})
     if args.axis_mm is not None and args.scenario in _APPLIES["axis_mm"]:
         rig = rig.replace(stage={"axis_mm": args.axis_mm})
     if args.binning < 1:
