@@ -303,11 +303,13 @@ class SurfaceSpeckle:
         for i, k in enumerate(kernels):
             offsets[i, :len(k.values)] = k.offsets
             values[i, :len(k.values)] = k.values
+        ntaps = np.array([len(k.values) for k in kernels], np.int64)
         lags = np.stack([k.lags for k in kernels])
         fine = np.zeros((len(tiles), TILE_PX * self.fine, TILE_PX * self.fine)) if keep_fine \
             else np.zeros((1, 1, 1))
         _pixel_means(tiles, TILE_PX, self.fine, self.margin_px, lit, slot, grid, occ, corr,
-                     offsets, values, lags, kidx, out, keep_fine, fine)
+                     offsets, np.ascontiguousarray(values.real), np.ascontiguousarray(values.imag),
+                     ntaps, lags, kidx, out, keep_fine, fine)
         if keep_fine:
             self.last_fine = {(int(t[0]), int(t[1])): fine[i] for i, t in enumerate(tiles)}
         return out
@@ -687,38 +689,86 @@ def _normalise(grid, w2, cross, occ, corr):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _window(slot, grid, occ, n, fa0, fb0, size, win, wocc):  # pragma: no cover - compiled
+def _window(slot, grid, occ, n, fa0, fb0, size, wr, wi, wocc):  # pragma: no cover - compiled
     """Copy a size × size window of the normalised field and occupancy out of the tile grids.
 
-    The window starts at global fine row fa0 and column fb0; returns whether every cell
-    is occupied.
+    The window starts at global fine row fa0 and column fb0; the field goes to the real
+    and imaginary planes wr, wi (zero outside the computed tiles), block by block of
+    the tiles it overlaps.  Returns whether every cell is occupied.
     """
+    wr[:, :] = 0.0
+    wi[:, :] = 0.0
+    wocc[:, :] = 0.0
     full = True
-    for a in range(size):
-        fa = fa0 + a
-        for b in range(size):
-            fb = fb0 + b
-            win[a, b] = 0.0
-            wocc[a, b] = 0.0
-            if fa < 0 or fb < 0:
-                full = False
-                continue
-            tr, tc = fa // n, fb // n
-            if tr >= slot.shape[0] or tc >= slot.shape[1] or slot[tr, tc] < 0:
+    for tr in range(fa0 // n, (fa0 + size - 1) // n + 1):
+        a_lo, a_hi = max(fa0, tr * n), min(fa0 + size, tr * n + n)
+        for tc in range(fb0 // n, (fb0 + size - 1) // n + 1):
+            b_lo, b_hi = max(fb0, tc * n), min(fb0 + size, tc * n + n)
+            if tr < 0 or tc < 0 or tr >= slot.shape[0] or tc >= slot.shape[1] \
+                    or slot[tr, tc] < 0:
                 full = False
                 continue
             k = slot[tr, tc]
-            win[a, b] = grid[k, fa - tr * n + 1, fb - tc * n + 1]
-            wocc[a, b] = occ[k, fa - tr * n + 1, fb - tc * n + 1]
-            if wocc[a, b] == 0.0:
-                full = False
+            for fa in range(a_lo, a_hi):
+                g_row, o_row = grid[k, fa - tr * n + 1], occ[k, fa - tr * n + 1]
+                for fb in range(b_lo, b_hi):
+                    g = g_row[fb - tc * n + 1]
+                    wr[fa - fa0, fb - fb0] = g.real
+                    wi[fa - fa0, fb - fb0] = g.imag
+                    o = o_row[fb - tc * n + 1]
+                    wocc[fa - fa0, fb - fb0] = o
+                    if o == 0.0:
+                        full = False
     return full
 
 
+@nb.njit(cache=True, nogil=True)
+def _row_span(lit, r, c0, c1):  # pragma: no cover - compiled
+    """First and one-past-last lit column of row r within [c0, c1) (c1, c1 when none)."""
+    lo, hi = c1, c1
+    for c in range(c0, c1):
+        if lit[r, c]:
+            if lo == c1:
+                lo = c
+            hi = c + 1
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def _convolve_row(wr, wi, wocc, a0, b0, b1, cb, hr, hi, offsets, ntap, full, ur, ui, cv):
+    # pragma: no cover - compiled
+    """Field h ⊛ o (and coverage Σ|h|²·occ) at window row a0, columns b0…b1 − 1 (+ cb).
+
+    Taps outer, columns inner (vectorised): every sample sums its taps in tap order.
+    """
+    m = b1 - b0
+    u_r, u_i, c_v = ur[b0:b1], ui[b0:b1], cv[b0:b1]
+    u_r[:] = 0.0
+    u_i[:] = 0.0
+    c_v[:] = 0.0
+    for q in range(ntap):
+        hre, him = hr[q], hi[q]
+        ra = a0 - offsets[q, 0]
+        sh = cb - offsets[q, 1] + b0
+        orow, irow = wr[ra, sh:sh + m], wi[ra, sh:sh + m]
+        for j in range(m):
+            u_r[j] += hre * orow[j] - him * irow[j]
+            u_i[j] += hre * irow[j] + him * orow[j]
+        if not full:
+            crow = wocc[ra, sh:sh + m]
+            h2 = hre * hre + him * him
+            for j in range(m):
+                c_v[j] += h2 * crow[j]
+
+
 @nb.njit(cache=True, parallel=True)
-def _pixel_means(tiles, t, s, margin, lit, slot, grid, occ, corr, offsets, values, lags, kidx,
-                 out, keep_fine, fine):  # pragma: no cover - compiled
-    """S of each lit pixel: mean over its s × s fine samples of |h ⊛ o|²/(E|U|²·coverage)."""
+def _pixel_means(tiles, t, s, margin, lit, slot, grid, occ, corr, offsets, values_re, values_im,
+                 ntaps, lags, kidx, out, keep_fine, fine):  # pragma: no cover - compiled
+    """S of each lit pixel: mean over its s × s fine samples of |h ⊛ o|²/(E|U|²·coverage).
+
+    Each fine row of a tile is convolved over the span of its lit pixels at once, the
+    taps of every sample summed in the kernel's tap order.
+    """
     rows, cols = lit.shape
     n = t * s
     size = (t + 2 * margin) * s
@@ -732,39 +782,41 @@ def _pixel_means(tiles, t, s, margin, lit, slot, grid, occ, corr, offsets, value
             for e in range(4):
                 power += 2.0 * corr[own, e] * lg[e + 1]
         fa0, fb0 = (tr * t - margin) * s, (tc * t - margin) * s
-        win = np.zeros((size, size), np.complex128)
-        wocc = np.zeros((size, size))
-        full = _window(slot, grid, occ, n, fa0, fb0, size, win, wocc)
-        ntap = 0
-        while ntap < values.shape[1] and values[k, ntap] != 0:
-            ntap += 1
+        wr = np.empty((size, size))
+        wi = np.empty((size, size))
+        wocc = np.empty((size, size))
+        full = _window(slot, grid, occ, n, fa0, fb0, size, wr, wi, wocc)
+        ntap = ntaps[k]
+        ur = np.empty(n)
+        ui = np.empty(n)
+        cv = np.empty(n)
+        acc = np.empty(t)
+        cov = np.empty(t)
+        c_end = min(cols, tc * t + t)
         for r in range(tr * t, min(rows, tr * t + t)):
-            for c in range(tc * t, min(cols, tc * t + t)):
-                if not lit[r, c]:
-                    continue
-                acc = 0.0
-                cov = 0.0
-                for fi in range(s):
+            lo, hi = _row_span(lit, r, tc * t, c_end)
+            if lo == hi:
+                continue
+            j0, j1 = lo - tc * t, hi - tc * t
+            for j in range(j0, j1):
+                acc[j] = 0.0
+                cov[j] = 0.0
+            for fi in range(s):
+                a0 = (r - tr * t + margin) * s + fi
+                _convolve_row(wr, wi, wocc, a0, j0 * s, j1 * s, margin * s, values_re[k],
+                              values_im[k], offsets[k], ntap, full, ur, ui, cv)
+                for j in range(j0, j1):
+                    if not lit[r, tc * t + j]:
+                        continue
                     for fj in range(s):
-                        a0 = (r - tr * t + margin) * s + fi
-                        b0 = (c - tc * t + margin) * s + fj
-                        ur = 0.0
-                        ui = 0.0
-                        cv = 0.0
-                        for q in range(ntap):
-                            h = values[k, q]
-                            o = win[a0 - offsets[k, q, 0], b0 - offsets[k, q, 1]]
-                            ur += h.real * o.real - h.imag * o.imag
-                            ui += h.real * o.imag + h.imag * o.real
-                            if not full:
-                                cv += (h.real * h.real + h.imag * h.imag) \
-                                    * wocc[a0 - offsets[k, q, 0], b0 - offsets[k, q, 1]]
-                        cv = 1.0 if full else cv / lg[0]
-                        val = ur * ur + ui * ui
-                        acc += val / power
-                        cov += cv
+                        b = j * s + fj
+                        c1 = 1.0 if full else cv[b] / lg[0]
+                        val = ur[b] * ur[b] + ui[b] * ui[b]
+                        acc[j] += val / power
+                        cov[j] += c1
                         if keep_fine:
-                            fine[i, fi + (r - tr * t) * s, fj + (c - tc * t) * s] = \
-                                val / (power * max(cv, 1e-9))
-                cov /= s * s
-                out[r, c] = acc / (s * s) / cov if cov > 0.25 else 1.0
+                            fine[i, fi + (r - tr * t) * s, b] = val / (power * max(c1, 1e-9))
+            for j in range(j0, j1):
+                if lit[r, tc * t + j]:
+                    cj = cov[j] / (s * s)
+                    out[r, tc * t + j] = acc[j] / (s * s) / cj if cj > 0.25 else 1.0
