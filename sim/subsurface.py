@@ -561,10 +561,12 @@ class SubsurfaceTable:
                 + f * self._projected(k + 1, view, azim, merge))
 
     def _merged(self, k: int, merge: int) -> np.ndarray:
+        """Table k with cells merged by ``merge`` per axis, depth first: (NZ, n, n)."""
         key = (k, merge)
         if key not in self._tables_merged:
             n = self.NX // merge
-            self._tables_merged[key] = self.tables[k].reshape(n, merge, n, merge, self.NZ).sum(axis=(1, 3))
+            merged = self.tables[k].reshape(n, merge, n, merge, self.NZ).sum(axis=(1, 3))
+            self._tables_merged[key] = np.ascontiguousarray(np.moveaxis(merged, 2, 0))
         return self._tables_merged[key]
 
     def _projected(self, k: int, view_deg: float, azimuth_deg: float, merge: int) -> np.ndarray:
@@ -592,13 +594,13 @@ class SubsurfaceTable:
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _project_table(table, cell, dcell, atten, shift_x, shift_y, weight):  # pragma: no cover
-    """Sum the vertex table along the refracted view direction onto the surface.
+    """Sum the vertex table (depth first: (nz, nx, ny)) along the refracted view direction.
 
     Layer z moves by z·(shift_x, shift_y) (bilinear; a uniform shift, so gathering per
     output cell equals splatting per table cell); rows of the output in parallel, each
-    summed in a fixed order.
+    summed in a fixed order (per cell: layers, then the two source rows).
     """
-    nx, ny, nz = table.shape
+    nz, nx, ny = table.shape
     out = np.zeros((nx, ny))
     for qx in numba.prange(nx):
         for iz in range(nz):
@@ -615,12 +617,22 @@ def _project_table(table, cell, dcell, atten, shift_x, shift_y, weight):  # prag
                 if sx < 0 or sx >= nx:
                     continue
                 wx = w * (ax if dx else 1.0 - ax)
-                for qy in range(ny):
-                    sy = qy + jy0
-                    acc = 0.0
-                    if 0 <= sy < ny:
-                        acc += (1.0 - ay) * table[sx, sy, iz]
-                    if 0 <= sy + 1 < ny:
-                        acc += ay * table[sx, sy + 1, iz]
-                    out[qx, qy] += wx * acc
+                _shifted_row(out[qx], table[iz, sx], jy0, ay, wx)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _shifted_row(out, row, jy0, ay, wx):  # pragma: no cover - compiled
+    """out[q] += wx·((1 − ay)·row[q + jy0] + ay·row[q + jy0 + 1]), terms outside row left out."""
+    ny = out.shape[0]
+    q_left = -jy0 - 1                       # only row[0] (as the second term)
+    if 0 <= q_left < ny:
+        out[q_left] += wx * (ay * row[0])
+    lo, hi = max(0, -jy0), min(ny, ny - jy0 - 1)
+    if hi > lo:
+        o, a, b = out[lo:hi], row[lo + jy0:hi + jy0], row[lo + jy0 + 1:hi + jy0 + 1]
+        for j in range(hi - lo):
+            o[j] += wx * ((1.0 - ay) * a[j] + ay * b[j])
+    q_right = ny - jy0 - 1                  # only row[ny − 1] (as the first term)
+    if 0 <= q_right < ny:
+        out[q_right] += wx * ((1.0 - ay) * row[ny - 1])
