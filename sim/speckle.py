@@ -662,28 +662,36 @@ def _fold_halos(base_tiles, slot, n, grid, w2, cross):  # pragma: no cover - com
 
 @nb.njit(cache=True, parallel=True)
 def _normalise(grid, w2, cross, occ, corr):  # pragma: no cover - compiled
-    """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile."""
+    """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile.
+
+    √Σw² of every cell once (in ``occ``, before it becomes the occupancy); the
+    correlation sums run over the cells in row-major order.
+    """
     n = grid.shape[1] - 2
     for i in nb.prange(grid.shape[0]):
-        occ[i] = 0.0
+        norm = occ[i]
+        for a in range(n + 2):
+            for b in range(n + 2):
+                norm[a, b] = math.sqrt(w2[i, a, b]) if w2[i, a, b] > 0.0 else 0.0
         sums = np.zeros(4)
         counts = np.zeros(4)
         for a in range(1, n + 1):
             for b in range(1, n + 1):
-                if w2[i, a, b] <= 0.0:
+                if norm[a, b] == 0.0:
                     continue
-                norm = math.sqrt(w2[i, a, b])
                 for e in range(4):      # neighbours (0, 1), (1, 0), (1, 1), (1, −1)
                     a2 = a + (0 if e == 0 else 1)
                     b2 = b + (1 if e == 0 else (0 if e == 1 else (1 if e == 2 else -1)))
-                    if 1 <= a2 <= n and 1 <= b2 <= n and w2[i, a2, b2] > 0.0:
-                        sums[e] += cross[i, e, a, b] / (norm * math.sqrt(w2[i, a2, b2]))
+                    if 1 <= a2 <= n and 1 <= b2 <= n and norm[a2, b2] != 0.0:
+                        sums[e] += cross[i, e, a, b] / (norm[a, b] * norm[a2, b2])
                         counts[e] += 1.0
-        for a in range(1, n + 1):
-            for b in range(1, n + 1):
-                if w2[i, a, b] > 0.0:
-                    grid[i, a, b] /= math.sqrt(w2[i, a, b])
-                    occ[i, a, b] = 1.0
+        for a in range(n + 2):
+            for b in range(n + 2):
+                if 1 <= a <= n and 1 <= b <= n and norm[a, b] != 0.0:
+                    grid[i, a, b] /= norm[a, b]
+                    norm[a, b] = 1.0
+                else:
+                    norm[a, b] = 0.0
         for e in range(4):
             corr[i, e] = sums[e] / counts[e] if counts[e] > 0 else 0.0
 
