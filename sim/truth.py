@@ -859,12 +859,15 @@ def secondary_truth(rows: int, laser=None, secondary=None, subsurface=None,
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, parallel=True)
 def _row_peaks(sec, total, min_share, w, peak_u, peak_share):  # pragma: no cover - compiled
-    """Strongest local maxima (±w) of each row of ``sec`` holding ≥ min_share of the row."""
+    """Strongest local maxima (±w) of each row of ``sec`` holding ≥ min_share of the row.
+
+    Rows in parallel (each writes only its own row).
+    """
     rows, cols = sec.shape
     k = peak_u.shape[1]
-    for r in range(rows):
+    for r in numba.prange(rows):
         if total[r] <= 0.0:
             continue
         cs = np.zeros(cols + 1)
