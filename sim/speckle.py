@@ -77,6 +77,10 @@ __all__ = [
 ]
 
 TILE_PX = 16
+# The eight float64 of a fine cell, side by side so that a deposit touches one cache
+# line per cell: the field (real, imaginary), Σw², the bilinear weights' cross sums
+# with the neighbours (0, 1), (1, 0), (1, 1), (1, −1), and √Σw² / the occupancy.
+_FIELD_RE, _FIELD_IM, _W2, _CROSS, _OCC = 0, 1, 2, 3, 7
 _TAPER = 0.2           # cosine taper over the outer 20 % of the kernel radius
 _RING = 2.2331         # second dark ring of the Airy amplitude, in units of λ·N_w
 
@@ -296,7 +300,7 @@ class SurfaceSpeckle:
         kernels, kidx = self._tile_kernels(tiles)
         need = _needed_pixels(lit, self.margin_px)
         index, part_pt, part_n, m12, part_idx, base_tiles = self._hits(need, rows, cols)
-        slot, grid, occ, corr = self._deposit(index, part_pt, part_n, m12, part_idx, base_tiles)
+        slot, cells, corr = self._deposit(index, part_pt, part_n, m12, part_idx, base_tiles)
         n_taps = max(len(k.values) for k in kernels)
         offsets = np.zeros((len(kernels), n_taps, 2), np.int64)
         values = np.zeros((len(kernels), n_taps), np.complex128)
@@ -307,7 +311,7 @@ class SurfaceSpeckle:
         lags = np.stack([k.lags for k in kernels])
         fine = np.zeros((len(tiles), TILE_PX * self.fine, TILE_PX * self.fine)) if keep_fine \
             else np.zeros((1, 1, 1))
-        _pixel_means(tiles, TILE_PX, self.fine, self.margin_px, lit, slot, grid, occ, corr,
+        _pixel_means(tiles, TILE_PX, self.fine, self.margin_px, lit, slot, cells, corr,
                      offsets, np.ascontiguousarray(values.real), np.ascontiguousarray(values.imag),
                      ntaps, lags, kidx, out, keep_fine, fine)
         if keep_fine:
@@ -321,25 +325,23 @@ class SurfaceSpeckle:
         Each tile's grid has a one-sample halo; halos are folded into their neighbours and
         the cells normalised to unit variance.
 
-        Returns (slot (tile rows, tile columns) int64 — grid index of a tile or −1, grids
-        (n, B, B) complex128 with B = T·s + 2 (index 0 = fine sample −1), occupancy (n, B, B),
-        neighbour correlations (n, 4)).
+        Returns (slot (tile rows, tile columns) int64 — grid index of a tile or −1, cells
+        (n, B, B, 8) float64 with B = T·s + 2 (index 0 = fine sample −1) holding per cell
+        :data:`_FIELD_RE`, :data:`_FIELD_IM` (the normalised field), :data:`_OCC`
+        (occupancy) and the deposit statistics, neighbour correlations (n, 4)).
         """
         t, s = TILE_PX, self.fine
         slot = -np.ones((-(-index.shape[0] // t), -(-index.shape[1] // t)), np.int64)
         slot[base_tiles[:, 0], base_tiles[:, 1]] = np.arange(len(base_tiles))
         b, n = t * s + 2, len(base_tiles)
-        grid = self._scratch("grid", (n, b, b), np.complex128)     # zeroed per tile in parallel
-        w2 = self._scratch("w2", (n, b, b), np.float64)
-        cross = self._scratch("cross", (n, 4, b, b), np.float64)
+        cells = self._scratch("cells", (n, b, b, 8), np.float64)   # zeroed per tile in parallel
         _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, self.lattice_mm,
                       self.seed, self._camera_params(), self.laser_origin_mm,
-                      2 * math.pi / self.wavelength_mm, grid, w2, cross, _CIS)
-        _fold_halos(base_tiles, slot, t * s, grid, w2, cross)
-        occ = self._scratch("occ", (n, b, b), np.float64)
+                      2 * math.pi / self.wavelength_mm, cells, _CIS)
+        _fold_halos(base_tiles, slot, t * s, cells)
         corr = np.zeros((n, 4))
-        _normalise(grid, w2, cross, occ, corr)
-        return slot, grid, occ, corr
+        _normalise(cells, corr)
+        return slot, cells, corr
 
     def _scratch(self, name: str, shape: tuple, dtype) -> np.ndarray:
         """An uninitialised array kept from frame to frame (no page faults for each frame)."""
@@ -504,9 +506,9 @@ def _jacobian(y, t1, t2, m12, cam):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _deposit_one(grid, w2, cross, fu, fv, are, aim):  # pragma: no cover - compiled
+def _deposit_one(cells, fu, fv, are, aim):  # pragma: no cover - compiled
     """Bilinear deposit of one scatterer at fine coordinates (fu, fv); cross-weight statistics."""
-    g = grid.shape[0]
+    g = cells.shape[0]
     iu = int(math.floor(fu))
     iv = int(math.floor(fv))
     if iu < 0 or iv < 0 or iu + 1 >= g or iv + 1 >= g:
@@ -514,25 +516,32 @@ def _deposit_one(grid, w2, cross, fu, fv, are, aim):  # pragma: no cover - compi
     au, av = fu - iu, fv - iv
     w00, w01 = (1 - av) * (1 - au), (1 - av) * au
     w10, w11 = av * (1 - au), av * au
-    a = are + 1j * aim
-    grid[iv, iu] += w00 * a
-    grid[iv, iu + 1] += w01 * a
-    grid[iv + 1, iu] += w10 * a
-    grid[iv + 1, iu + 1] += w11 * a
-    w2[iv, iu] += w00 * w00
-    w2[iv, iu + 1] += w01 * w01
-    w2[iv + 1, iu] += w10 * w10
-    w2[iv + 1, iu + 1] += w11 * w11
-    cross[0, iv, iu] += w00 * w01          # (0, 1) neighbours
-    cross[0, iv + 1, iu] += w10 * w11
-    cross[1, iv, iu] += w00 * w10          # (1, 0)
-    cross[1, iv, iu + 1] += w01 * w11
-    cross[2, iv, iu] += w00 * w11          # (1, 1)
-    cross[3, iv, iu + 1] += w01 * w10      # (1, −1)
+    c = cells[iv, iu]
+    c[0] += w00 * are
+    c[1] += w00 * aim
+    c[2] += w00 * w00
+    c[3] += w00 * w01          # (0, 1) neighbours
+    c[4] += w00 * w10          # (1, 0)
+    c[5] += w00 * w11          # (1, 1)
+    c = cells[iv, iu + 1]
+    c[0] += w01 * are
+    c[1] += w01 * aim
+    c[2] += w01 * w01
+    c[4] += w01 * w11
+    c[6] += w01 * w10          # (1, −1)
+    c = cells[iv + 1, iu]
+    c[0] += w10 * are
+    c[1] += w10 * aim
+    c[2] += w10 * w10
+    c[3] += w10 * w11
+    c = cells[iv + 1, iu + 1]
+    c[0] += w11 * are
+    c[1] += w11 * aim
+    c[2] += w11 * w11
 
 
 @nb.njit(cache=True, nogil=True)
-def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2, cross,
+def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, cells,
                    gr0, gc0, s, off, table):  # pragma: no cover - compiled
     """Deposit the scatterers owned by pixel (r, c) (their chief-ray image in its square).
 
@@ -610,33 +619,31 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, grid, w2
             a = (cre + 1j * cim) * _cis(phase0 + g1 * s1 + g2 * s2, table)
             fu = (c + du - gc0 + 0.5) * s - 0.5 + off
             fv = (r + dv - gr0 + 0.5) * s - 0.5 + off
-            _deposit_one(grid, w2, cross, fu, fv, a.real, a.imag)
+            _deposit_one(cells, fu, fv, a.real, a.imag)
 
 
 @nb.njit(cache=True, parallel=True)
 def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, lattice, seed, cam,
-                  lo, k_wave, grid, w2, cross, table):  # pragma: no cover - compiled
+                  lo, k_wave, cells, table):  # pragma: no cover - compiled
     """Each needed pixel's scatterers, once, on the fine grid of its own tile (offset 1).
 
-    The tile's grids are zeroed first (they arrive uninitialised).
+    The tile's cells are zeroed first (they arrive uninitialised).
     """
     rows, cols = index.shape
     for i in nb.prange(base_tiles.shape[0]):
-        grid[i] = 0.0
-        w2[i] = 0.0
-        cross[i] = 0.0
+        cells[i] = 0.0
         tr, tc = base_tiles[i, 0], base_tiles[i, 1]
         for r in range(tr * t, min(rows, tr * t + t)):
             for c in range(tc * t, min(cols, tc * t + t)):
                 j = index[r, c]
                 if j >= 0:
                     _deposit_pixel(r, c, part_idx[j], part_pt[j], part_n[j], m12[j], lattice,
-                                   seed, cam, lo, k_wave, grid[i], w2[i], cross[i], tr * t,
-                                   tc * t, s, 1.0, table)
+                                   seed, cam, lo, k_wave, cells[i], tr * t, tc * t, s, 1.0,
+                                   table)
 
 
 @nb.njit(cache=True)
-def _fold_halos(base_tiles, slot, n, grid, w2, cross):  # pragma: no cover - compiled
+def _fold_halos(base_tiles, slot, n, cells):  # pragma: no cover - compiled
     """Add each tile's halo cells (fine index −1 and n) into the neighbour tile they belong to."""
     for i in range(base_tiles.shape[0]):
         tr, tc = base_tiles[i, 0], base_tiles[i, 1]
@@ -644,7 +651,7 @@ def _fold_halos(base_tiles, slot, n, grid, w2, cross):  # pragma: no cover - com
             for b in range(n + 2):
                 if 1 <= a <= n and 1 <= b <= n:
                     continue
-                if w2[i, a, b] == 0.0:
+                if cells[i, a, b, _W2] == 0.0:
                     continue
                 dr = -1 if a == 0 else (1 if a == n + 1 else 0)
                 dc = -1 if b == 0 else (1 if b == n + 1 else 0)
@@ -654,50 +661,52 @@ def _fold_halos(base_tiles, slot, n, grid, w2, cross):  # pragma: no cover - com
                     continue
                 k = slot[nr, nc]
                 a2, b2 = a - dr * n, b - dc * n
-                grid[k, a2, b2] += grid[i, a, b]
-                w2[k, a2, b2] += w2[i, a, b]
-                for e in range(4):
-                    cross[k, e, a2, b2] += cross[i, e, a, b]
+                for e in range(_OCC):
+                    cells[k, a2, b2, e] += cells[i, a, b, e]
 
 
 @nb.njit(cache=True, parallel=True)
-def _normalise(grid, w2, cross, occ, corr):  # pragma: no cover - compiled
+def _normalise(cells, corr):  # pragma: no cover - compiled
     """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile.
 
-    √Σw² of every cell once (in ``occ``, before it becomes the occupancy); the
+    √Σw² of every cell once (in the occupancy's place, which it then becomes); the
     correlation sums run over the cells in row-major order.
     """
-    n = grid.shape[1] - 2
-    for i in nb.prange(grid.shape[0]):
-        norm = occ[i]
+    n = cells.shape[1] - 2
+    for i in nb.prange(cells.shape[0]):
+        cell = cells[i]
         for a in range(n + 2):
             for b in range(n + 2):
-                norm[a, b] = math.sqrt(w2[i, a, b]) if w2[i, a, b] > 0.0 else 0.0
+                w2 = cell[a, b, _W2]
+                cell[a, b, _OCC] = math.sqrt(w2) if w2 > 0.0 else 0.0
         sums = np.zeros(4)
         counts = np.zeros(4)
         for a in range(1, n + 1):
             for b in range(1, n + 1):
-                if norm[a, b] == 0.0:
+                norm = cell[a, b, _OCC]
+                if norm == 0.0:
                     continue
                 for e in range(4):      # neighbours (0, 1), (1, 0), (1, 1), (1, −1)
                     a2 = a + (0 if e == 0 else 1)
                     b2 = b + (1 if e == 0 else (0 if e == 1 else (1 if e == 2 else -1)))
-                    if 1 <= a2 <= n and 1 <= b2 <= n and norm[a2, b2] != 0.0:
-                        sums[e] += cross[i, e, a, b] / (norm[a, b] * norm[a2, b2])
+                    if 1 <= a2 <= n and 1 <= b2 <= n and cell[a2, b2, _OCC] != 0.0:
+                        sums[e] += cell[a, b, _CROSS + e] / (norm * cell[a2, b2, _OCC])
                         counts[e] += 1.0
         for a in range(n + 2):
             for b in range(n + 2):
-                if 1 <= a <= n and 1 <= b <= n and norm[a, b] != 0.0:
-                    grid[i, a, b] /= norm[a, b]
-                    norm[a, b] = 1.0
+                norm = cell[a, b, _OCC]
+                if 1 <= a <= n and 1 <= b <= n and norm != 0.0:
+                    cell[a, b, _FIELD_RE] /= norm
+                    cell[a, b, _FIELD_IM] /= norm
+                    cell[a, b, _OCC] = 1.0
                 else:
-                    norm[a, b] = 0.0
+                    cell[a, b, _OCC] = 0.0
         for e in range(4):
             corr[i, e] = sums[e] / counts[e] if counts[e] > 0 else 0.0
 
 
 @nb.njit(cache=True, nogil=True)
-def _window(slot, grid, occ, n, fa0, fb0, size, wr, wi, wocc):  # pragma: no cover - compiled
+def _window(slot, cells, n, fa0, fb0, size, wr, wi, wocc):  # pragma: no cover - compiled
     """Copy a size × size window of the normalised field and occupancy out of the tile grids.
 
     The window starts at global fine row fa0 and column fb0; the field goes to the real
@@ -718,12 +727,12 @@ def _window(slot, grid, occ, n, fa0, fb0, size, wr, wi, wocc):  # pragma: no cov
                 continue
             k = slot[tr, tc]
             for fa in range(a_lo, a_hi):
-                g_row, o_row = grid[k, fa - tr * n + 1], occ[k, fa - tr * n + 1]
+                row = cells[k, fa - tr * n + 1]
                 for fb in range(b_lo, b_hi):
-                    g = g_row[fb - tc * n + 1]
-                    wr[fa - fa0, fb - fb0] = g.real
-                    wi[fa - fa0, fb - fb0] = g.imag
-                    o = o_row[fb - tc * n + 1]
+                    c = row[fb - tc * n + 1]
+                    wr[fa - fa0, fb - fb0] = c[_FIELD_RE]
+                    wi[fa - fa0, fb - fb0] = c[_FIELD_IM]
+                    o = c[_OCC]
                     wocc[fa - fa0, fb - fb0] = o
                     if o == 0.0:
                         full = False
@@ -770,7 +779,7 @@ def _convolve_row(wr, wi, wocc, a0, b0, b1, cb, hr, hi, offsets, ntap, full, ur,
 
 
 @nb.njit(cache=True, parallel=True)
-def _pixel_means(tiles, t, s, margin, lit, slot, grid, occ, corr, offsets, values_re, values_im,
+def _pixel_means(tiles, t, s, margin, lit, slot, cells, corr, offsets, values_re, values_im,
                  ntaps, lags, kidx, out, keep_fine, fine):  # pragma: no cover - compiled
     """S of each lit pixel: mean over its s × s fine samples of |h ⊛ o|²/(E|U|²·coverage).
 
@@ -793,7 +802,7 @@ def _pixel_means(tiles, t, s, margin, lit, slot, grid, occ, corr, offsets, value
         wr = np.empty((size, size))
         wi = np.empty((size, size))
         wocc = np.empty((size, size))
-        full = _window(slot, grid, occ, n, fa0, fb0, size, wr, wi, wocc)
+        full = _window(slot, cells, n, fa0, fb0, size, wr, wi, wocc)
         ntap = ntaps[k]
         ur = np.empty(n)
         ui = np.empty(n)
