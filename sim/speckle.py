@@ -388,7 +388,7 @@ class SurfaceSpeckle:
         """
         index = self._scratch("index", (rows, cols), np.int32)
         index.fill(-1)
-        rr, cc = np.nonzero(need)
+        rr, cc = _nonzero(need)
         if self._directions is None:
             self._directions = pixel_directions(self.rig).reshape(rows, cols, 3)
         w = self._directions[rr, cc]
@@ -408,13 +408,22 @@ class SurfaceSpeckle:
 
 
 def _lit_tiles(lit: np.ndarray, t: int) -> np.ndarray:
-    """(n, 2) int (tile row, tile column) of the tiles holding lit pixels."""
+    """(n, 2) int (tile row, tile column) of the tiles holding lit pixels, row-major."""
     rows, cols = lit.shape
-    nr, nc = -(-rows // t), -(-cols // t)
-    pad = np.zeros((nr * t, nc * t), np.bool_)
-    pad[:rows, :cols] = lit
-    any_lit = pad.reshape(nr, t, nc, t).any(axis=(1, 3))
+    any_lit = np.logical_or.reduceat(lit, np.arange(0, rows, t), axis=0)
+    any_lit = np.logical_or.reduceat(any_lit, np.arange(0, cols, t), axis=1)
     return np.argwhere(any_lit).astype(np.int64)
+
+
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (int64) of a 2-D bool mask's set pixels, row-major (as np.nonzero)."""
+    import cv2
+
+    pts = cv2.findNonZero(np.ascontiguousarray(mask).view(np.uint8))
+    if pts is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    pts = pts.reshape(-1, 2).astype(np.int64)
+    return pts[:, 1], pts[:, 0]
 
 
 def _needed_pixels(lit: np.ndarray, margin: int) -> np.ndarray:
