@@ -305,7 +305,7 @@ def write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> 
         f"Mode: {mode}; sensor {cols} × {rows} px. Every *twin* number below was measured in this "
         "run from rendered frames through the same pipeline as real frames; *truth* is the rendered "
         "geometry (the ideal rig's closed forms and the part meshes); *paper* is the seed paper's real rig."
-        + (" *Twin, as built* is the same pipeline on the twin with its error models on (below the "
+        + (" *Twin, as built* is the same pipeline on the twin with its error models and physical light on (below the "
            "parts table)." if s.get("as_built") else ""),
         "",
         "## Calibration, axis, ranges",
