@@ -429,7 +429,8 @@ class LightTransport:
         if dr.width(idx) == 0:
             return None
         cols = [part, beta * geo, uv0.x, uv0.y, (uv1.x - uv0.x) / eps, (uv1.y - uv0.y) / eps,
-                (uv2.x - uv0.x) / eps, (uv2.y - uv0.y) / eps, dr.acos(cos_in), dr.acos(cos_o),
+                (uv2.x - uv0.x) / eps, (uv2.y - uv0.y) / eps, dr.acos(cos_in),
+                dr.acos(dr.minimum(cos_o, 1.0)),    # float32 rounding: ω·n can exceed 1 head-on
                 dr.dot(d, t_inc), dr.dot(d, t_perp), dr.dot(w, t_inc), dr.dot(w, t_perp)]
         cols = [dr.gather(type(c), c, idx) for c in cols]
         dr.eval(*cols)

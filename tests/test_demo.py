@@ -84,7 +84,14 @@ def test_as_built_column_and_budget_by_source(quick_demo):
     b = s["source_budget"]
     assert set(b["rows"]) == {"none (ideal)", "all (as built)", *b["sources"]}
     assert {"translation stage", "rotary stage", "calibration plate", "laser", "lens",
-            "sensor"} <= set(b["sources"])
+            "sensor", "surface speckle", "inter-reflections", "subsurface"} <= set(b["sources"])
+    # the as-built column renders issue 10's light; the ideal twin does not
+    assert ab["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface"}
+    assert ideal["twin"] == {"bounces": 1, "subsurface": False, "speckle_model": "surface"}
+    # on the quick plan's metal plate and blocker, neither extra bounces nor subsurface light
+    # change anything: those runs give the ideal run's calibration and axis exactly
+    for src in ("inter-reflections", "subsurface"):
+        assert b["rows"][src]["C_sigma_mm"] == b["rows"]["none (ideal)"]["C_sigma_mm"]
     assert all(d in b["sources"] or d is None for d in b["dominant"].values())
     # the budget's ideal run is the ideal rig: no stage error, so its axis is found to < 0.05 mm
     assert abs(b["rows"]["none (ideal)"]["axis_error_mm"]) < 0.05

@@ -50,6 +50,25 @@ def test_error_models_are_off_by_default_and_validated(paper):
     assert active_error_models(on) == ("stage.pitch_urad", "laser.fan_edge_ratio")
 
 
+def test_as_built_preset_has_the_twins_light_on_as_sources_of_its_own(paper):
+    """paper-as-built renders issue 10's light; each effect can be taken alone, like an error model."""
+    from scheimpflug.model.rig import TWIN_EFFECTS, with_error_models
+
+    ab = load_preset("paper-as-built")
+    assert (ab.twin.bounces, ab.twin.subsurface, ab.twin.speckle_model) == (3, True, "surface")
+    assert ab.laser.speckle_contrast > 0
+    # the light is not an error model of the instrument: geometry and truth stay the ideal rig's
+    assert active_error_models(paper.replace(twin={"bounces": 3, "subsurface": True})) == ()
+    assert set(TWIN_EFFECTS) == {"inter-reflections", "subsurface"}
+    alone = with_error_models(paper, ab, ["inter-reflections"])
+    assert alone == paper.replace(twin={"bounces": 3})
+    assert with_error_models(paper, ab, ["subsurface"]) == paper.replace(twin={"subsurface": True})
+    speckle = with_error_models(paper.replace(twin={"speckle_model": "sensor"}), ab, ["speckle"])
+    assert (speckle.laser.speckle_contrast, speckle.twin.speckle_model) == (ab.laser.speckle_contrast, "surface")
+    with pytest.raises(RigError, match="inter-reflections"):
+        with_error_models(paper, ab, ["reflections"])
+
+
 # ------------------------------------------------------------------ translation stage
 def test_periodic_scale_and_random_positioning(paper):
     A, lead, k = 40.0, 2.0, 250.0          # µm, mm, ppm

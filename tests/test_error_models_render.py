@@ -238,5 +238,24 @@ def test_render_cli_with_the_as_built_preset(variant, tmp_path, scenario, option
                  "--quiet", "--out", str(tmp_path), *options]) == 0
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["rig"]["laser"]["line_bow_mrad"] == 0.5 and man["complete"]
+    # issue 10's light is on too: 3 bounces, subsurface, surface speckle
+    assert man["rig"]["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface"}
+    from sim.writer import read_png
+
+    lit = 0
+    for e in man["frames"]:
+        img = read_png(tmp_path / e["file"])
+        assert img.shape == (man["rig"]["sensor"]["rows"], man["rig"]["sensor"]["columns"])
+        with np.load(tmp_path / e["truth"]) as z:
+            rows = np.isfinite(z["stripe_u"])
+            assert np.all(np.isfinite(z["stripe_point_mm"][rows]))
+            assert np.all((z["secondary_fraction"][rows] >= 0) & (z["secondary_fraction"][rows] <= 1))
+            if scenario == "rotary":   # the cardboard box and the paper tape scatter light inside
+                translucent = rows & np.isin(z["stripe_object_id"], (2, 3))
+                lit += translucent.sum()
+                assert np.all(z["subsurface_fraction"][translucent] > 0)
+            else:                      # the metal plate and blocker stay opaque
+                assert np.all(z["subsurface_fraction"][rows] == 0)
+    assert scenario != "rotary" or lit > 10
     assert all("actual" in e for e in man["frames"])
     assert (tmp_path / "truth" / "sensor_maps.npz").exists()

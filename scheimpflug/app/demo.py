@@ -37,7 +37,7 @@ import numpy as np
 from scheimpflug.errors import ScheimpflugError
 from scheimpflug.io.atomic import write_json_atomic, write_text_atomic
 from scheimpflug.model.binning import binned_rig
-from scheimpflug.model.rig import ERROR_MODELS, Rig, rig_to_toml, with_error_models
+from scheimpflug.model.rig import ERROR_MODELS, TWIN_EFFECTS, Rig, rig_to_toml, with_error_models
 
 __all__ = ["DemoPlan", "PAPER", "as_built_plan_for", "budget_plan_for", "plan_for", "run_demo"]
 
@@ -81,16 +81,19 @@ def as_built_plan_for(quick: bool) -> DemoPlan:
     """The as-built column's plan: the paper's resolution and calibration, coarser rotary steps.
 
     Full: 27 calibration frames at full resolution (σ(F²), σ(C) are per-frame
-    scatters, so the frames are the paper's), the cylinder at 6° and the pile at
-    3° steps (plane RMSE and circle error are per-point statistics; fewer
-    frames, the same statistic).  Quick: the quick plan's 4 × 4 binning and pile steps, no
-    cylinder, and 9 plate positions from 31 to 239 mm, where both plate edges are in view.
+    scatters, so the frames are the paper's), the cylinder at 12° and the pile at
+    6° steps (plane RMSE and circle error are per-point statistics; fewer
+    frames, the same statistic).  The as-built frames carry the twin's physical
+    light (3 bounces, subsurface scattering, surface speckle), ≈ 3 × the ideal
+    frame's cost, hence the coarser steps than the ideal column's 0.5° and 1°.
+    Quick: the quick plan's 4 × 4 binning and pile steps, no cylinder, and 9 plate
+    positions from 31 to 239 mm, where both plate edges are in view.
     """
     if quick:
         return DemoPlan(binning=4, calibration_steps=9, calibration_step_mm=26.0, calibration_start_mm=31.0,
                         cylinder_step_deg=0.0, pile_step_deg=10.0)
     return DemoPlan(binning=1, calibration_steps=27, calibration_step_mm=10.0, calibration_start_mm=-10.0,
-                    cylinder_step_deg=6.0, pile_step_deg=3.0)
+                    cylinder_step_deg=12.0, pile_step_deg=6.0)
 
 
 def budget_plan_for(quick: bool) -> DemoPlan:
@@ -442,16 +445,27 @@ BUDGET_FIGURES = (("F2_sigma_px_mm", "σ(F²) [px·mm]"), ("C_sigma_mm", "σ(C) 
 
 def _source_budget(ideal: Rig, as_built: Rig, plan: DemoPlan, out: Path, seed: int, quiet: bool,
                    timer: _Timer) -> dict:
-    """The budget plan with no error, each error source alone, and all of them (the as-built rig)."""
-    sources = [g for g in ERROR_MODELS if with_error_models(ideal, as_built, [g]) != ideal]
-    runs = [("none (ideal)", ideal)] + [(g, with_error_models(ideal, as_built, [g])) for g in sources] \
-        + [("all (as built)", as_built)]
+    """The budget plan with no error, each error source alone, and all of them (the as-built rig).
+
+    The sources are the error models (:data:`ERROR_MODELS`) and the twin's physical
+    light (:data:`TWIN_EFFECTS`: inter-reflections, subsurface scattering) that the
+    as-built rig switches on; the speckle source is named after its model
+    (``"surface speckle"``).
+    """
+    groups = [g for g in (*ERROR_MODELS, *TWIN_EFFECTS) if with_error_models(ideal, as_built, [g]) != ideal]
+    runs = [(_source_name(g, as_built), with_error_models(ideal, as_built, [g])) for g in groups]
+    sources = [name for name, _ in runs]
+    runs = [("none (ideal)", ideal)] + runs + [("all (as built)", as_built)]
     rows = {}
     for i, (name, rig) in enumerate(runs):
         res = _experiments(rig, plan, out / f"{i:02d}", seed, quiet, timer, label=f"budget {name}: ")
         rows[name] = _budget_figures(res, plan.binning)
     return {"plan": plan.__dict__, "sources": sources, "rows": rows,
             "dominant": _dominant(rows, sources)}
+
+
+def _source_name(group: str, as_built: Rig) -> str:
+    return f"{as_built.twin.speckle_model} speckle" if group == "speckle" else group
 
 
 #: A source dominates a figure only if, alone, it raises the figure at least this much
@@ -503,7 +517,7 @@ def _summary(rig, plan, quick, res: dict, timer, t_start) -> dict:
                                        "distance_resolution_center_mm", "height_resolution_center_mm")}
     true_design = design_report(binned_rig(rig, plan.binning))
     s = {
-        "quick": quick, "plan": plan.__dict__, "sensor": [rows, cols],
+        "quick": quick, "plan": plan.__dict__, "sensor": [rows, cols], "twin": rig.twin.__dict__,
         "calibration": {"best": best.to_json_dict(), "paper": result.paper.to_json_dict(),
                         "refined": result.refined.to_json_dict(), "truth": truth, "twin_design": twin_design,
                         "true_design": true_design, "skipped": [list(s) for s in result.skipped]},

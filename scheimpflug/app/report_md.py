@@ -203,7 +203,8 @@ def _as_built_lines(s: dict) -> list[str]:
     return [
         "*Twin, as built*: the `paper-as-built` preset — every error source the twin models on, at "
         "values of the kind of parts the paper used (sources in `rig-as-built.toml`; none was tuned to "
-        f"these outputs). Plan: binning {plan['binning']}, {plan['calibration_steps']} calibration frames, "
+        f"these outputs), rendered with {_light(ab.get('twin'))}. Plan: binning {plan['binning']}, "
+        f"{plan['calibration_steps']} calibration frames, "
         + (f"cylinder at {plan['cylinder_step_deg']:g}° steps, " if plan["cylinder_step_deg"] else "no cylinder, ")
         + f"pile at {plan['pile_step_deg']:g}° steps. Against the paper: " + "; ".join(verdict)
         + f"; ring mean |error| {_f(ring.get('mean_abs_error_mm'), '{:.3g}')} mm beside the paper's ≈ 2 mm. "
@@ -211,6 +212,14 @@ def _as_built_lines(s: dict) -> list[str]:
         "moves the hinge, d0 and C away from it, as the paper's real lens moved its measured constants.",
         "",
     ]
+
+
+def _light(twin: dict | None) -> str:
+    """The twin's light in words: bounces, subsurface, speckle model."""
+    if not twin:
+        return "the ideal twin's light"
+    sub = "subsurface scattering in translucent parts" if twin["subsurface"] else "opaque materials"
+    return f"{twin['bounces']} bounce(s), {sub}, {twin['speckle_model']}-attached speckle"
 
 
 def _source_budget_lines(s: dict) -> list[str]:
@@ -296,7 +305,7 @@ def write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> 
         f"Mode: {mode}; sensor {cols} × {rows} px. Every *twin* number below was measured in this "
         "run from rendered frames through the same pipeline as real frames; *truth* is the rendered "
         "geometry (the ideal rig's closed forms and the part meshes); *paper* is the seed paper's real rig."
-        + (" *Twin, as built* is the same pipeline on the twin with its error models on (below the "
+        + (" *Twin, as built* is the same pipeline on the twin with its error models and physical light on (below the "
            "parts table)." if s.get("as_built") else ""),
         "",
         "## Calibration, axis, ranges",

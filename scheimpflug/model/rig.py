@@ -30,6 +30,7 @@ __all__ = [
     "DERIVED_KEYS",
     "DERIVED_STAGE_KEYS",
     "ERROR_MODELS",
+    "TWIN_EFFECTS",
     "ERROR_MODEL_SHAPES",
     "Environment",
     "KEY_RANGES",
@@ -785,6 +786,18 @@ ERROR_MODELS: dict[str, tuple[str, ...]] = {
 ERROR_MODEL_SHAPES: dict[str, tuple[str, ...]] = {
     "translation stage": ("stage.translation_lead_mm", "stage.translation_travel_mm"),
     "sensor": ("sensor.hot_pixel_e", "sensor.pattern_seed"),
+    "speckle": ("twin.speckle_model",),
+}
+
+
+#: The twin's physical light (``[twin]``, issue 10), by effect: each is off at its
+#: default (``bounces`` 1, ``subsurface`` false).  Not error models of the instrument
+#: (:func:`active_error_models` ignores them: the geometry and the truth stay the
+#: ideal rig's), but sources of the as-built rig's error all the same, which
+#: :func:`with_error_models` takes one at a time like the error models.
+TWIN_EFFECTS: dict[str, tuple[str, ...]] = {
+    "inter-reflections": ("twin.bounces",),
+    "subsurface": ("twin.subsurface",),
 }
 
 
@@ -824,13 +837,15 @@ def with_error_models(rig: Rig, source: Rig, groups) -> Rig:
     source : Rig
         The rig whose error-model values are taken (e.g. ``paper-as-built``).
     groups : iterable of str
-        Names of :data:`ERROR_MODELS` groups (``"translation stage"``, ``"sensor"`` …).
+        Names of :data:`ERROR_MODELS` groups (``"translation stage"``, ``"sensor"`` …)
+        or of :data:`TWIN_EFFECTS` (``"inter-reflections"``, ``"subsurface"``).
 
     Returns
     -------
     Rig
-        ``rig`` with every key of those groups (switches of :data:`ERROR_MODELS`
-        and shapes of :data:`ERROR_MODEL_SHAPES`) set to its value in ``source``.
+        ``rig`` with every key of those groups (switches of :data:`ERROR_MODELS` and
+        :data:`TWIN_EFFECTS`, shapes of :data:`ERROR_MODEL_SHAPES`) set to its value in
+        ``source``.
 
     Raises
     ------
@@ -838,10 +853,11 @@ def with_error_models(rig: Rig, source: Rig, groups) -> Rig:
         For an unknown group name.
     """
     tables: dict[str, dict[str, Any]] = {}
+    known = {**ERROR_MODELS, **TWIN_EFFECTS}
     for group in groups:
-        if group not in ERROR_MODELS:
-            raise RigError(f"unknown error model {group!r} (known: {', '.join(ERROR_MODELS)})")
-        for key in ERROR_MODELS[group] + ERROR_MODEL_SHAPES.get(group, ()):
+        if group not in known:
+            raise RigError(f"unknown error model {group!r} (known: {', '.join(known)})")
+        for key in known[group] + ERROR_MODEL_SHAPES.get(group, ()):
             table, name = key.split(".")
             tables.setdefault(table, {})[name] = getattr(getattr(source, table), name)
     return rig.replace(**tables) if tables else rig

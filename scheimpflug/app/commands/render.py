@@ -54,7 +54,7 @@ def add_parser(sub):
                         "(RenderSettings.samples_per_row; default: the renderer's)")
     p.add_argument("--bounces", type=integer(1, 64), default=None, metavar="N",
                    help="light-path depth of the laser: 1 = first surface only, N > 1 follows "
-                        "inter-reflections (default: the rig's [twin] bounces, 1 in the presets)")
+                        "inter-reflections (default: the rig's [twin] bounces: 1 in paper, 3 in paper-as-built)")
     p.add_argument("--subsurface", action="store_true", default=None,
                    help="translucent materials scatter light inside (rig key [twin] subsurface)")
     p.add_argument("--binning", type=integer(1, 4096), default=1, metavar="K",
