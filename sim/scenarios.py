@@ -43,7 +43,9 @@ the truth is computed from; the manifest keeps the *commanded* ``stage_mm`` /
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -84,6 +86,7 @@ __all__ = [
     "frame_draws",
     "frame_seed",
     "load_assembly",
+    "reuse_assemblies",
     "rotary_scenario",
 ]
 
@@ -278,7 +281,50 @@ def load_assembly(name_or_path: str, seed: int = 0, **overrides):
     """
     from scenes import load_part
 
-    return load_part(name_or_path, seed=seed, **overrides)
+    if _REUSE is None:
+        return load_part(name_or_path, seed=seed, **overrides)
+    import json
+    from pathlib import Path
+
+    # presets and mesh files do not depend on the seed (scenes.load_part); scene files do
+    seeded = Path(str(name_or_path)).suffix.lower() == ".toml"
+    key = json.dumps([str(name_or_path), seed if seeded else None, overrides], sort_keys=True, default=repr)
+    if key not in _REUSE:
+        _REUSE.clear()                              # one assembly kept: a million-face part is ≈ 50 MB
+        _REUSE[key] = load_part(name_or_path, seed=seed, **overrides)
+    return _REUSE[key]
+
+
+_REUSE: dict | None = None
+
+
+@contextlib.contextmanager
+def reuse_assemblies(cache: dict) -> Iterator[None]:
+    """Within the block, :func:`load_assembly` reuses the last assembly built with the same arguments.
+
+    For callers that build many scenarios of the same part in one process (the dataset
+    maker: rebuilding the paper cylinder's 1.09 M faces costs ≈ 0.4 s per sample).  The
+    assemblies are shared, so they must not be modified (they are frozen dataclasses;
+    their mesh arrays are not written by this package).  Presets and mesh files are
+    keyed by name and overrides (they do not depend on the seed), scene files also by
+    the seed; a mesh or scene file is read once per cache.
+
+    Parameters
+    ----------
+    cache : dict
+        Where the last assembly is kept (the caller owns it and may keep it across blocks).
+
+    Yields
+    ------
+    None
+        Nothing; the reuse ends with the block.
+    """
+    global _REUSE
+    previous, _REUSE = _REUSE, cache
+    try:
+        yield
+    finally:
+        _REUSE = previous
 
 
 # ------------------------------------------------------------------ scenarios
