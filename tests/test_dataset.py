@@ -395,3 +395,29 @@ def test_a_second_make_into_the_same_folder_is_refused(tmp_path):
         with pytest.raises(DatasetError, match="being written by"):
             make_dataset(load_spec(spec_file), out)
     assert sorted(p.name for p in out.iterdir()) == []
+
+
+def test_next_sample_of_the_same_part_reuses_its_mesh_with_the_same_bytes(tmp_path):
+    """A worker's next sample of the same part reuses the assembly and links the pooled truth mesh;
+    that mesh holds exactly the bytes a fresh build of the part writes."""
+    from sim.dataset.make import make_dataset
+    from sim.dataset.spec import load_spec
+    from sim.scenarios import load_assembly, reuse_assemblies, rotary_scenario
+
+    cache: dict = {}
+    with reuse_assemblies(cache):
+        a, b, c = load_assembly("sphere"), load_assembly("sphere", seed=5), load_assembly("plate")
+    assert a is b and c is not a and load_assembly("sphere") is not a     # reuse ends with the block
+    spec = SPEC.split("[scenario.variation]")[0].replace("samples = 3", "samples = 2")
+    spec = spec.replace("[rig.variation]\n\"sensor.roll_deg\" = [-0.2, 0.2]\n", "").replace("frames = 2", "frames = 1")
+    out = tmp_path / "ds"
+    assert make_dataset(load_spec(_write(tmp_path / "spec.toml", spec)), out).complete
+    meshes = [out / "samples" / f"{k:06d}" / "truth" / "mesh.ply" for k in range(2)]
+    pool = list((out / "meshes").glob("*.ply"))
+    assert len(pool) == 1 and all(m.samefile(pool[0]) for m in meshes)
+    from scheimpflug.model.rig import load_preset
+
+    rig = load_preset("paper")
+    fresh = rotary_scenario(rig, part="sphere", step_deg=90.0, frames=1, truth_pixels_every=0)
+    fresh.assembly.transformed(fresh.mesh_ref_from_part).to_ply(tmp_path / "fresh.ply")
+    assert (tmp_path / "fresh.ply").read_bytes() == meshes[1].read_bytes()
