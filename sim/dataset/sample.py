@@ -25,12 +25,14 @@ samples' ``truth/`` folders (a file's ``link`` in the ledger names its pool file
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
 import os
 import shutil
 import sys
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -252,8 +254,28 @@ def _sha(data) -> str:
 
 
 def _write_atomic(path: Path, data) -> None:
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(data)
+    """Write ``data`` to a temporary name beside ``path``, then rename it over ``path``.
+
+    The frame loop's lean :func:`scheimpflug.io.atomic.atomic_path` (seven files per Zarr
+    frame): one name per process and thread instead of ``mkstemp``, the mode from the
+    umask at ``open``, the folder created only when missing.  The temporary name
+    (``.NAME.tmpPID-THREAD``) matches the patterns that resuming removes.
+    """
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}-{threading.get_ident()}")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(tmp, flags, 0o666)
+    except FileNotFoundError:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(tmp, flags, 0o666)
+    try:
+        with open(fd, "wb", closefd=True) as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
 
 
 class _PngSink:
