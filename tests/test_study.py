@@ -115,6 +115,19 @@ def test_bad_tolerance_specs_are_one_error_naming_the_key(tmp_path, change, mess
     assert message in str(err.value)
 
 
+def test_rig_set_takes_the_twin_tables_strings_and_booleans_of_the_same_type(tmp_path):
+    text = TOLERANCE.replace('preset = "paper"', 'preset = "paper"\n[rig.set]\n"twin.speckle_model" = "sensor"\n'
+                             '"twin.subsurface" = true\n"laser.speckle_contrast" = 0.5')
+    rig = _spec(tmp_path, text, "tolerance").base_rig()
+    assert (rig.twin.speckle_model, rig.twin.subsurface, rig.laser.speckle_contrast) == ("sensor", True, 0.5)
+    with pytest.raises(StudyError, match=r"'twin.speckle_model' = 1.0: the rig's value is 'surface' \(str\)"):
+        _spec(tmp_path, text.replace('"twin.speckle_model" = "sensor"', '"twin.speckle_model" = 1.0'), "tolerance")
+    with pytest.raises(StudyError, match=r"'laser.speckle_contrast' = 'high': the rig's value is"):
+        _spec(tmp_path, text.replace("= 0.5", '= "high"'), "tolerance")
+    with pytest.raises(StudyError, match="speckle_model"):
+        _spec(tmp_path, text.replace('"sensor"', '"film"'), "tolerance")
+
+
 def test_impossible_sweep_design_names_the_design_and_key(tmp_path):
     text = '[rig]\npreset = "paper"\n[sweep]\n"laser.tan_phi" = [0.2, 3.0]\n[artefacts]\nkinds = []\n'
     with pytest.raises(StudyError, match=r"design 1 \(laser.tan_phi = 3\) is not a possible rig: \[laser\] tan_phi"):

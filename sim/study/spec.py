@@ -23,6 +23,7 @@ Format (lengths in mm, angles in degrees; examples in ``studies/examples/``)::
                               #   design (set below) instead of taking the preset's (sweeps always do)
     [rig.set]                 # fixed changes of the rig: the design, the realism the study turns on
     "laser.speckle_contrast" = 1.0
+    "twin.speckle_model" = "sensor"   # strings and booleans too, of the rig value's type
 
     [tolerance]               # rig key = half-width of a uniform deviation around the rig's value,
     "sensor.roll_deg" = 0.2   #   or { normal = SIGMA }
@@ -593,9 +594,12 @@ def _parse_rig(where: str, folder: Path, table: dict) -> tuple[dict, str]:
     if not isinstance(changes, dict):
         raise _fail(where, "[rig.set] must be a table of \"table.key\" = value")
     for key, value in changes.items():
-        _rig_key(where, "rig.set", key, tables)
+        current = _rig_key(where, "rig.set", key, tables, numeric=False)
+        if _num(current) != _num(value) or (not _num(current) and type(value) is not type(current)):
+            raise _fail(where, f"rig.set: {key!r} = {value!r}: the rig's value is {current!r} "
+                               f"({type(current).__name__})")
         tables = _with_value(tables, key, value)
-    _rig_or_fail(where, "[rig.set]", tables)
+        _rig_or_fail(where, "[rig.set]", tables)
     return tables, source
 
 
@@ -612,8 +616,8 @@ def _all_keys(tables: dict) -> dict:
     return {f"{t}.{k}": v for t, kv in full.items() for k, v in kv.items()}
 
 
-def _rig_key(where: str, section: str, key, tables: dict):
-    """The rig's (numeric) value of ``key``; a clear error for a key the rig does not have."""
+def _rig_key(where: str, section: str, key, tables: dict, numeric: bool = True):
+    """The rig's value of ``key`` (a number unless ``numeric``); an error for an unknown key."""
     known = _all_keys(tables)
     if key not in known:
         close = difflib.get_close_matches(str(key), list(known), n=3, cutoff=0.6)
@@ -621,7 +625,7 @@ def _rig_key(where: str, section: str, key, tables: dict):
             f"; the rig's keys are {', '.join(sorted(known))}"
         raise _fail(where, f"{section}: {key!r} is not a key of this rig (\"table.key\", e.g. "
                            f"\"sensor.roll_deg\"){hint}")
-    if not _num(known[key]):
+    if numeric and not _num(known[key]):
         raise _fail(where, f"{section}: {key!r} is not a number in this rig")
     return known[key]
 
