@@ -45,6 +45,8 @@ __all__ = [
     "Twin",
     "load_preset",
     "load_rig",
+    "preset_tables",
+    "read_toml",
     "rig_from_dict",
     "rig_to_dict",
     "rig_to_toml",
@@ -1015,18 +1017,42 @@ def load_rig(path: str | Path) -> Rig:
         If the file is missing, unreadable, not UTF-8, not valid TOML, or
         describes an invalid rig.
     """
+    return rig_from_dict(read_toml(path, "rig file", RigError))
+
+
+def read_toml(path: str | Path, what: str, error: type[Exception] = RigError) -> dict:
+    """Read a UTF-8 TOML file (rig file, dataset or study spec) with one clear error.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What the file is, for the message (``"rig file"``, ``"spec file"``).
+    error : type of Exception, default RigError
+        The error class raised (the caller's typed error).
+
+    Returns
+    -------
+    dict
+        The parsed tables.
+
+    Raises
+    ------
+    Exception
+        ``error``, naming the file: it is missing, unreadable, not UTF-8 or not valid TOML.
+    """
     p = Path(path)
     try:
         text = p.read_bytes().decode("utf-8")
     except FileNotFoundError:
-        raise RigError(f"rig file {str(p)!r} does not exist") from None
+        raise error(f"{what} {str(p)!r} does not exist") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise RigError(f"rig file {str(p)!r} cannot be read: {exc}") from None
+        raise error(f"{what} {str(p)!r} cannot be read: {exc}") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise RigError(f"rig file {str(p)!r} is not valid TOML: {exc}") from None
-    return rig_from_dict(data)
+        raise error(f"{what} {str(p)!r} is not valid TOML: {exc}") from None
 
 
 def load_preset(name: str) -> Rig:
@@ -1048,7 +1074,28 @@ def load_preset(name: str) -> Rig:
     RigError
         If ``name`` is not a known preset.
     """
+    return rig_from_dict(preset_tables(name))
+
+
+def preset_tables(name: str) -> dict:
+    """The tables of a built-in rig as its file gives them (before defaults are filled in).
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`PRESETS`.
+
+    Returns
+    -------
+    dict
+        ``{table: {key: value}}`` of ``scheimpflug/model/presets/<name>.toml``.
+
+    Raises
+    ------
+    RigError
+        If ``name`` is not a known preset.
+    """
     if name not in PRESETS:
         raise RigError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     text = resources.files("scheimpflug.model").joinpath("presets", f"{name}.toml").read_text("utf-8")
-    return rig_from_dict(tomllib.loads(text))
+    return tomllib.loads(text)

@@ -55,7 +55,6 @@ import inspect
 import json
 import math
 import os
-import tomllib
 import zlib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -64,7 +63,7 @@ import numpy as np
 
 from scheimpflug.errors import DatasetError, ScheimpflugError
 from scheimpflug.model.binning import binned_rig
-from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig, rig_from_dict, rig_to_dict
+from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig, read_toml, rig_from_dict, rig_to_dict
 
 from ..materials import MaterialSettings
 
@@ -299,16 +298,7 @@ def load_spec(path: str | os.PathLike) -> DatasetSpec:
         A missing or unreadable file, invalid TOML, an unknown key, a bad value or range.
     """
     p = Path(path)
-    try:
-        text = p.read_bytes().decode("utf-8")
-    except FileNotFoundError:
-        raise DatasetError(f"spec file {str(p)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"spec file {str(p)!r} cannot be read: {exc}") from None
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DatasetError(f"spec file {str(p)!r} is not valid TOML: {exc}") from None
+    raw = read_toml(p, "spec file", DatasetError)
     return parse_spec(raw, folder=p.resolve().parent, where=str(p), default_name=p.stem)
 
 

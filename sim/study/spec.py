@@ -89,7 +89,7 @@ from scheimpflug.errors import RigError, ScheimpflugError, StudyError
 from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.design import inverse_design
 from scheimpflug.model.plan import calibration_plan
-from scheimpflug.model.rig import DERIVED_KEYS, PRESETS, rig_from_dict, rig_to_dict
+from scheimpflug.model.rig import DERIVED_KEYS, PRESETS, preset_tables, read_toml, rig_from_dict, rig_to_dict
 from scheimpflug.sensitivity import METHODS, deviation_from_unit, unit_sample
 
 from ..dataset.spec import sample_seed
@@ -447,16 +447,7 @@ def load_study_spec(path: str | os.PathLike, kind: str) -> StudySpec:
         A missing or unreadable file, invalid TOML, or anything :func:`parse_study_spec` refuses.
     """
     p = Path(path)
-    try:
-        text = p.read_bytes().decode("utf-8")
-    except FileNotFoundError:
-        raise StudyError(f"spec file {str(p)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StudyError(f"spec file {str(p)!r} cannot be read: {exc}") from None
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyError(f"spec file {str(p)!r} is not valid TOML: {exc}") from None
+    raw = read_toml(p, "spec file", StudyError)
     return parse_study_spec(raw, kind, folder=p.resolve().parent, where=str(p), default_name=p.stem)
 
 
@@ -561,13 +552,6 @@ def _parse_study_table(where: str, st: dict, kind: str) -> dict:
             "keep_frames": keep}
 
 
-def _preset_tables(name: str) -> dict:
-    from importlib import resources
-
-    text = resources.files("scheimpflug.model").joinpath("presets", f"{name}.toml").read_text("utf-8")
-    return tomllib.loads(text)
-
-
 def _parse_rig(where: str, folder: Path, table: dict) -> tuple[dict, str]:
     _known(where, "[rig]", table, {"preset", "file", "set", "derive"})
     if not isinstance(table.get("derive", False), bool):
@@ -588,7 +572,7 @@ def _parse_rig(where: str, folder: Path, table: dict) -> tuple[dict, str]:
         preset = table.get("preset", "paper")
         if preset not in PRESETS:
             raise _fail(where, f"rig.preset = {preset!r}: unknown (known: {', '.join(PRESETS)})")
-        tables, source = _preset_tables(preset), f"preset:{preset}"
+        tables, source = preset_tables(preset), f"preset:{preset}"
     _rig_or_fail(where, "[rig]", tables)
     changes = table.get("set", {})
     if not isinstance(changes, dict):
