@@ -85,7 +85,6 @@ from scheimpflug.errors import RenderError
 from scheimpflug.model.camera import (
     SensorPose,
     chief_ray_from_pixel,
-    lens_state,
     sensor_point_from_pixel,
     sensor_pose,
     sheet_point_from_pixel,
@@ -292,8 +291,6 @@ class Renderer:
         self.sheet = light_sheet(rig)
         self.shape = (self.pose.rows, self.pose.columns)
         lens = rig.lens
-        state = lens_state(rig)
-        self.focal_length_mm, self.lens_centre_x_mm = state.focal_length_mm, state.centre_x_mm
         self.aperture_radius_mm = 0.5 * lens.focal_length_mm / lens.f_number
         self.aperture_area_mm2 = math.pi * self.aperture_radius_mm**2
         photon_j = PLANCK_J_S * LIGHT_SPEED_M_S / (rig.laser.wavelength_nm * 1e-9)
@@ -341,7 +338,7 @@ class Renderer:
         uv = np.stack(np.meshgrid(uu, vv), axis=-1).reshape(-1, 2)
         dirs = chief_ray_from_pixel(self.rig, uv, pose)
         q = sensor_point_from_pixel(pose, uv)        # relative to the lens centre:
-        q[:, 0] -= self.lens_centre_x_mm
+        q[:, 0] -= self.lens.centre_x_mm
         qn = np.linalg.norm(q, axis=1)
         cos_a, cos_q = np.abs(q[:, 0]) / qn, np.abs(q @ pose.normal) / qn
         g = pose.pitch_mm**2 * self.aperture_area_mm2 * cos_a * cos_q / qn**2  # [mm²·sr]
@@ -617,10 +614,6 @@ class Renderer:
         self._splat_into(img, uv, flux)
         return img
 
-    def _to_sensor(self, p, active, u_ap):
-        """Thin-lens splat of points p (:meth:`sim.lens.LensConnection.connect`)."""
-        return self.lens.connect(p, active, u_ap)
-
     def _alpha(self, s, group_index):
         """Fan angle of sample group q: α = lo + (q + ξ)·Δα/N_groups, ξ one shift per frame [rad]."""
         mi = self._mi
@@ -758,7 +751,7 @@ class Renderer:
         import cv2
 
         s = dr.opaque(mi.UInt32, key) ^ 0x27D4EB2F
-        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(self.lens_centre_x_mm, 0.0, 0.0), self._amb_dirs)
+        ray = self._frame[0] @ mi.Ray3f(mi.Point3f(self.lens.centre_x_mm, 0.0, 0.0), self._amb_dirs)
         si = self.scene.scene.ray_intersect(ray)
         valid = si.is_valid()
         ctx = mi.BSDFContext(mi.TransportMode.Radiance)
