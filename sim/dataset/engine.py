@@ -31,6 +31,8 @@ from typing import Any
 
 from scheimpflug.errors import ScheimpflugError
 
+from ..threads import cores as _cores
+
 __all__ = ["Engine", "EngineError"]
 
 TOPIC = "scheimpflug-progress"
@@ -38,13 +40,6 @@ TOPIC = "scheimpflug-progress"
 
 class EngineError(ScheimpflugError, RuntimeError):
     """The engine cannot start or reach its cluster (message says which and why)."""
-
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
 
 
 class _Reporter:

@@ -31,7 +31,6 @@ import hashlib
 import json
 import os
 import shutil
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -49,6 +48,7 @@ from scheimpflug.io.atomic import atomic_path, write_json_atomic
 from ..scenarios import Scenario, build_scenario, reuse_assemblies
 from ..sensor import SensorModel, apply_sensor, frame_rng
 from ..stages import invert
+from ..threads import configure_threads
 from ..truth import SceneTruth, pixel_directions, pixel_truth
 from ..writer import (
     _scene_truth_files,
@@ -130,60 +130,8 @@ class SampleResult:
 # ------------------------------------------------------------------ per-process state
 
 _CACHE: dict = {}
-_THREADS: dict = {}
 _ASSEMBLIES: dict = {}      # the last part built (sim.scenarios.reuse_assemblies)
 _MESH: dict = {}            # the last sample's pooled truth mesh (_link_pooled_mesh)
-
-
-def configure_threads(n: int) -> None:
-    """Size this process's thread pools (Dr.Jit, numba, Blosc) to ``n`` cores; tune malloc.
-
-    Also fixes glibc's allocator thresholds (:func:`_tune_malloc`): Dask's nanny starts
-    workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns off glibc's adaptive mmap
-    threshold, so every frame-sized array was mapped, zero-filled and unmapped again —
-    measured +25 % CPU per frame in a Dask worker.
-
-    Parameters
-    ----------
-    n : int
-        Cores this worker may use (≥ 1).
-    """
-    n = max(1, int(n))
-    if _THREADS.get("n") == n:
-        return
-    _tune_malloc()
-    import numba
-
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    try:
-        import numcodecs.blosc
-
-        numcodecs.blosc.set_nthreads(n)
-    except ImportError:  # pragma: no cover - zarr extra missing
-        pass
-    try:
-        import drjit as dr
-
-        dr.set_thread_count(n)
-    except (ImportError, AttributeError):  # pragma: no cover - no Dr.Jit
-        pass
-    _THREADS["n"] = n
-
-
-def _tune_malloc() -> None:
-    """Serve arrays up to 32 MB from the heap and keep up to 256 MB of it (glibc only)."""
-    import ctypes
-    import ctypes.util
-
-    name = ctypes.util.find_library("c")
-    if not name or not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(name)
-        libc.mallopt(-3, 32 << 20)    # M_MMAP_THRESHOLD
-        libc.mallopt(-1, 256 << 20)   # M_TRIM_THRESHOLD
-    except (OSError, AttributeError):
-        return
 
 
 def _twin_key(plan: SamplePlan) -> str:

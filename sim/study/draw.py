@@ -33,7 +33,7 @@ from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.rig import rig_from_dict, rig_to_toml
 
 from ..acceptance import run_acceptance
-from ..dataset.sample import configure_threads
+from ..threads import configure_threads
 from .geometric import sheet_field_error
 from .outputs import design_numbers, measured_outputs
 from .spec import DrawPlan
@@ -130,7 +130,7 @@ def run_draw(plan: DrawPlan, root: str | os.PathLike, progress: ProgressCallback
     progress : ProgressCallback, optional
         ``progress(done, PROGRESS_UNITS)`` over the draw's scans.
     threads : int, optional
-        Size this process's thread pools first (:func:`sim.dataset.sample.configure_threads`).
+        Size this process's thread pools first (:func:`sim.threads.configure_threads`).
 
     Returns
     -------
