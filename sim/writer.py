@@ -883,21 +883,33 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
+
+    def loop(todo, stats, bar, ledger):
+        _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger)
+
+    return _locked(out, warn, lambda: _render_locked(rig, scenario, out, manifest, progress, warn, loop))
+
+
+def _locked(out: Path, warn, body):
+    """``body()`` while holding the folder's lock; an OSError becomes one RenderError."""
     _writable_folder(out)
     with FolderLock(out, error=RenderError) as lock:
         if lock.stale_owner:
             warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
                  f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
         try:
-            return _render_locked(rig, scenario, out, twin, manifest, progress, warn, overlap)
+            return body()
         except OSError as exc:
             raise RenderError(f"cannot write into the frame folder {str(out)!r}: "
                               f"{exc.strerror or exc}{f' ({exc.filename})' if exc.filename else ''}; "
                               "nothing is half-written: fix the cause and rerun to resume") from None
 
 
-def _render_locked(rig, scenario, out, twin, manifest, progress, warn, overlap) -> RenderStats:
-    """The body of :func:`render_scenario`, run while holding the folder's lock."""
+def _render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderStats:
+    """The body of :func:`render_scenario`, run while holding the folder's lock.
+
+    ``loop(todo, stats, bar, ledger)`` renders and writes the frames ``todo``.
+    """
     done = prepare_folder(out, manifest)
     ledger = FileLedger(out)
     done = _verified(done, ledger, warn)
@@ -906,7 +918,7 @@ def _render_locked(rig, scenario, out, twin, manifest, progress, warn, overlap) 
     t_start = time.perf_counter()
     todo = [f for f in scenario.frames if f.index not in done]
     bar = _Counter(progress, len(todo))
-    _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger)
+    loop(todo, stats, bar, ledger)
     stats.wall_s = time.perf_counter() - t_start
     ledger.write_sorted()
     _finish(out, manifest, scenario, stats, done)
@@ -951,11 +963,7 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
     pending: list = []
     with ThreadPoolExecutor(max_workers=1) as pool:
         for frame in todo:
-            electrons = _timed(stats, "render", twin.render, frame)
-            # the noise right after the render, before the truth's ray queries
-            # (measured ≈ 40 ms/frame slower on 2 cores just after Dr.Jit's ray casts)
-            image = _noise(electrons, model, frame, stats)
-            arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh)
+            image, arrays = _frame_products(rig, scenario, twin, frame, stats, warn, mesh, model)
             job = (out, model, frame, None, image, arrays, stats, ledger)
             if not overlap:
                 _finish_frame(*job)
@@ -989,6 +997,15 @@ def _timed(stats: RenderStats, key: str, fn, *args):
     result = fn(*args)
     stats.seconds[key] += time.perf_counter() - t0
     return result
+
+
+def _frame_products(rig, scenario, twin, frame, stats, warn, mesh, model) -> tuple:
+    """One frame's raw ADC image and truth arrays: render, sensor noise, truth."""
+    electrons = _timed(stats, "render", twin.render, frame)
+    # the noise right after the render, before the truth's ray queries
+    # (measured ≈ 40 ms/frame slower on 2 cores just after Dr.Jit's ray casts)
+    image = _noise(electrons, model, frame, stats)
+    return image, _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh)
 
 
 def _noise(electrons, model, frame, stats) -> np.ndarray:
@@ -1048,12 +1065,14 @@ def _finish(out: Path, manifest: dict, scenario: Scenario, stats: RenderStats,
 
 def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int | None = None,
                   progress: ProgressCallback | None = None,
-                  warn: Callable[[str], None] | None = None,
+                  warn: Callable[[str], None] | None = None, workers: int = 1,
                   **scenario_options) -> tuple[RenderStats, dict]:
     """Render a named scenario of ``rig`` into the frame folder ``out`` (the library's ``render``).
 
     Builds the scenario (:func:`sim.scenarios.build_scenario`), the Mitsuba twin
-    and the manifest, then runs :func:`render_scenario` (resumable).
+    and the manifest, then runs :func:`render_scenario` (resumable).  With
+    ``workers`` ≥ 2 the frames are rendered by that many spawned worker processes
+    (:func:`sim.workers.render_with_workers`): the same files, bit for bit.
 
     Parameters
     ----------
@@ -1072,6 +1091,9 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     warn : callable, optional
         Receives every warning (scenario, twin, frames without a stripe) as one
         line; default: stderr.
+    workers : int, default 1
+        Worker processes rendering frames at once (1 = this process; N ≥ 2: each
+        worker's thread pools sized to cores // N).
     **scenario_options
         Options of the scenario (``steps``, ``step_mm``, ``part``, ``step_deg`` …;
         :mod:`sim.scenarios`).
@@ -1087,7 +1109,8 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     Raises
     ------
     RenderError
-        No JIT variant of Mitsuba, an unwritable or foreign folder.
+        No JIT variant of Mitsuba, an unwritable or foreign folder, a bad
+        ``workers``, a frame that failed in a worker or a worker that died.
     ScheimpflugError
         An unknown scenario or option, a bad part.
     """
@@ -1096,6 +1119,11 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     from .scenarios import build_scenario
 
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    if workers != 1:
+        from .workers import RenderJob, render_with_workers  # it builds on this module
+
+        job = RenderJob(rig, scenario_name, seed=seed, spp=spp, options=dict(scenario_options))
+        return render_with_workers(job, out, workers, progress=progress, warn=warn)
     with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
         warnings.simplefilter("always")
         scenario = build_scenario(scenario_name, rig, seed=seed, **scenario_options)

@@ -1,0 +1,397 @@
+"""Frames of one render in several worker processes (``scheimpflug render --workers N``).
+
+The frames of a scenario are independent given the run's seed (each frame is
+rendered from its own seed, and the renderer's caches are built from their keys
+alone), so a scan is rendered by N worker processes at once, frame by frame,
+with the same files as one process writes, bit for bit:
+
+* each worker is started with *spawn* (Dr.Jit registers no fork handlers),
+  sizes its Dr.Jit, numba and Blosc thread pools to ``cores // N`` and tunes
+  malloc (:func:`sim.threads.configure_threads`), builds the scenario and its
+  own twin once, then renders the frames it is handed: render, sensor noise,
+  truth, and the encoded truth file and PNG (:func:`sim.writer.encode_npz`,
+  :func:`sim.writer.encode_png16`);
+* the main process builds no twin: it holds the folder's lock, checks and
+  resumes the folder, hands the frames out in order (at most 2 per worker in
+  flight), writes each finished frame's truth and PNG atomically and records
+  them in the ledger (``checksums.jsonl``), reports one progress count and
+  writes the manifest — everything :func:`sim.writer.render_scenario` does,
+  with the same rules (:mod:`sim.writer`).
+
+Failures: an exception in a worker stops the run and is raised once, naming
+the frame (a :class:`~scheimpflug.errors.ScheimpflugError` keeps its type; any
+other error becomes a :class:`~scheimpflug.errors.RenderError` chained to it);
+a worker that dies (killed, out of memory) is a :class:`RenderError` naming the
+frames in flight; Ctrl-C and SIGTERM stop the workers.  Workers never write
+into the folder, so every file there is complete (the frames written before
+the stop stay, and a rerun resumes).  Workers ignore SIGINT (the main process
+stops them) and die with the main process (Linux: ``PR_SET_PDEATHSIG``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import signal
+import sys
+import threading
+import time
+import warnings
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from scheimpflug.callbacks import ProgressCallback
+from scheimpflug.errors import RenderError, ScheimpflugError
+from scheimpflug.io.atomic import write_bytes_atomic
+from scheimpflug.model.rig import Rig
+
+from .threads import configure_threads, cores
+from .writer import (
+    RenderStats,
+    _describe,
+    _frame_files,
+    _frame_products,
+    _locked,
+    _ranges,
+    _render_locked,
+    _scene_arrays,
+    build_manifest,
+    encode_npz,
+    encode_png16,
+    frame_paths,
+    generator_info,
+)
+
+__all__ = ["RenderJob", "render_with_workers"]
+
+#: Frames handed to each worker at most at a time (one rendering, one queued).
+IN_FLIGHT_PER_WORKER = 2
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """What a render worker needs to build its scenario and twin (picklable).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (binned already, if wanted).
+    scenario_name : str
+        The scenario (:func:`sim.scenarios.build_scenario`).
+    seed : int
+        Run seed.
+    spp : int or None
+        Laser samples per lit sensor row (None: the renderer's default).
+    options : dict
+        The scenario's options (``steps``, ``part``, ``truth_pixels_every`` …).
+    twin_factory : callable, optional
+        ``twin_factory(rig, assembly, spp=…)`` returns the twin (an importable,
+        picklable function or class); default :class:`sim.writer.MitsubaTwin`.
+    """
+
+    rig: Rig
+    scenario_name: str
+    seed: int = 0
+    spp: int | None = None
+    options: dict = field(default_factory=dict)
+    twin_factory: Callable | None = None
+
+
+# ------------------------------------------------------------------ worker side
+
+_STATE: dict = {}
+
+
+@dataclass
+class _FrameResult:
+    index: int
+    npz: bytes
+    png: bytes
+    seconds: dict
+    no_stripe: bool
+    warnings: list
+
+
+def _die_with_parent() -> None:
+    """Linux: this process gets SIGKILL when the process that started it ends."""
+    import ctypes
+    import ctypes.util
+
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c")).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError, TypeError):  # pragma: no cover - no prctl
+        pass
+
+
+def _init_worker(job: RenderJob, threads: int) -> None:
+    """Worker initializer: signals, thread pools, then the scenario and twin (errors kept)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)     # the main process stops the workers
+    _die_with_parent()
+    configure_threads(threads)
+    try:
+        _STATE.update(_build(job))
+    except BaseException as exc:  # noqa: BLE001 - raised again by the worker's first task
+        _STATE["error"] = exc
+
+
+def _build(job: RenderJob) -> dict:
+    from .scenarios import build_scenario
+    from .sensor import SensorModel
+    from .writer import MitsubaTwin
+
+    with warnings.catch_warnings():     # part warnings: the main process reports them
+        warnings.simplefilter("ignore")
+        scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        twin = (job.twin_factory or MitsubaTwin)(job.rig, scenario.assembly, spp=job.spp)
+    return {"job": job, "scenario": scenario, "twin": twin, "mesh": _scene_arrays(scenario),
+            "frames": {f.index: f for f in scenario.frames}, "model": SensorModel.from_rig(job.rig),
+            "warnings": [str(w.message) for w in caught]}
+
+
+def _state() -> dict:
+    if "error" in _STATE:
+        raise _STATE["error"]
+    return _STATE
+
+
+def _manifest_task() -> tuple[dict, list]:
+    """The run's manifest (as :func:`sim.writer.render_folder` builds it) and the twin's warnings."""
+    st = _state()
+    job, twin = st["job"], st["twin"]
+    describe = twin.describe() if hasattr(twin, "describe") else None
+    manifest = build_manifest(job.rig, st["scenario"], job.seed, getattr(twin, "spp", 1),
+                              getattr(twin, "variant", "unknown"), generator_info(), describe)
+    return manifest, st["warnings"]
+
+
+def _ready_task() -> bool:
+    _state()
+    return True
+
+
+def _frame_task(index: int) -> _FrameResult:
+    """Render frame ``index``: its encoded truth file and PNG, stage times, warnings."""
+    st = _state()
+    frame = st["frames"][index]
+    stats, warns = RenderStats(), []
+    image, arrays = _frame_products(st["job"].rig, st["scenario"], st["twin"], frame, stats,
+                                    warns.append, st["mesh"], st["model"])
+    t0 = time.perf_counter()
+    npz = encode_npz(arrays)
+    t1 = time.perf_counter()
+    png = encode_png16(image)
+    stats.seconds["truth_write"] += t1 - t0
+    stats.seconds["png"] += time.perf_counter() - t1
+    return _FrameResult(index, npz, png, dict(stats.seconds), bool(stats.frames_without_stripe),
+                        warns)
+
+
+# ------------------------------------------------------------------ main side
+
+
+class _Pool:
+    """A spawned process pool whose workers are stopped (not awaited) when leaving by an error."""
+
+    def __init__(self, job: RenderJob, workers: int) -> None:
+        threads = max(1, cores() // workers)
+        self.executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=_init_worker, initargs=(job, threads))
+        self.workers, self.processes = workers, []
+
+    def start(self, warn) -> dict:
+        """Start every worker at once; the manifest from the first (raises a worker's setup error)."""
+        first = self.executor.submit(_manifest_task)
+        others = [self.executor.submit(_ready_task) for _ in range(self.workers - 1)]
+        self.processes = list(getattr(self.executor, "_processes", {}).values())
+        try:
+            manifest, twin_warnings = first.result()
+            for fut in others:
+                fut.result()
+        except BrokenProcessPool:
+            raise RenderError(f"the render workers could not start ({self._exit_codes()})") from None
+        for msg in twin_warnings:
+            warn(msg)
+        return manifest
+
+    def _exit_codes(self) -> str:
+        codes = [p.exitcode for p in self.processes if p.exitcode is not None]
+        if any(c != -signal.SIGTERM for c in codes):     # not the ones the pool stopped itself
+            codes = [c for c in codes if c != -signal.SIGTERM]
+        return f"exit code {', '.join(map(str, codes))}" if codes else "no exit code"
+
+    def __enter__(self) -> _Pool:
+        return self
+
+    def __exit__(self, kind, exc, tb) -> None:
+        if kind is None:
+            self.executor.shutdown(wait=True)
+            return
+        self.executor.shutdown(wait=False, cancel_futures=True)
+        for p in self.processes:
+            if p.is_alive():
+                p.terminate()
+        for p in self.processes:
+            p.join(10)
+
+
+def _frame_error(exc: BaseException, frame, pool: _Pool, inflight) -> Exception:
+    """One error for a frame that failed in a worker (or whose worker died)."""
+    where = f"frame {frame.index} ({_describe(frame)})"
+    if isinstance(exc, BrokenProcessPool):
+        time.sleep(0.1)     # let the dead process's exit code arrive
+        frames = _ranges([frame.index, *(f.index for f in inflight)])
+        return RenderError(f"a render worker process ended unexpectedly ({pool._exit_codes()}: killed, "
+                           f"or out of memory?) while frames {frames} were in flight; the frames "
+                           "already written are complete: rerun to resume")
+    if isinstance(exc, ScheimpflugError):
+        try:
+            return type(exc)(f"{where}: {exc}")
+        except Exception:  # noqa: BLE001 - an error type with another constructor
+            pass
+    err = RenderError(f"{where} failed in a render worker: {type(exc).__name__}: {exc}")
+    err.__cause__ = exc
+    return err
+
+
+def _write_result(out: Path, result: _FrameResult, stats: RenderStats, ledger) -> None:
+    """Write a finished frame's truth, then its PNG (atomically), and record both."""
+    png, npz = frame_paths(out, result.index)
+    t0 = time.perf_counter()
+    write_bytes_atomic(npz, result.npz)
+    t1 = time.perf_counter()
+    try:
+        write_bytes_atomic(png, result.png)
+    except OSError as exc:
+        raise RenderError(f"cannot write frame {str(png)!r}: {exc.strerror or exc}") from None
+    stats.seconds["truth_write"] += t1 - t0
+    stats.seconds["png"] += time.perf_counter() - t1
+    ledger.record(result.index, _frame_files(result.index))
+
+
+def _merge(stats: RenderStats, result: _FrameResult, warn) -> None:
+    for key, sec in result.seconds.items():
+        stats.seconds[key] = stats.seconds.get(key, 0.0) + sec
+    stats.frames_rendered += 1
+    if result.no_stripe:
+        stats.frames_without_stripe.append(result.index)
+    for msg in result.warnings:
+        warn(msg)
+
+
+def _pool_loop(pool: _Pool, out: Path, warn, todo, stats, bar, ledger) -> None:
+    """Hand ``todo`` out in order; write each frame as it comes back."""
+    frames = iter(todo)
+    inflight: dict = {}
+
+    def hand_out() -> None:
+        frame = next(frames, None)
+        if frame is not None:
+            inflight[pool.executor.submit(_frame_task, frame.index)] = frame
+
+    for _ in range(IN_FLIGHT_PER_WORKER * pool.workers):
+        hand_out()
+    while inflight:
+        done, _ = wait(list(inflight), return_when=FIRST_COMPLETED)
+        for fut in sorted(done, key=lambda f: inflight[f].index):
+            frame = inflight.pop(fut)
+            exc = fut.exception()
+            if exc is not None:
+                raise _frame_error(exc, frame, pool, inflight.values())
+            result = fut.result()
+            _write_result(out, result, stats, ledger)
+            _merge(stats, result, warn)
+            stats.frames_without_stripe.sort()
+            bar.update()
+            hand_out()
+
+
+class _TermAsInterrupt:
+    """While active (main thread only): SIGTERM raises KeyboardInterrupt, so the workers are stopped."""
+
+    def __enter__(self):
+        self.old = None
+        if threading.current_thread() is threading.main_thread():
+            self.old = signal.signal(signal.SIGTERM, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    def __exit__(self, *exc) -> None:
+        if self.old is not None:
+            signal.signal(signal.SIGTERM, self.old)
+
+
+def _main_scenario(job: RenderJob, warn):
+    from .scenarios import build_scenario
+
+    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
+        warnings.simplefilter("always")
+        scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
+    for msg in scenario.warnings:
+        warn(msg)
+    for w in caught:
+        warn(str(w.message))
+    return scenario
+
+
+def render_with_workers(job: RenderJob, out, workers: int, progress: ProgressCallback | None = None,
+                        warn: Callable[[str], None] | None = None) -> tuple[RenderStats, dict]:
+    """Render a scenario into a frame folder with ``workers`` spawned worker processes.
+
+    The files are those of :func:`sim.writer.render_folder` with one process, bit
+    for bit; the folder rules (lock, resume, ledger, atomic writes, manifest) are the
+    same (module docstring).
+
+    Parameters
+    ----------
+    job : RenderJob
+        Rig, scenario, seed, samples and scenario options.
+    out : str or pathlib.Path
+        The frame folder (created, or resumed when it holds the same run).
+    workers : int
+        Worker processes (≥ 1); each sizes its thread pools to ``cores // workers``.
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` after each frame written.
+    warn : callable, optional
+        Receives each warning as one line; default: print to stderr.
+
+    Returns
+    -------
+    stats : RenderStats
+        Frame counts and timings (``seconds``: the workers' stage times summed,
+        plus the main process's writes).
+    manifest : dict
+        The manifest as first written (``complete`` false).
+
+    Raises
+    ------
+    RenderError
+        A bad ``workers``, a worker that cannot start or dies, a frame that failed in
+        a worker (the message names it), and everything :func:`sim.writer.render_scenario`
+        raises.
+    ScheimpflugError
+        A worker's own error (its type kept, the frame named), an unknown scenario or
+        option, a bad part.
+    """
+    if not isinstance(workers, int) or workers < 1:
+        raise RenderError(f"--workers {workers!r}: must be an integer >= 1")
+    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    out = Path(out)
+    scenario = _main_scenario(job, warn)
+    with _TermAsInterrupt(), _Pool(job, workers) as pool:
+        manifest = pool.start(warn)
+
+        def loop(todo, stats, bar, ledger):
+            _pool_loop(pool, out, warn, todo, stats, bar, ledger)
+
+        stats = _locked(out, warn, lambda: _render_locked(job.rig, scenario, out, manifest,
+                                                          progress, warn, loop))
+    return stats, manifest

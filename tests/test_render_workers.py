@@ -1,0 +1,116 @@
+"""Frames of one render in several worker processes (sim.workers, ``render --workers N``).
+
+Same folder with 1 and 2 workers, byte for byte (the analytic fake twin, the ideal
+Mitsuba twin and the realistic one: 3 bounces, subsurface, surface speckle, on a
+16 × 16 binned sensor); a worker's failure names the frame and leaves only complete
+frames; a dying worker is reported, not waited for; the interrupted run resumes to
+the same files.
+"""
+
+import hashlib
+import os
+from pathlib import Path
+
+import pytest
+from test_render_cli import FakeTwin
+
+from scheimpflug.errors import RenderError
+from scheimpflug.io.folder import FileLedger
+from scheimpflug.model.binning import binned_rig
+from scheimpflug.model.rig import load_preset
+from sim.workers import RenderJob, render_with_workers
+from sim.writer import render_folder
+
+FAIL_AT = 4
+
+
+class Fake(FakeTwin):
+    """The analytic fake twin, built as the workers build a twin."""
+
+    def __init__(self, rig, assembly, spp=None):
+        super().__init__(rig, assembly)
+        self.spp, self.variant = 1, "fake"
+
+
+class FailingTwin(Fake):
+    """Raises on frame FAIL_AT."""
+
+    def render(self, frame):
+        if frame.index == FAIL_AT:
+            raise ValueError("injected failure")
+        return super().render(frame)
+
+
+class DyingTwin(Fake):
+    """The worker process ends abruptly on frame FAIL_AT."""
+
+    def render(self, frame):
+        if frame.index == FAIL_AT:
+            os._exit(3)
+        return super().render(frame)
+
+
+def _files(folder: Path) -> dict:
+    """Every file of a frame folder (lock excluded) → SHA-256 of its bytes."""
+    return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file() and p.name != ".scheimpflug.lock"}
+
+
+def _job(factory=Fake, frames=8):
+    rig = binned_rig(load_preset("paper"), 8)
+    return RenderJob(rig, "blocker", seed=3, options={"frames": frames, "truth_pixels_every": 3},
+                     twin_factory=factory)
+
+
+def test_fake_twin_one_and_two_workers_write_the_same_folder(tmp_path):
+    job = _job()
+    render_with_workers(job, tmp_path / "w1", 1, warn=lambda m: None)
+    progress = []
+    stats, _ = render_with_workers(job, tmp_path / "w2", 2, warn=lambda m: None,
+                                   progress=lambda d, t: progress.append((d, t)))
+    one, two = _files(tmp_path / "w1"), _files(tmp_path / "w2")
+    assert len([k for k in one if k.startswith("frames/")]) == 8
+    assert one == two
+    assert stats.frames_rendered == 8 and progress[-1] == (8, 8)
+    assert [d for d, _ in progress] == list(range(9))
+
+
+def _leftovers(folder: Path) -> list:
+    return [p.name for p in folder.rglob("*") if ".tmp" in p.name]
+
+
+DIED = r"ended unexpectedly \(exit code 3\b.*while frames [0-9–, ]+ were in flight"
+
+
+@pytest.mark.parametrize("factory, message", [(FailingTwin, "frame 4 .*injected failure"),
+                                               (DyingTwin, DIED)])
+def test_a_failing_worker_names_the_frame_and_the_run_resumes(tmp_path, factory, message):
+    out = tmp_path / "run"
+    with pytest.raises(RenderError, match=message):
+        render_with_workers(_job(factory), out, 2, warn=lambda m: None)
+    assert _leftovers(out) == []
+    ledger = FileLedger(out)
+    written = sorted(int(p.stem) for p in (out / "frames").glob("*.png"))
+    assert FAIL_AT not in written
+    for i in written:     # every frame there is complete and recorded
+        assert ledger.mismatch(i, [f"frames/{i:05d}.png", f"truth/{i:05d}.npz"]) is None
+    stats, _ = render_with_workers(_job(), out, 2, warn=lambda m: None)
+    assert stats.frames_skipped == len(written)
+    render_with_workers(_job(), tmp_path / "clean", 1, warn=lambda m: None)
+    assert _files(out) == _files(tmp_path / "clean")
+
+
+@pytest.mark.parametrize("realistic", [False, True], ids=["ideal", "realistic"])
+def test_mitsuba_twin_one_and_two_workers_write_the_same_folder(tmp_path, realistic):
+    rig = binned_rig(load_preset("paper"), 16)
+    if realistic:
+        rig = rig.replace(twin={"bounces": 3, "subsurface": True}, laser={"speckle_contrast": 0.7})
+    opts = {"part": "pile", "step_deg": 7.0, "frames": 4, "truth_pixels_every": 3}
+    stats1, m1 = render_folder(rig, "rotary", tmp_path / "w1", seed=5, warn=lambda m: None, **opts)
+    stats2, m2 = render_folder(rig, "rotary", tmp_path / "w2", seed=5, warn=lambda m: None,
+                               workers=2, **opts)
+    assert m1 == m2
+    assert stats2.frames_rendered == 4
+    one, two = _files(tmp_path / "w1"), _files(tmp_path / "w2")
+    assert "frames/00003.png" in one and "truth/00003.npz" in one
+    assert one == two
