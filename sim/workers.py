@@ -64,10 +64,71 @@ from .writer import (
     generator_info,
 )
 
-__all__ = ["RenderJob", "render_with_workers"]
+__all__ = ["AUTO_MIN_PIXELS", "RenderJob", "auto_workers", "is_realistic", "render_with_workers"]
 
 #: Frames handed to each worker at most at a time (one rendering, one queued).
 IN_FLIGHT_PER_WORKER = 2
+
+
+#: ``auto_workers`` starts workers only for a job of at least this many pixels (frames ×
+#: rows × columns; ≈ 20 full paper frames): a worker's start-up (spawn, imports, its own
+#: twin, first kernels) costs ≈ 2–4 s of CPU, ≈ 10 realistic full frames.
+AUTO_MIN_PIXELS = 20 * 1936 * 1216
+
+
+def is_realistic(rig: Rig) -> bool:
+    """Whether the rig's twin is more than the ideal first-surface one.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+
+    Returns
+    -------
+    bool
+        True with ``[twin] bounces`` > 1, ``subsurface`` on, or surface-attached speckle
+        (``speckle_model = "surface"`` with ``[laser] speckle_contrast`` > 0).
+    """
+    t = rig.twin
+    return t.bounces > 1 or bool(t.subsurface) or (t.speckle_model == "surface"
+                                                      and rig.laser.speckle_contrast > 0)
+
+
+def auto_workers(rig: Rig, frames: int, n_cores: int | None = None,
+                 worker_bytes: float | None = None, ram_bytes: float | None = None) -> int:
+    """Worker processes for ``--workers auto``: one per core for a realistic twin's long job, else 1.
+
+    The realistic twin's frame costs ≈ 0.33 s of CPU on one core and its stages are
+    largely serial, so one single-threaded worker per core renders ≈ 1.7× the frames
+    of one process with all the cores (benchmarks/RESULTS.md); the ideal twin keeps
+    one process (its frames are cheap, the workers' start-up and memory are not).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (binned already).
+    frames : int
+        Frames of the job [-].
+    n_cores : int, optional
+        Cores available (default: this process's, :func:`sim.threads.cores`).
+    worker_bytes : float, optional
+        Memory of one worker [B]; with ``ram_bytes``, the workers are capped to half the RAM.
+    ram_bytes : float, optional
+        The machine's memory [B].
+
+    Returns
+    -------
+    int
+        ≥ 1: ``n_cores`` when the twin :func:`is_realistic` and the job holds at least
+        :data:`AUTO_MIN_PIXELS` pixels, 1 otherwise.
+    """
+    n = cores() if n_cores is None else int(n_cores)
+    if not is_realistic(rig) or frames * rig.sensor.rows * rig.sensor.columns < AUTO_MIN_PIXELS:
+        return 1
+    if worker_bytes and ram_bytes:
+        n = min(n, int(0.5 * ram_bytes // worker_bytes))
+    return max(1, n)
 
 
 @dataclass(frozen=True)

@@ -544,7 +544,7 @@ def _size(n: float) -> str:
     return f"{n / 1e6:.2g} MB"
 
 
-def estimate_job(rig: Rig, frames: int, truth_pixels_every: int) -> JobEstimate:
+def estimate_job(rig: Rig, frames: int, truth_pixels_every: int, workers: int = 1) -> JobEstimate:
     """Estimate a render's output size and memory from the sensor and the frame count.
 
     Parameters
@@ -555,6 +555,9 @@ def estimate_job(rig: Rig, frames: int, truth_pixels_every: int) -> JobEstimate:
         Frames to render [-].
     truth_pixels_every : int
         Per-pixel truth every N-th frame (0 = never) [-].
+    workers : int, default 1
+        Worker processes (:func:`sim.workers.render_with_workers`): each holds its own
+        renderer; the main process then holds no renderer (≈ 150 MB).
 
     Returns
     -------
@@ -564,8 +567,9 @@ def estimate_job(rig: Rig, frames: int, truth_pixels_every: int) -> JobEstimate:
     px = rig.sensor.rows * rig.sensor.columns
     pixel_truth = 0 if truth_pixels_every <= 0 else -(-frames // truth_pixels_every)
     output = frames * (0.5 * px + 40 * rig.sensor.rows + 2000) + pixel_truth * 3.0 * px
-    return JobEstimate(frames=int(frames), output_bytes=int(output),
-                       memory_bytes=int(400e6 + 120 * px))
+    renderer = 400e6 + 120 * px
+    memory = renderer if workers <= 1 else workers * renderer + 150e6
+    return JobEstimate(frames=int(frames), output_bytes=int(output), memory_bytes=int(memory))
 
 
 # ------------------------------------------------------------------ manifest

@@ -114,3 +114,24 @@ def test_mitsuba_twin_one_and_two_workers_write_the_same_folder(tmp_path, realis
     one, two = _files(tmp_path / "w1"), _files(tmp_path / "w2")
     assert "frames/00003.png" in one and "truth/00003.npz" in one
     assert one == two
+
+
+def test_auto_workers_one_per_core_for_a_long_realistic_job_only():
+    from sim.workers import AUTO_MIN_PIXELS, auto_workers
+
+    ideal = load_preset("paper")
+    real = ideal.replace(twin={"bounces": 3})
+    frames = -(-AUTO_MIN_PIXELS // (ideal.sensor.rows * ideal.sensor.columns))
+    assert auto_workers(real, frames, n_cores=2) == 2
+    assert auto_workers(real, frames - 1, n_cores=2) == 1
+    assert auto_workers(binned_rig(real, 8), frames, n_cores=2) == 1     # 64× fewer pixels
+    assert auto_workers(ideal, 10 * frames, n_cores=2) == 1
+    assert auto_workers(ideal.replace(laser={"speckle_contrast": 0.5}), frames, n_cores=4) == 4
+    assert auto_workers(real, frames, n_cores=8, worker_bytes=4e9, ram_bytes=24e9) == 3
+
+
+def test_cli_refuses_a_bad_workers_value(tmp_path, capsys):
+    from scheimpflug.app.cli import main
+
+    assert main(["render", "blocker", "--workers", "0", "--out", str(tmp_path / "o")]) == 2
+    assert "--workers" in capsys.readouterr().err

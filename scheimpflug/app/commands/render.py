@@ -14,6 +14,11 @@ folder size, memory): a job that cannot fit (more memory than the machine has,
 more output than the free disk space) is refused with the numbers, and one
 above :data:`CONFIRM_FRAMES` frames or :data:`CONFIRM_BYTES` bytes needs
 ``--yes``.
+
+``--workers N`` renders the frames in N spawned worker processes
+(:mod:`sim.workers`; the same files bit for bit); ``auto`` (default,
+:func:`sim.workers.auto_workers`) uses one per core for a realistic twin's job of
+at least ~20 full frames, else this process alone.
 """
 
 from __future__ import annotations
@@ -82,6 +87,11 @@ def add_parser(sub):
                                                             "rotary: render only the first N")
     g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
                    help="blocker thickness [mm] (default 2)")
+    p.add_argument("--workers", type=_workers, default="auto", metavar="N|auto",
+                   help="worker processes rendering frames at once, each with cores/N threads; the "
+                        "files are the same bit for bit (default auto: one per core when the twin is "
+                        "realistic — bounces > 1, subsurface or surface speckle — and the job holds at "
+                        "least ~20 full frames, else 1)")
     p.add_argument("--yes", action="store_true",
                    help=f"start a job above {CONFIRM_FRAMES:,} frames or {CONFIRM_BYTES / 1e9:g} GB of "
                         "output without asking (it is refused otherwise)")
@@ -89,6 +99,21 @@ def add_parser(sub):
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=_run)
     return p
+
+
+def _workers(text: str):
+    """``--workers``: 'auto' or an integer >= 1."""
+    import argparse
+
+    if text == "auto":
+        return text
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 'auto' or an integer >= 1")
+    return n
 
 
 def _truth_every(value: str | None, scenario: str) -> int:
@@ -156,17 +181,26 @@ def _check_out(path: str) -> None:
         raise RenderError(f"output folder {path!r} is not writable: {str(probe)!r} {what}")
 
 
-def _check_job(args, rig, opts: dict) -> None:
-    """Size the job before anything is built or written; refuse what cannot fit, ask above a size."""
+def _check_job(args, rig, opts: dict) -> int:
+    """Size the job before anything is built or written; refuse what cannot fit, ask above a size.
+
+    Returns the number of worker processes (``--workers``, 'auto' resolved).
+    """
     import os
     import shutil
     from pathlib import Path
 
     from sim.scenarios import frame_count
+    from sim.workers import auto_workers
     from sim.writer import estimate_job
 
-    job = estimate_job(rig, frame_count(args.scenario, **opts), opts["truth_pixels_every"])
+    frames = frame_count(args.scenario, **opts)
     ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    workers = args.workers
+    if workers == "auto":
+        one = estimate_job(rig, frames, opts["truth_pixels_every"]).memory_bytes
+        workers = auto_workers(rig, frames, worker_bytes=one, ram_bytes=ram)
+    job = estimate_job(rig, frames, opts["truth_pixels_every"], workers)
     if job.memory_bytes > ram:
         raise RenderError(f"this job needs about {job.memory_bytes / 1e9:.3g} GB of memory "
                           f"({job.describe()}), this machine has {ram / 1e9:.3g} GB: use --binning")
@@ -180,7 +214,9 @@ def _check_job(args, rig, opts: dict) -> None:
     if (job.frames > CONFIRM_FRAMES or job.output_bytes > CONFIRM_BYTES) and not args.yes:
         raise RenderError(f"a large job: {job.describe()}; pass --yes to start it")
     if not args.quiet:
-        print(f"scheimpflug render: {job.describe()}", file=sys.stderr)
+        print(f"scheimpflug render: {job.describe()}"
+              f"{f', {workers} worker processes' if workers > 1 else ''}", file=sys.stderr)
+    return workers
 
 
 def _run(args) -> int:
@@ -196,7 +232,7 @@ def _run(args) -> int:
     if args.spp is not None and args.spp < 1:
         raise ScheimpflugError(f"--spp {args.spp}: must be >= 1")
     rig = _rig(args)
-    _check_job(args, rig, opts)
+    workers = _check_job(args, rig, opts)
     _check_out(args.out)
 
     def warn(msg):
@@ -204,15 +240,15 @@ def _run(args) -> int:
 
     with Progress(0, label=f"render {args.scenario}", quiet=args.quiet) as bar:
         stats, manifest = render_folder(rig, args.scenario, args.out, seed=args.seed, spp=args.spp,
-                                        progress=bar, warn=warn, **opts)
+                                        progress=bar, warn=warn, workers=workers, **opts)
     if args.json:
-        print_json(_summary(args, stats, manifest))
+        print_json(_summary(args, stats, manifest, workers))
     return 0
 
 
-def _summary(args, stats, manifest) -> dict:
+def _summary(args, stats, manifest, workers: int) -> dict:
     return {"out": str(args.out), "scenario": manifest["scenario"], "frames": stats.frames_total,
             "frames_rendered": stats.frames_rendered, "frames_skipped": stats.frames_skipped,
             "frames_without_stripe": stats.frames_without_stripe, "wall_s": stats.wall_s,
             "seconds": stats.seconds, "spp": manifest["render"]["spp"],
-            "variant": manifest["render"]["variant"]}
+            "variant": manifest["render"]["variant"], "workers": workers}
