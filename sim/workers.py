@@ -275,7 +275,9 @@ class _Pool:
             for fut in others:
                 fut.result()
         except BrokenProcessPool:
-            raise RenderError(f"the render workers could not start ({self._exit_codes()})") from None
+            raise RenderError(f"the render workers could not start ({self._exit_codes()}; a script that "
+                              "renders with workers >= 2 must run its top-level code under "
+                              "'if __name__ == \"__main__\":', since spawned workers import it)") from None
         for msg in twin_warnings:
             warn(msg)
         return manifest
@@ -409,7 +411,9 @@ def render_with_workers(job: RenderJob, out, workers: int, progress: ProgressCal
 
     The files are those of :func:`sim.writer.render_folder` with one process, bit
     for bit; the folder rules (lock, resume, ledger, atomic writes, manifest) are the
-    same (module docstring).
+    same (module docstring).  The workers are spawned, so they import the calling
+    script's ``__main__``: a script must keep its top-level code under
+    ``if __name__ == "__main__":``.
 
     Parameters
     ----------
