@@ -33,6 +33,8 @@ from .variant import is_jit_variant, select_variant
 __all__ = [
     "Hits",
     "SimScene",
+    "dr_vector",
+    "numpy_rows",
 ]
 
 
@@ -377,14 +379,15 @@ class SimScene:
         mi = self._mi
         d = np.asarray(directions, dtype=np.float64)
         o, ds = _to_scene(self.scene_from_rig, np.zeros((1, 3)), d)
-        ray = mi.Ray3f(mi.Point3f(*[float(c) for c in o[0]]), mi.Vector3f(ds.T.astype(np.float32)))
+        origin = mi.Point3f(*[dr.opaque(mi.Float, float(c)) for c in o[0]])   # no per-frame literal
+        ray = mi.Ray3f(origin, dr_vector(mi, mi.Vector3f, ds))
         si = self.scene.ray_intersect(ray)
         part = dr.select(si.is_valid(), mi.Int32(self.part_index_dr(si)) - 1, -1)
         dr.eval(si.t, si.n, part)
         t = np.asarray(si.t, np.float64)
         idx = np.asarray(part, np.int64)
         rot = self.scene_from_rig[:3, :3]
-        n = np.asarray(si.n, np.float64).T @ rot
+        n = numpy_rows(si.n, np.float64).T @ rot
         t = np.where(idx >= 0, t, np.inf)
         return t, idx, np.where((idx >= 0)[:, None], n, np.nan)
 
@@ -413,8 +416,8 @@ class SimScene:
         mi = self._mi
         o, d = _to_scene(self.scene_from_rig, *_rays(origins, directions))
         dn = d / np.linalg.norm(d, axis=1, keepdims=True)
-        pi = self.scene.ray_intersect_preliminary(mi.Ray3f(mi.Point3f(o.T.astype(np.float32)),
-                                                           mi.Vector3f(dn.T.astype(np.float32))))
+        pi = self.scene.ray_intersect_preliminary(mi.Ray3f(dr_vector(mi, mi.Point3f, o),
+                                                           dr_vector(mi, mi.Vector3f, dn)))
         t = dr.select(pi.is_valid(), pi.t, dr.inf)
         reg = dr.reinterpret_array(mi.UInt32, pi.shape)
         dr.eval(t, reg)
@@ -457,10 +460,65 @@ class SimScene:
         dn = d / np.where(length > 0, length, 1.0)[:, None]
         start = o + eps_mm * dn
         maxt = np.maximum(length - 2 * eps_mm, 0.0)
-        ray = mi.Ray3f(mi.Ray3f(mi.Point3f(start.T.astype(np.float32)),
-                                mi.Vector3f(dn.T.astype(np.float32))), mi.Float(maxt.astype(np.float32)))
+        ray = mi.Ray3f(mi.Ray3f(dr_vector(mi, mi.Point3f, start), dr_vector(mi, mi.Vector3f, dn)),
+                       mi.Float(maxt.astype(np.float32)))
         hit = np.asarray(self.scene.ray_test(ray), bool)
         return hit & (maxt > 0)
+
+
+def dr_vector(mi, cls, a: np.ndarray):
+    """A Dr.Jit vector (``cls``: Point3f, Vector3f …) of the rows of ``(n, k)`` float ``a`` (float32).
+
+    Built component by component: converting an ``(k, n)`` array at once traces a
+    kernel with ``n`` in its code, a new compilation for every new ray count.
+
+    Parameters
+    ----------
+    mi : module
+        The ``mitsuba`` module (a JIT variant set).
+    cls : type
+        The Dr.Jit vector type.
+    a : (n, k) float
+        The vectors.
+
+    Returns
+    -------
+    cls
+        The ``n`` vectors, float32.
+    """
+    return cls(*(mi.Float(_aligned_float32(c)) for c in np.asarray(a).T))
+
+
+def _aligned_float32(values) -> np.ndarray:
+    """A float32 copy of ``values`` starting on a 64-byte boundary.
+
+    Dr.Jit maps a numpy array's memory and writes its alignment into the kernel's
+    code (64 or 1 byte): aligned inputs keep one kernel instead of one per alignment.
+    """
+    values = np.asarray(values, dtype=np.float32).ravel()
+    buf = np.empty(values.size + 16, dtype=np.float32)
+    start = (-buf.ctypes.data % 64) // 4
+    out = buf[start:start + values.size]
+    out[...] = values
+    return out
+
+
+def numpy_rows(v, dtype) -> np.ndarray:
+    """The components of an evaluated Dr.Jit vector as rows of a numpy array (no kernel).
+
+    Parameters
+    ----------
+    v : Dr.Jit vector (Point2f, Vector3f …), evaluated
+        ``k`` components of ``n`` values.
+    dtype : numpy dtype
+        Element type of the result.
+
+    Returns
+    -------
+    (k, n) ndarray
+        What ``np.asarray(v, dtype)`` returns, without tracing a kernel with ``n`` in its code.
+    """
+    return np.stack([np.asarray(v[i], dtype) for i in range(len(v))])
 
 
 def _to_scene(scene_from_rig: np.ndarray, points, directions=None):

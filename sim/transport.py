@@ -38,6 +38,7 @@ import numba
 import numpy as np
 
 from .lens import LensConnection
+from .scene import numpy_rows
 from .subsurface import FIXED_POINT_SCALE, WalkMedium, hg_eval, random_walk
 
 __all__ = [
@@ -221,7 +222,7 @@ class LightTransport:
         value = dr.select(ok, beta * f_cos * geo, 0.0)
         contrast = dr.gather(mi.Float, self._contrast, self.scene.part_index_dr(si))
         dr.eval(value, uv, contrast)
-        return SplatBatch(depth, np.asarray(uv, np.float32), np.asarray(value, np.float32),
+        return SplatBatch(depth, numpy_rows(uv, np.float32), np.asarray(value, np.float32),
                           np.asarray(contrast, np.float32))
 
     def _scatter(self, si, ray_d, beta, path_id, depth, s, frame, active, result):
