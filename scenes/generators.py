@@ -52,7 +52,8 @@ def _box_part(name, lo, hi, material, analytic) -> Part:
 
 
 def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float = 5.0, *,
-          flatness_um: float = 0.0, material: str = "metal", name: str = "plate") -> Part:
+          flatness_um: float = 0.0, edge_break_mm: float = 0.0, material: str = "metal",
+          name: str = "plate") -> Part:
     """Calibration plate: x ∈ [0, t], y ∈ [−w/2, w/2], z ∈ [0, h] [mm].
 
     The measured face is the −x face at x = 0 (it faces the laser, which comes
@@ -71,6 +72,13 @@ def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float 
         paraboloid x = −F·(1 − ρ²/ρ_max²), ρ² = y² + (z − h/2)²,
         ρ_max² = (w/2)² + (h/2)² — its corners at x = 0, its centre F nearer
         the laser when F > 0 (:func:`plate_face_x_mm`); 0 = a flat face.
+    edge_break_mm : float, default 0.0
+        45° chamfer c of the measured face's top and bottom edges (a machined
+        plate's "broken" edges, ISO 13715) [mm]: the face spans z ∈ [c, h − c],
+        the chamfers run from (x, z) = (0, c) to (c, 0) and from (0, h − c) to
+        (c, h); 0 = sharp edges.  The sheet lights the chamfers too, so the lit
+        stripe's ends — the plate's endpoints in the calibration — depend on
+        how bright a chamfer looks from the camera.
     material : str, default "metal"
         Material tag (:data:`scenes.part.MATERIALS`).
     name : str, default "plate"
@@ -92,18 +100,40 @@ def plate(width_mm: float = 120.0, height_mm: float = 89.0, thickness_mm: float 
     _positive(width_mm=width_mm, height_mm=height_mm, thickness_mm=thickness_mm)
     if not (math.isfinite(flatness_um) and abs(flatness_um) * 1e-3 < thickness_mm):
         raise MeshError(f"flatness_um = {flatness_um!r}: must be finite and smaller than the thickness")
+    if not (math.isfinite(edge_break_mm) and 0.0 <= edge_break_mm < min(thickness_mm, height_mm / 2)):
+        raise MeshError(f"edge_break_mm = {edge_break_mm!r}: must be ≥ 0 and smaller than the thickness "
+                        "and half the height")
     analytic = {"kind": "plate", "width_mm": float(width_mm), "height_mm": float(height_mm),
                 "thickness_mm": float(thickness_mm), "measured_face_x_mm": 0.0,
-                "measured_face_normal": [-1.0, 0.0, 0.0], "flatness_um": float(flatness_um)}
+                "measured_face_normal": [-1.0, 0.0, 0.0], "flatness_um": float(flatness_um),
+                "edge_break_mm": float(edge_break_mm)}
     lo, hi = [0.0, -width_mm / 2, 0.0], [thickness_mm, width_mm / 2, height_mm]
-    if flatness_um == 0.0:
+    if flatness_um == 0.0 and edge_break_mm == 0.0:
         return _box_part(name, lo, hi, material, analytic)
-    v, f = trimesh.remesh.subdivide_to_size(box_mesh(lo, hi).vertices, box_mesh(lo, hi).faces,
-                                            max_edge=_PLATE_EDGE_MM, max_iter=12)
-    front = v[:, 0] == 0.0
-    v[front, 0] = plate_face_x_mm(v[front, 1], v[front, 2], width_mm, height_mm, flatness_um)
+    base = box_mesh(lo, hi) if edge_break_mm == 0.0 else _chamfered_plate(width_mm, height_mm, thickness_mm,
+                                                                           edge_break_mm)
+    if flatness_um == 0.0:
+        return Part(name=name, mesh=base, material=material, analytic=dict(analytic, mesh_from_part=_eye()))
+    v, f = trimesh.remesh.subdivide_to_size(base.vertices, base.faces, max_edge=_PLATE_EDGE_MM, max_iter=12)
+    front = v[:, 0] <= edge_break_mm * (1 + 1e-12)  # the face and its chamfers move with the bow
+    v[front, 0] += plate_face_x_mm(v[front, 1], v[front, 2], width_mm, height_mm, flatness_um)
     mesh = trimesh.Trimesh(v, f, process=False)
     return Part(name=name, mesh=mesh, material=material, analytic=dict(analytic, mesh_from_part=_eye()))
+
+
+def _chamfered_plate(width_mm: float, height_mm: float, thickness_mm: float, c_mm: float) -> trimesh.Trimesh:
+    """The plate's prism: its (x, z) section a rectangle with the measured face's two edges cut 45° by c."""
+    t, h = thickness_mm, height_mm
+    section = np.array([(c_mm, 0.0), (t, 0.0), (t, h), (c_mm, h), (0.0, h - c_mm), (0.0, c_mm)])
+    n = len(section)
+    v = np.concatenate([np.column_stack([section[:, 0], np.full(n, y), section[:, 1]])
+                        for y in (-width_mm / 2, width_mm / 2)])
+    sides = [[i, (i + 1) % n, (i + 1) % n + n, i, (i + 1) % n + n, i + n] for i in range(n)]
+    caps = [[0, j + 1, j] for j in range(1, n - 1)] + [[n, n + j, n + j + 1] for j in range(1, n - 1)]
+    faces = np.concatenate([np.reshape(sides, (-1, 3)), np.asarray(caps)])
+    mesh = trimesh.Trimesh(v, faces, process=False)
+    trimesh.repair.fix_normals(mesh)
+    return mesh
 
 
 _PLATE_EDGE_MM = 4.0  # longest edge of a bowed plate's mesh

@@ -55,7 +55,13 @@ is ``u = k``.
 The stripe centre is measured with a centre detector, not the paper's
 light-bar edge: an edge sits ``σ·sqrt(2 ln 2)`` beyond the centre, an offset
 that varies with the stripe width across the sensor and biases ``u_h``
-(``detector="edge"`` reproduces the paper).  The default is the windowed
+(``detector="edge"`` measures that edge sub-pixel).  ``detector="paper"`` measures a
+plate frame as the paper did, in whole pixels (its positions are pixel indices:
+the first endpoint at ``px = 97``): the light bar's right boundary at half
+maximum (the red line of its Fig. 3a), the bar's first and last rows at half its
+peak as the endpoints, and one column per frame, the red pixel of the bar's middle
+row, for F²; with ``method="paper"`` it reproduces the paper's processing, so the
+twin's frames can be measured as the paper measured its own.  The default is the windowed
 centre of gravity (``cog``, ±(⌈3σ⌉ + 1) px, at least ±3, σ the frame's stripe width:
 ``window_px="auto"`` of :func:`scheimpflug.stripe.extract_stripes`; a fixed
 ±7 px window cuts wide stripes' tails and adds the noise of 14 background
@@ -636,6 +642,10 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         Stage coordinate of the plate in this frame [mm].
     detector : str, default "cog"
         Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+        "paper": the paper's own processing in whole pixels — the light bar's
+        right boundary at half maximum, its endpoints the first and last rows of
+        the bar at half its peak, the frame's column that of the bar's middle row
+        (module docstring).
     saturation_dn : float, optional
         Saturation level [DN]; default the dtype's maximum.
     tol : CalibrationTolerances, optional
@@ -665,6 +675,8 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         raise CalibrationError(f"no straight stripe ({int(keep.sum())} rows on a line)")
     if prof.saturated[keep].mean() > 0.5:
         raise CalibrationError("stripe saturated in most rows: lower the exposure")
+    if detector == "paper":
+        return _paper_plate_frame(prof, keep, line, stage_mm, frame.shape[0])
     rows_in = prof.rows[keep]
     ends = []
     for v_end, direction, side in ((rows_in.min(), -1, -1), (rows_in.max(), +1, +1)):
@@ -673,6 +685,26 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
     return PlateMeasurement(stage_mm=float(stage_mm), u_mean_px=float(prof.u[keep].mean()),
                             n_rows=int(keep.sum()), line=line, top_px=ends[0], bottom_px=ends[1],
                             rows=rows_in, u=prof.u[keep])
+
+
+def _paper_plate_frame(prof, keep: np.ndarray, line, stage_mm: float, n_rows: int) -> PlateMeasurement:
+    """The paper's own measurement of a plate frame (Section 3, Fig. 3), in whole pixels.
+
+    The light bar is the rows (on the stripe's line) whose peak reaches half the
+    bar's median peak; the red line is each row's right boundary at half maximum
+    (``prof``: method "paper", whole pixels); its endpoints are the bar's first and
+    last rows with their red pixels (None where the bar touches the frame's border);
+    the frame's one column ``px(M')`` is the red pixel of the bar's middle row.
+    """
+    bar = keep & (prof.peak >= 0.5 * np.median(prof.peak[keep]))
+    rows, u = prof.rows[bar], prof.u[bar]
+    if rows.size == 0:
+        raise CalibrationError("no light bar at half its maximum")
+    mid = int(np.argmin(np.abs(rows - 0.5 * (rows[0] + rows[-1]))))
+    top = (float(u[0]), float(rows[0])) if rows[0] > 0 else None
+    bottom = (float(u[-1]), float(rows[-1])) if rows[-1] < n_rows - 1 else None
+    return PlateMeasurement(stage_mm=float(stage_mm), u_mean_px=float(u[mid]), n_rows=int(bar.sum()),
+                            line=line, top_px=top, bottom_px=bottom, rows=rows, u=u)
 
 
 # ---------------------------------------------------------------- the fits
@@ -1248,7 +1280,8 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
     method : {"best", "paper", "refined"}
         Which estimate becomes ``best``.
     detector : str
-        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`), or
+        "paper" (:func:`measure_plate_frame`).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
     tol : CalibrationTolerances

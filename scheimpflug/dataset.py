@@ -95,7 +95,7 @@ TRUTH_ARRAYS = {
     "stripe_incidence_deg": ("float64", (), float("nan")),
 }
 #: the project's detectors by name (scheimpflug.stripe methods)
-DETECTORS = ("blais-rioux", "cog", "edge", "gaussian3")
+DETECTORS = ("blais-rioux", "cog", "edge", "gaussian3", "paper")
 OUTLIER_PX = 1.0
 DISTANCE_BIN_MM = 25.0
 INCIDENCE_BIN_DEG = 10.0

@@ -683,7 +683,10 @@ def _smooth_residuals(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     for _ in range(3):
         r = y - np.polyval(np.polyfit(x[keep], y[keep], 2), x)
         sd = _robust_sigma(r[keep])
-        keep = np.abs(r) <= max(4 * sd, 1e-6)
+        new = np.abs(r) <= max(4 * sd, 1e-6)
+        if new.sum() < 6:  # whole-pixel data: most residuals alike, the robust σ ≈ 0
+            break
+        keep = new
     return r
 
 

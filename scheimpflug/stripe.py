@@ -70,6 +70,13 @@ Per row
        (peak - background)``, linearly interpolated (paper Section 3).  This
        is an *edge*, not a centre: it lies ``σ·sqrt(2 ln(1/edge_fraction))``
        beyond the centre of a Gaussian stripe.
+   ``"paper"``  the paper's red pixels (Figs. 3a, 5b): the same boundary in whole
+       pixels — the last pixel right of the peak at or above that level, no
+       interpolation.  The paper reports its image positions as pixel indices
+       (the first frame's endpoint at ``px = 97``, the blocker at ``965``) and
+       finds its edge error "about one pixel"; this rule reproduces that
+       processing so that the twin's frames can be measured as the paper
+       measured its own (:func:`scheimpflug.calibration.measure_plate_frame`).
 
 Accuracy (tests/test_stripe.py, 12-bit frames with shot + read noise): the
 windowed centre of gravity with ``window_px = ceil(3σ)`` is the best detector,
@@ -106,11 +113,11 @@ __all__ = [
     "stripe_window_px",
 ]
 
-METHODS = ("blais-rioux", "cog", "edge", "gaussian3")
+METHODS = ("blais-rioux", "cog", "edge", "gaussian3", "paper")
 """Sub-pixel methods of :func:`extract_stripes` (module docstring, step 6)."""
 MULTI_PEAK_RULES = ("nearest", "strongest", "track")
 """Rules for rows with several peaks (module docstring, step 4)."""
-_METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3}
+_METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3, "paper": 4}
 
 
 @dataclass(frozen=True)
@@ -281,13 +288,15 @@ def _subpixel(x, k, bg, method, window, edge_fraction):
         if gm - g0 > 0.0:
             return k - 1 + gm / (gm - g0)
         return float(k)
-    # edge: right boundary at a fraction of the peak height
+    # edge (3) and paper (4): right boundary at a fraction of the peak height
     level = bg + edge_fraction * (float(x[k]) - bg)
     j = k
     while j + 1 < n and float(x[j + 1]) >= level:
         j += 1
     if j + 1 >= n:
         return np.nan
+    if method == 4:  # the paper's red pixel: the boundary's last pixel, whole
+        return float(j)
     hi = float(x[j])
     lo = float(x[j + 1])
     return j + (hi - level) / (hi - lo)
@@ -364,7 +373,7 @@ def _one_row(frame, is_int, method, window, flank, min_snr, nearest, ratio, sat,
     if nb_hi < hot_fraction * amp and _vertical_neighbour(frame, r, k) - bg < hot_fraction * amp:
         return  # isolated in both directions: a hot pixel (a stripe narrower than a pixel is not)
     is_sat = float(x[k]) >= sat
-    if is_sat and method != 3:
+    if is_sat and method < 3:  # edges (3, 4) stay edges when the top is clipped
         u = _saturated_centre(x, k, sat)
     else:
         u = _subpixel(x, k, bg, method, window, edge_fraction)
@@ -474,7 +483,7 @@ def _row_candidates(x, is_int, method, window, flank, min_snr, ratio, dip, sat, 
         if max(float(x[k - 1]), float(x[k + 1])) - bg < hot_fraction * amp:
             continue
         is_sat = float(x[k]) >= sat
-        u = _saturated_centre(x, k, sat) if is_sat and method != 3 else \
+        u = _saturated_centre(x, k, sat) if is_sat and method < 3 else \
             _subpixel(x, k, bg, method, window, edge_fraction)
         if not np.isfinite(u):
             continue
@@ -639,8 +648,8 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     frame : (rows, columns) array_like uint8, uint16 or float
         One camera frame [DN]; other integer or float dtypes are converted to
         float64.  At least 1 row and 8 columns.
-    method : {"gaussian3", "cog", "blais-rioux", "edge"}, default "gaussian3"
-        Sub-pixel method (module docstring).
+    method : {"gaussian3", "cog", "blais-rioux", "edge", "paper"}, default "gaussian3"
+        Sub-pixel method (module docstring; "paper": whole pixels).
     min_snr : float, default 6.0
         Detection threshold on (peak − background) / noise [-], > 0.
     window_px : int or "auto", default 7
@@ -659,7 +668,7 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
         Level at which a pixel counts as saturated [DN]; default the dtype's
         maximum (255, 65535; none for floats).
     edge_fraction : float, default 0.5
-        Fraction of the peak height that defines the edge (method "edge") [-],
+        Fraction of the peak height that defines the edge (methods "edge" and "paper") [-],
         in (0, 1).
     hot_pixel_fraction : float, default 0.1
         A peak whose neighbours are both below this fraction of its height is

@@ -390,8 +390,9 @@ def calibration_scenario(rig: Rig, seed: int = 0, steps: int | None = None, step
     if not math.isfinite(start_mm):
         raise ScheimpflugError(f"--start-mm = {start_mm!r}: must be a finite number")
     st = rig.stage
-    assembly = load_assembly("plate", height_mm=plate_height_mm + st.plate_height_error_mm,
-                             **({"flatness_um": st.plate_flatness_um} if st.plate_flatness_um else {}))
+    shape = {k: v for k, v in (("flatness_um", st.plate_flatness_um), ("edge_break_mm", st.plate_edge_break_mm))
+             if v}
+    assembly = load_assembly("plate", height_mm=plate_height_mm + st.plate_height_error_mm, **shape)
     ref_from_rig = np.linalg.inv(rig_from_stage(rig))
     frames = []
     for i in range(steps):

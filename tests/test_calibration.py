@@ -78,6 +78,32 @@ def test_measurements_match_truth(paper_folder):
         assert abs(m.top_px[1] - v_top) < 0.15 and abs(m.bottom_px[1] - v_bot) < 0.15
 
 
+def test_paper_processing_measures_in_whole_pixels(paper_folder, capsys):
+    """detector="paper": the light bar's right boundary at half maximum, its end rows and one
+    column per frame, all whole pixels, where the frame's geometry puts them; the whole-pixel
+    columns scatter F² as uniform quantisation of ±½ px predicts."""
+    path, truths = paper_folder
+    geo, scene = Geometry(), PlateScene()
+    res = calibrate_folder(path, method="paper", detector="paper")
+    assert res.best.method == "paper" and len(res.measurements) == 26
+    half_width = math.sqrt(scene.sigma_px ** 2 + 1 / 12) * math.sqrt(2 * math.log(2))
+    for m, (u, v_top, v_bot) in zip(res.measurements, truths):
+        for x in (m.u_mean_px, *m.top_px, *m.bottom_px):
+            assert x == round(x)
+        assert -1.5 < m.u_mean_px - (u + half_width) < 0.5  # floor of the crossing, noise ±½ px
+        # the end rows are the last rows lit to at least half: ceil/floor of the edge, noise ±1 row
+        assert abs(m.top_px[1] - math.ceil(v_top)) <= 1 and abs(m.bottom_px[1] - math.floor(v_bot)) <= 1
+    s = np.array([m.stage_mm for m in res.measurements])
+    quantisation = math.sqrt(1 / 12) * np.sqrt(np.mean((s - geo.d0_mm) ** 2))  # σ of (s − d0)·U(−½, ½)
+    assert 0.5 < res.paper.F2_sigma_px_mm / quantisation < 2.0, (res.paper.F2_sigma_px_mm, quantisation)
+    sub = calibrate_folder(path, method="paper")
+    assert res.paper.F2_sigma_px_mm > 10 * sub.paper.F2_sigma_px_mm
+    assert main(["calibrate", str(path), "--detector", "paper", "--method", "paper", "--json",
+                 "--quiet"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["F2_sigma_px_mm"] == pytest.approx(res.paper.F2_sigma_px_mm)
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_random_geometry(seed):
     """Random hinge, F², C, d0, stripe width and edge blur; in-memory frames."""

@@ -95,3 +95,18 @@ def test_as_built_column_and_budget_by_source(quick_demo):
     assert all(d in b["sources"] or d is None for d in b["dominant"].values())
     # the budget's ideal run is the ideal rig: no stage error, so its axis is found to < 0.05 mm
     assert abs(b["rows"]["none (ideal)"]["axis_error_mm"]) < 0.05
+
+
+def test_frames_measured_as_the_paper_measured(quick_demo):
+    """Both twins' frames are also measured in whole pixels (the paper's processing): whole pixels
+    scatter F² far more than sub-pixel centres of the same frames, and the report says so."""
+    out, s = quick_demo
+    for run in (s, s["as_built"]):
+        p = run["as_the_paper"]
+        assert p["calibration"]["method"] == "paper"
+        assert p["calibration"]["F2_sigma_px_mm"] > 5 * run["calibration"]["best"]["F2_sigma_px_mm"]
+        assert p["box_plane"] is not None and p["ring"] is not None
+        assert abs(p["axis_mm"] - run["axis"]["axis_mm"]) < 1.0  # an edge, one whole pixel: < 1 mm
+    report = (out / "report" / "report.md").read_text()
+    assert "## Measured as the paper measured" in report
+    assert "| figure | paper | as built, paper's processing |" in report

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from scheimpflug.errors import RigError
+from scheimpflug.errors import MeshError, RigError
 from scheimpflug.model.camera import (
     conjugate_point,
     lens_state,
@@ -156,6 +156,32 @@ def test_plate_flatness_height_and_watertight_mesh():
     yy, zz = np.meshgrid(np.linspace(-60, 60, 601), np.linspace(0, 89.1, 601))
     extra = -plate_face_x_mm(yy, zz, 120.0, 89.1, 40.0).mean() * 120.0 * 89.1
     assert bowed.mesh.volume - flat.mesh.volume == pytest.approx(extra, rel=0.02)
+
+
+def test_plate_edge_break_is_a_45_degree_chamfer_of_the_measured_face():
+    """Chamfer c: the face spans z ∈ [c, h − c] at x = 0, each chamfer removes a c²/2 prism over the
+    width, the back and the outline stay; with a bow the chamfers move with the face."""
+    from scenes.generators import plate
+
+    c, w, h, t = 0.3, 120.0, 89.0, 5.0
+    cut = plate(edge_break_mm=c)
+    m = cut.mesh
+    assert m.is_watertight and cut.analytic["edge_break_mm"] == c
+    assert m.volume == pytest.approx(w * (t * h - c * c), rel=1e-12)
+    np.testing.assert_allclose(m.bounds, [[0, -w / 2, 0], [t, w / 2, h]])
+    face = m.vertices[m.vertices[:, 0] == 0.0]
+    np.testing.assert_allclose(sorted(set(face[:, 2])), [c, h - c])
+    # a ray along +x at height z hits the chamfer at x = c − z (bottom) or z − (h − c) (top)
+    z = np.array([0.05, 0.15, 0.25, h - 0.25, h - 0.05])
+    origins = np.column_stack([np.full(z.size, -10.0), np.zeros(z.size), z])
+    locs, idx, _ = m.ray.intersects_location(origins, np.tile([1.0, 0.0, 0.0], (z.size, 1)), multiple_hits=False)
+    hit_x = locs[np.argsort(idx), 0]
+    np.testing.assert_allclose(hit_x, np.where(z < h / 2, c - z, z - (h - c)), atol=1e-9)
+    both = plate(edge_break_mm=c, flatness_um=30.0).mesh
+    assert both.is_watertight
+    assert plate(flatness_um=30.0).mesh.volume - both.volume == pytest.approx(w * c * c, rel=1e-3)
+    with pytest.raises(MeshError):
+        plate(edge_break_mm=6.0)
 
 
 # ------------------------------------------------------------------ laser sheet

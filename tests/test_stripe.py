@@ -83,6 +83,23 @@ def test_edge_is_the_right_boundary():
     assert np.max(np.abs(p.u - expect[p.rows])) < 0.1
 
 
+def test_paper_method_is_the_boundary_in_whole_pixels():
+    """Method 'paper': the last pixel at or above half maximum — the whole pixel in which the
+    half-maximum crossing σ·sqrt(2 ln 2) right of the centre lies (noise free, 41 phases)."""
+    sigma = 2.5
+    uc = 30.0 + np.linspace(-0.5, 0.5, 41)
+    frame = 100.0 + 40000.0 * stripe_profile(uc, sigma, COLS)
+    p = extract_stripes(frame, "paper")
+    crossing = uc + math.sqrt(sigma ** 2 + 1 / 12) * math.sqrt(2 * math.log(2))
+    assert len(p) == uc.size and np.array_equal(p.u, np.round(p.u))
+    # the closed form holds to 0.1 px (test above): the red pixel is floor(crossing) except within
+    # 0.1 px of a pixel border, where either neighbour is right
+    lo, hi = np.floor(crossing[p.rows] - 0.1), np.floor(crossing[p.rows] + 0.1)
+    assert np.all((p.u >= lo) & (p.u <= hi))
+    clear = lo == hi
+    assert clear.sum() > 30 and np.array_equal(p.u[clear], lo[clear])
+
+
 def test_blank_rows_rejected_and_stripe_rows_kept():
     rng = np.random.default_rng(5)
     stripe, uc = _frame(rng, 1.5, 8000.0, rows=400)
@@ -157,7 +174,7 @@ def test_bad_input():
         extract_stripes(np.zeros((3, 20)), method="parabola")
     with pytest.raises(ValueError):
         extract_stripes(np.zeros((3, 20)), multi_peak="all")
-    assert set(METHODS) == {"cog", "gaussian3", "blais-rioux", "edge"}
+    assert set(METHODS) == {"cog", "gaussian3", "blais-rioux", "edge", "paper"}
 
 
 def test_track_rule_follows_the_continuous_stripe_not_a_wide_secondary(rng):

@@ -171,8 +171,12 @@ def _axis(folder: Path, calibration) -> dict:
     return {"axis_mm": float(res.axis_mm), "detail": res.to_json_dict()}
 
 
-def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bool) -> dict:
-    """Extract, reconstruct, write the PLY and score against truth/mesh.ply."""
+def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bool,
+          method: str = "cog", every: int = 1) -> dict:
+    """Extract (stripe ``method``, every ``every``-th frame), reconstruct, write the PLY and
+    score against truth/mesh.ply."""
+    import dataclasses
+
     from scheimpflug.app.progress import Progress
     from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.io.ply import write_point_cloud
@@ -180,8 +184,10 @@ def _scan(folder: Path, calibration, axis_mm: float, cloud_path: Path, quiet: bo
     from scheimpflug.scoring import distance_stats
 
     ff = open_frame_folder(folder)
+    if every > 1:
+        ff = dataclasses.replace(ff, frames=ff.frames[::every])
     with Progress(0, label="reconstruct", quiet=quiet) as bar:
-        rows, us, peaks, stats = extract_folder(ff, "cog", progress=bar)
+        rows, us, peaks, stats = extract_folder(ff, method, progress=bar)
     cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], calibration, axis_mm,
                                  intensity=peaks)
     if len(cloud) == 0:
@@ -377,8 +383,12 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
     summary = _summary(rig, plan, quick, ideal, timer, t_start)
     if as_built:
         ab_plan = as_built_plan_for(quick)
+        summary["as_the_paper"] = _as_the_paper(rig, plan, out, ideal, quiet, timer,
+                                                pile_step_deg=ab_plan.pile_step_deg)
         ab = _experiments(as_built, ab_plan, out / "as-built", seed, quiet, timer, label="as built: ")
         summary["as_built"] = _summary(as_built, ab_plan, quick, ab, timer, t_start)
+        summary["as_built"]["as_the_paper"] = _as_the_paper(as_built, ab_plan, out / "as-built", ab, quiet,
+                                                            timer, label="as built: ")
         summary["source_budget"] = _source_budget(rig, as_built, budget_plan_for(quick), out / "budget",
                                                   seed, quiet, timer)
     summary["seconds"] = dict(timer.seconds)
@@ -426,6 +436,36 @@ def _experiments(rig: Rig, plan: DemoPlan, out: Path, seed: int, quiet: bool, ti
     return res
 
 
+def _as_the_paper(rig: Rig, plan: DemoPlan, out: Path, res: dict, quiet: bool, timer: _Timer,
+                  label: str = "", pile_step_deg: float | None = None) -> dict:
+    """The run's own frames measured as the paper measured its frames: in whole pixels.
+
+    The paper's Section 3 processing (:func:`scheimpflug.calibration.measure_plate_frame`,
+    detector "paper": the light bar's right boundary at half maximum in whole pixels,
+    the bar's end rows as endpoints, one column per frame; the paper's estimate), the
+    axis from the blocker's boundary and the pile's stripes in whole pixels (stripe
+    method "paper"), scored like the sub-pixel pipeline's.  The frames are the ones
+    already rendered: the difference to the run's own figures is the processing alone.
+    ``pile_step_deg`` thins the pile to that step (the as-built column's, so that both
+    columns' pile figures come from the same number of frames).
+    """
+    from scheimpflug.axis import locate_axis
+    from scheimpflug.calibration import calibrate_folder
+
+    cal = timer.run(f"{label}calibrate as the paper", calibrate_folder, out / "calibration",
+                    method="paper", detector="paper").best
+    axis_mm = float(locate_axis(out / "blocker", cal, detector="paper").axis_mm)
+    got = {"calibration": cal.to_json_dict(), "axis_mm": axis_mm, "box_plane": None, "ring": None,
+           "binning": plan.binning}
+    if res["pile"] is not None:
+        every = max(1, round((pile_step_deg or plan.pile_step_deg) / plan.pile_step_deg))
+        scan = timer.run(f"{label}reconstruct + score pile as the paper", _scan, out / "pile", cal, axis_mm,
+                         out / "pile-as-the-paper.ply", quiet, method="paper", every=every)
+        m = _pile_metrics(scan, rig)
+        got.update(box_plane=m["box_plane"], ring=m["ring"], pile_step_deg=plan.pile_step_deg * every)
+    return got
+
+
 def _models(res: dict, rig: Rig, out: Path, quick: bool, timer: _Timer) -> None:
     """The cylinder's and the pile's watertight models and their scores, into res["cyl"/"pile"]["model"]."""
     import scenes
@@ -459,7 +499,7 @@ def _times(x, k: int):
 #: The figures of the budget by source, the key of each in the summary and its label.
 BUDGET_FIGURES = (("F2_sigma_px_mm", "σ(F²) [px·mm]"), ("C_sigma_mm", "σ(C) [mm]"),
                   ("box_plane_rmse_mm", "box side plane RMSE [mm]"),
-                  ("ring_mean_error_mm", "ring mean |error| [mm]"),
+                  ("ring_mean_error_mm", "ring mean \\|error\\| [mm]"),
                   ("axis_error_mm", "axis error [mm]"))
 
 
@@ -599,6 +639,12 @@ def _print_summary(s: dict, out: Path) -> None:
         lines.append(f"  as built     σ(F²) {_num(c.get('F2_sigma_px_mm'))} px·mm, σ(C) "
                      f"{_num(c.get('C_sigma_mm'))} mm, box RMSE {_num(box.get('rmse_mm'))} mm, ring mean "
                      f"|error| {_num(ring.get('mean_abs_error_mm'))} mm (paper 581, 0.20, 0.1775, ≈ 2)")
+        if "as_the_paper" in ab:
+            p = ab["as_the_paper"]
+            c, ring, box = p["calibration"], p["ring"] or {}, p["box_plane"] or {}
+            lines.append(f"  as built, measured as the paper (whole pixels): σ(F²) "
+                         f"{_num(c.get('F2_sigma_px_mm'))} px·mm, σ(C) {_num(c.get('C_sigma_mm'))} mm, box RMSE "
+                         f"{_num(box.get('rmse_mm'))} mm, ring mean |error| {_num(ring.get('mean_abs_error_mm'))} mm")
     for name, m in s.get("models", {}).items():
         if m.get("true_volume_mm3"):
             lines.append(f"  {name + ' model':<12} volume {m['volume_mm3']:.6g} mm³ vs truth "

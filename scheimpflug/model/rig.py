@@ -320,6 +320,10 @@ class Stage:
     plate_flatness_um : float, default 0.0
         Flatness of the measured face, peak to valley: a paraboloid bow, its
         centre nearer the laser than its corners when > 0 [µm], in [-5000, 5000].
+    plate_edge_break_mm : float, default 0.0
+        45° chamfer of the measured face's top and bottom edges (broken edges,
+        ISO 13715) [mm], in [0, 2]; the sheet lights the chamfers too
+        (:func:`scenes.generators.plate`).
     plate_tilt_deg : float, default 0.0
         Tilt of the measured face about its horizontal axis (the plate leans,
         its top toward +propagation when > 0) [deg], in [-10, 10].
@@ -364,6 +368,7 @@ class Stage:
     radial_error_um: float = 0.0
     plate_height_error_mm: float = 0.0
     plate_flatness_um: float = 0.0
+    plate_edge_break_mm: float = 0.0
     plate_tilt_deg: float = 0.0
     plate_yaw_deg: float = 0.0
 
@@ -562,7 +567,8 @@ KEY_RANGES: dict[str, dict[str, str]] = {
               "pitch_urad": "[-1e5, 1e5]", "yaw_urad": "[-1e5, 1e5]", "rotary_eccentricity_deg": "[-1, 1]",
               "rotary_repeatability_deg": "[0, 1]", "wobble_urad": "[0, 1e5]",
               "radial_error_um": "[0, 1000]", "plate_height_error_mm": "[-10, 10]",
-              "plate_flatness_um": "[-5000, 5000]", "plate_tilt_deg": "[-10, 10]",
+              "plate_flatness_um": "[-5000, 5000]", "plate_edge_break_mm": "[0, 2]",
+              "plate_tilt_deg": "[-10, 10]",
               "plate_yaw_deg": "[-10, 10]"},
     "environment": {"ambient_irradiance_w_m2": "[0, 1e5]"},
     "twin": {"bounces": "[1, 64]", "subsurface": "{true, false}",
@@ -774,7 +780,7 @@ ERROR_MODELS: dict[str, tuple[str, ...]] = {
     "rotary stage": ("stage.rotary_eccentricity_deg", "stage.rotary_repeatability_deg",
                      "stage.wobble_urad", "stage.radial_error_um"),
     "calibration plate": ("stage.plate_height_error_mm", "stage.plate_flatness_um",
-                          "stage.plate_tilt_deg", "stage.plate_yaw_deg"),
+                          "stage.plate_edge_break_mm", "stage.plate_tilt_deg", "stage.plate_yaw_deg"),
     "laser": ("laser.line_bow_mrad", "laser.fan_edge_ratio", "laser.pointing_jitter_urad"),
     "speckle": ("laser.speckle_contrast",),
     "lens": ("lens.focal_length_error_mm", "lens.focus_error_um", "lens.k1", "lens.k2"),

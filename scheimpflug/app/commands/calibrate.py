@@ -36,10 +36,11 @@ def add_parser(sub):
                         "significantly better and it removes ≥ 20 %% of the residual sum of squares")
     p.add_argument("--method", choices=("paper", "refined", "best"), default="best",
                    help="paper form's estimate (default best: smaller standard error of u_h)")
-    p.add_argument("--detector", choices=("gaussian3", "cog", "blais-rioux", "edge"),
+    p.add_argument("--detector", choices=("gaussian3", "cog", "blais-rioux", "edge", "paper"),
                    default="cog",
                    help="stripe detector (default cog: windowed centre of gravity, unbiased on "
-                        "wide stripes; edge = the paper's light-bar edge)")
+                        "wide stripes; edge = the paper's light-bar edge, sub-pixel; paper = the "
+                        "paper's own processing in whole pixels, use with --method paper)")
     p.add_argument("--opencv", metavar="FILE.json",
                    help="also write the calibration as OpenCV's tilted camera model + laser plane "
                         "(JSON; .yml/.yaml/.xml through cv2.FileStorage)")

@@ -18,7 +18,7 @@ from scheimpflug.app.commands._common import (
 )
 from scheimpflug.app.commands._model import add_model_options
 
-_METHODS = ("gaussian3", "cog", "blais-rioux", "edge")
+_METHODS = ("gaussian3", "cog", "blais-rioux", "edge", "paper")
 
 
 def add_parser(sub):
@@ -43,7 +43,8 @@ def add_parser(sub):
     add_force_option(p)
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
-                        "and on speckled stripes, benchmarks/RESULTS.md)")
+                        "and on speckled stripes, benchmarks/RESULTS.md; paper = the paper's red "
+                        "pixels: the light bar's right boundary in whole pixels)")
     p.add_argument("--multi-peak", choices=("nearest", "strongest", "track"), default="nearest",
                    help="rule for rows with several peaks (inter-reflections): 'track' picks the "
                         "most continuous, narrow, bright one (default nearest)")
