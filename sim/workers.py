@@ -264,15 +264,19 @@ class _Pool:
         self.executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                             initializer=_init_worker, initargs=(job, threads))
         self.workers, self.processes = workers, []
+        self._first, self._others = None, []
 
-    def start(self, warn) -> dict:
-        """Start every worker at once; the manifest from the first (raises a worker's setup error)."""
-        first = self.executor.submit(_manifest_task)
-        others = [self.executor.submit(_ready_task) for _ in range(self.workers - 1)]
+    def launch(self) -> None:
+        """Start every worker at once (each builds its scenario and twin); returns at once."""
+        self._first = self.executor.submit(_manifest_task)
+        self._others = [self.executor.submit(_ready_task) for _ in range(self.workers - 1)]
         self.processes = list(getattr(self.executor, "_processes", {}).values())
+
+    def manifest(self, warn) -> dict:
+        """The manifest from the first worker once all are ready (raises a worker's setup error)."""
         try:
-            manifest, twin_warnings = first.result()
-            for fut in others:
+            manifest, twin_warnings = self._first.result()
+            for fut in self._others:
                 fut.result()
         except BrokenProcessPool:
             raise RenderError(f"the render workers could not start ({self._exit_codes()}; a script that "
@@ -450,9 +454,10 @@ def render_with_workers(job: RenderJob, out, workers: int, progress: ProgressCal
         raise RenderError(f"--workers {workers!r}: must be an integer >= 1")
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
-    scenario = _main_scenario(job, warn)
     with _TermAsInterrupt(), _Pool(job, workers) as pool:
-        manifest = pool.start(warn)
+        pool.launch()                           # the workers start while this process
+        scenario = _main_scenario(job, warn)    # builds the scenario for the folder's files
+        manifest = pool.manifest(warn)
 
         def loop(todo, stats, bar, ledger):
             _pool_loop(pool, out, warn, todo, stats, bar, ledger)
