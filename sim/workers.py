@@ -11,12 +11,13 @@ with the same files as one process writes, bit for bit:
   own twin once, then renders the frames it is handed: render, sensor noise,
   truth, and the encoded truth file and PNG (:func:`sim.writer.encode_npz`,
   :func:`sim.writer.encode_png16`);
-* the main process builds no twin: it holds the folder's lock, checks and
-  resumes the folder, hands the frames out in order (at most 2 per worker in
-  flight), writes each finished frame's truth and PNG atomically and records
-  them in the ledger (``checksums.jsonl``), reports one progress count and
-  writes the manifest — everything :func:`sim.writer.render_scenario` does,
-  with the same rules (:mod:`sim.writer`).
+* the main process builds no twin (it takes the scenario from the first
+  worker): it holds the folder's lock, checks and resumes the folder, hands the
+  frames out in order (at most 2 per worker in flight), writes each finished
+  frame's truth and PNG atomically and records them in the ledger
+  (``checksums.jsonl``), reports one progress count and writes the manifest:
+  everything :func:`sim.writer.render_scenario` does, with the same rules
+  (:mod:`sim.writer`).
 
 Failures: an exception in a worker stops the run and is raised once, naming
 the frame (a :class:`~scheimpflug.errors.ScheimpflugError` keeps its type; any
@@ -71,9 +72,11 @@ IN_FLIGHT_PER_WORKER = 2
 
 
 #: ``auto_workers`` starts workers only for a job of at least this many pixels (frames ×
-#: rows × columns; ≈ 20 full paper frames): a worker's start-up (spawn, imports, its own
-#: twin, first kernels) costs ≈ 2–4 s of CPU, ≈ 10 realistic full frames.
-AUTO_MIN_PIXELS = 20 * 1936 * 1216
+#: rows × columns; 60 full paper frames).  Two workers start ≈ 2 s later than one process
+#: (each one imports, builds its twin and warms its first frame on one core), so they
+#: break even at ≈ 30 realistic full frames and are ≈ 15 % faster at 60, ≈ 1.5× on long
+#: scans (benchmarks/RESULTS.md).
+AUTO_MIN_PIXELS = 60 * 1936 * 1216
 
 
 def is_realistic(rig: Rig) -> bool:
@@ -100,9 +103,10 @@ def auto_workers(rig: Rig, frames: int, n_cores: int | None = None,
     """Worker processes for ``--workers auto``: one per core for a realistic twin's long job, else 1.
 
     The realistic twin's frame costs ≈ 0.33 s of CPU on one core and its stages are
-    largely serial, so one single-threaded worker per core renders ≈ 1.7× the frames
-    of one process with all the cores (benchmarks/RESULTS.md); the ideal twin keeps
-    one process (its frames are cheap, the workers' start-up and memory are not).
+    largely serial, so two single-threaded workers on 2 cores render ≈ 1.55× the
+    frames per second of one process using both (benchmarks/RESULTS.md); the ideal
+    twin keeps one process (its frames are cheap, the workers' start-up and memory
+    are not: 2 workers gain ≈ 1.2× per frame and start ≈ 1.3 s later).
 
     Parameters
     ----------
@@ -204,15 +208,13 @@ def _build(job: RenderJob) -> dict:
     from .sensor import SensorModel
     from .writer import MitsubaTwin
 
-    with warnings.catch_warnings():     # part warnings: the main process reports them
-        warnings.simplefilter("ignore")
-        scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
         warnings.simplefilter("always")
+        scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
         twin = (job.twin_factory or MitsubaTwin)(job.rig, scenario.assembly, spp=job.spp)
     return {"job": job, "scenario": scenario, "twin": twin, "mesh": _scene_arrays(scenario),
             "frames": {f.index: f for f in scenario.frames}, "model": SensorModel.from_rig(job.rig),
-            "warnings": [str(w.message) for w in caught]}
+            "warnings": list(scenario.warnings) + [str(w.message) for w in caught]}
 
 
 def _state() -> dict:
@@ -221,14 +223,14 @@ def _state() -> dict:
     return _STATE
 
 
-def _manifest_task() -> tuple[dict, list]:
-    """The run's manifest (as :func:`sim.writer.render_folder` builds it) and the twin's warnings."""
+def _manifest_task() -> tuple[dict, object, list]:
+    """The run's manifest (as :func:`sim.writer.render_folder` builds it), scenario and warnings."""
     st = _state()
     job, twin = st["job"], st["twin"]
     describe = twin.describe() if hasattr(twin, "describe") else None
     manifest = build_manifest(job.rig, st["scenario"], job.seed, getattr(twin, "spp", 1),
                               getattr(twin, "variant", "unknown"), generator_info(), describe)
-    return manifest, st["warnings"]
+    return manifest, st["scenario"], st["warnings"]
 
 
 def _ready_task() -> bool:
@@ -272,19 +274,19 @@ class _Pool:
         self._others = [self.executor.submit(_ready_task) for _ in range(self.workers - 1)]
         self.processes = list(getattr(self.executor, "_processes", {}).values())
 
-    def manifest(self, warn) -> dict:
-        """The manifest from the first worker once all are ready (raises a worker's setup error)."""
+    def manifest(self, warn) -> tuple[dict, object]:
+        """Manifest and scenario from the first worker once all are ready (or its setup error)."""
         try:
-            manifest, twin_warnings = self._first.result()
+            manifest, scenario, messages = self._first.result()
             for fut in self._others:
                 fut.result()
         except BrokenProcessPool:
             raise RenderError(f"the render workers could not start ({self._exit_codes()}; a script that "
                               "renders with workers >= 2 must run its top-level code under "
                               "'if __name__ == \"__main__\":', since spawned workers import it)") from None
-        for msg in twin_warnings:
+        for msg in messages:
             warn(msg)
-        return manifest
+        return manifest, scenario
 
     def _exit_codes(self) -> str:
         codes = [p.exitcode for p in self.processes if p.exitcode is not None]
@@ -396,19 +398,6 @@ class _TermAsInterrupt:
             signal.signal(signal.SIGTERM, self.old)
 
 
-def _main_scenario(job: RenderJob, warn):
-    from .scenarios import build_scenario
-
-    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
-        warnings.simplefilter("always")
-        scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
-    for msg in scenario.warnings:
-        warn(msg)
-    for w in caught:
-        warn(str(w.message))
-    return scenario
-
-
 def render_with_workers(job: RenderJob, out, workers: int, progress: ProgressCallback | None = None,
                         warn: Callable[[str], None] | None = None) -> tuple[RenderStats, dict]:
     """Render a scenario into a frame folder with ``workers`` spawned worker processes.
@@ -455,9 +444,8 @@ def render_with_workers(job: RenderJob, out, workers: int, progress: ProgressCal
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
     with _TermAsInterrupt(), _Pool(job, workers) as pool:
-        pool.launch()                           # the workers start while this process
-        scenario = _main_scenario(job, warn)    # builds the scenario for the folder's files
-        manifest = pool.manifest(warn)
+        pool.launch()
+        manifest, scenario = pool.manifest(warn)
 
         def loop(todo, stats, bar, ledger):
             _pool_loop(pool, out, warn, todo, stats, bar, ledger)

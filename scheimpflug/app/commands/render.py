@@ -18,7 +18,7 @@ above :data:`CONFIRM_FRAMES` frames or :data:`CONFIRM_BYTES` bytes needs
 ``--workers N`` renders the frames in N spawned worker processes
 (:mod:`sim.workers`; the same files bit for bit); ``auto`` (default,
 :func:`sim.workers.auto_workers`) uses one per core for a realistic twin's job of
-at least ~20 full frames, else this process alone.
+at least ~60 full frames, else this process alone.
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ def add_parser(sub):
                    help="worker processes rendering frames at once, each with cores/N threads; the "
                         "files are the same bit for bit (default auto: one per core when the twin is "
                         "realistic — bounces > 1, subsurface or surface speckle — and the job holds at "
-                        "least ~20 full frames, else 1)")
+                        "least ~60 full frames, else 1)")
     p.add_argument("--yes", action="store_true",
                    help=f"start a job above {CONFIRM_FRAMES:,} frames or {CONFIRM_BYTES / 1e9:g} GB of "
                         "output without asking (it is refused otherwise)")
