@@ -11,6 +11,7 @@ import hashlib
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_render_cli import FakeTwin
 
@@ -135,3 +136,46 @@ def test_cli_refuses_a_bad_workers_value(tmp_path, capsys):
 
     assert main(["render", "blocker", "--workers", "0", "--out", str(tmp_path / "o")]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def test_ray_queries_compile_once_for_any_ray_count_and_pose():
+    """No ray count, pose or input alignment is baked into the ray-query kernels (one
+    compilation for a whole scan, not one per frame), and the values are unchanged."""
+    import drjit as dr
+    import mitsuba as mi
+    import trimesh
+
+    from sim.scene import SimScene, dr_vector, numpy_rows
+    from sim.variant import is_jit_variant, select_variant
+
+    if not is_jit_variant(select_variant()):
+        pytest.skip("no usable libLLVM ≥ 17: the renderer needs a JIT variant")
+    plate = trimesh.creation.box([5.0, 200.0, 120.0])
+    scene = SimScene([(plate, "tape", 1)])
+
+    def queries(n, x_mm):
+        pose = np.eye(4)
+        pose[:3, 3] = (x_mm, 0.0, 0.0)
+        scene.set_pose(pose)
+        rng = np.random.default_rng(n)
+        d = np.column_stack([np.ones(n), rng.normal(0, 0.1, (n, 2))])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        t, part, _ = scene.first_hit_parts(d)
+        scene.first_hit(np.zeros((n - 1, 3)), d[1:])      # another count, another alignment
+        assert np.isfinite(t).any() and (part == 0).any()
+        return {k["hash"] for k in dr.kernel_history() if k.get("hash") is not None}
+
+    flag = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        first = queries(1001, 600.0)
+        later = queries(1377, 612.5) | queries(517, 590.0)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, flag)
+    assert later <= first
+    a = np.random.default_rng(1).normal(size=(9, 3))
+    v = dr_vector(mi, mi.Vector3f, a[1:])
+    dr.eval(v)
+    assert np.array_equal(numpy_rows(v, np.float64), np.asarray(mi.Vector3f(a[1:].T.astype(np.float32)),
+                                                                 np.float64))
