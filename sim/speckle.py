@@ -270,7 +270,7 @@ class SurfaceSpeckle:
             laser + coherent·(S − 1) [e⁻].
         """
         s = self.pixel_speckle(laser)
-        return (laser + coherent * (s - np.float32(1.0))).astype(np.float32)
+        return (laser + coherent * (s - np.float32(1.0))).astype(np.float32, copy=False)
 
     def pixel_speckle(self, laser, keep_fine: bool = False) -> np.ndarray:
         """Speckle factor S of each pixel (mean 1; 1 where no laser light).
