@@ -5,8 +5,8 @@ the study's Dask workers (:mod:`sim.dataset.engine`) and the render workers of
 :func:`sim.writer.render_folder` — so that they all run alike:
 
 * :func:`cores` — the cores this process may run on (its CPU affinity);
-* :func:`configure_threads` — Dr.Jit's, numba's and Blosc's thread pools sized to
-  ``n`` cores, and glibc's allocator thresholds fixed (:func:`tune_malloc`).
+* :func:`configure_threads` — Dr.Jit's, numba's, Blosc's and OpenBLAS's thread pools
+  sized to ``n`` cores, and glibc's allocator thresholds fixed (:func:`tune_malloc`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["configure_threads", "cores", "tune_malloc"]
+__all__ = ["configure_threads", "cores", "set_blas_threads", "tune_malloc"]
 
 _THREADS: dict = {}
 
@@ -34,7 +34,7 @@ def cores() -> int:
 
 
 def configure_threads(n: int) -> None:
-    """Size this process's thread pools (Dr.Jit, numba, Blosc) to ``n`` cores; tune malloc.
+    """Size this process's thread pools (Dr.Jit, numba, Blosc, OpenBLAS) to ``n`` cores; tune malloc.
 
     Also fixes glibc's allocator thresholds (:func:`tune_malloc`): Dask's nanny starts
     workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which turns off glibc's adaptive mmap
@@ -65,7 +65,51 @@ def configure_threads(n: int) -> None:
         dr.set_thread_count(n)
     except (ImportError, AttributeError):  # pragma: no cover - no Dr.Jit
         pass
+    set_blas_threads(n)
     _THREADS["n"] = n
+
+
+_BLAS_SETTERS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                 "openblas_set_num_threads64_", "openblas_set_num_threads")
+
+
+def set_blas_threads(n: int) -> int:
+    """Size the thread pool of every OpenBLAS loaded in this process (numpy's, scipy's) to ``n``.
+
+    The libraries are found in the process's memory map (Linux); elsewhere, or for
+    another BLAS, nothing changes.  A long dot product's sum may be split among the
+    threads, so its last bits may depend on ``n``; the twin's frames and truth do not
+    (checked bit for bit, one and two threads).
+
+    Parameters
+    ----------
+    n : int
+        Threads (≥ 1).
+
+    Returns
+    -------
+    int
+        The number of libraries set.
+    """
+    import ctypes
+
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as maps:
+            paths = sorted({line.split()[-1] for line in maps
+                            if "openblas" in line.lower() and ".so" in line})
+    except OSError:  # pragma: no cover - not Linux
+        return 0
+    done = 0
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:  # pragma: no cover - unloadable
+            continue
+        setter = next((getattr(lib, s) for s in _BLAS_SETTERS if hasattr(lib, s)), None)
+        if setter is not None:
+            setter(ctypes.c_int(max(1, int(n))))
+            done += 1
+    return done
 
 
 def tune_malloc() -> None:
