@@ -463,13 +463,15 @@ def read_png(path) -> np.ndarray:
 
 
 def encode_npz(arrays: dict) -> bytes:
-    """A compressed, byte-reproducible ``.npz`` at zlib level 1.
+    """A compressed, byte-reproducible ``.npz`` (read with ``np.load``).
 
-    What ``np.savez_compressed`` writes (read with ``np.load``).  Level 1: for the
-    per-pixel maps ≈ 0.5 s and 17 MB instead of 0.9 s and 19 MB.  Every member
-    carries the same fixed time stamp (1980-01-01), so the same arrays always give
-    the same bytes (``np.savez_compressed`` stamps the current time) and the same
-    SHA-256 in the folder's ledger.
+    What ``np.savez_compressed`` writes, each member deflated at level 1: by
+    libdeflate when it is installed (the per-pixel maps of a full frame, 33 MB:
+    0.24 s and 23 MB, against zlib's 0.62 s and 21 MB), else by zlib through
+    :mod:`zipfile`.  Every member carries the same fixed time stamp
+    (1980-01-01), so the same arrays always give the same bytes
+    (``np.savez_compressed`` stamps the current time) and the same SHA-256 in the
+    folder's ledger.
 
     Parameters
     ----------
@@ -481,17 +483,51 @@ def encode_npz(arrays: dict) -> bytes:
     bytes
         The archive.
     """
+    members = []
+    for key, value in arrays.items():
+        member = io.BytesIO()
+        np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+        members.append((f"{key}.npy".encode(), member.getbuffer()))
+    if _libdeflate is not None and all(len(data) < _ZIP32_LIMIT for _, data in members):
+        return _zip_deflated(members)
     import zipfile
 
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
-        for key, value in arrays.items():
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+        for name, data in members:
+            info = zipfile.ZipInfo(name.decode(), date_time=(1980, 1, 1, 0, 0, 0))
             info.external_attr = 0o644 << 16
-            zf.writestr(info, member.getbuffer(), compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
+            zf.writestr(info, data, compress_type=zipfile.ZIP_DEFLATED, compresslevel=1)
     return buf.getvalue()
+
+
+_ZIP32_LIMIT = (1 << 32) - 1  # beyond: ZIP64 records, left to zipfile
+
+
+def _zip_deflated(members) -> bytes:
+    """A zip archive of ``(name, data)`` members, raw-deflated by libdeflate at level 1.
+
+    PKWARE APPNOTE 6.3 layout: local headers, central directory, end record; every
+    member dated 1980-01-01, mode 0644.
+    """
+    import struct
+
+    date, time_ = (0 << 9) | (1 << 5) | 1, 0          # 1980-01-01 00:00:00 in DOS format
+    parts, central, offset = [], [], 0
+    for name, data in members:
+        body = _libdeflate.deflate_compress(data, 1)
+        crc = _libdeflate.crc32(data) & 0xFFFFFFFF
+        local = struct.pack("<IHHHHHIIIHH", 0x04034B50, 20, 0, 8, time_, date, crc, len(body), len(data),
+                            len(name), 0) + name
+        central.append(struct.pack("<IHHHHHHIIIHHHHHII", 0x02014B50, 0x0314, 20, 0, 8, time_, date, crc,
+                                   len(body), len(data), len(name), 0, 0, 0, 0, 0o644 << 16, offset) + name)
+        parts += [local, body]
+        offset += len(local) + len(body)
+    if offset >= _ZIP32_LIMIT:
+        raise ValueError("npz archive too large for a zip32 record")
+    cd = b"".join(central)
+    end = struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, len(central), len(central), len(cd), offset, 0)
+    return b"".join(parts) + cd + end
 
 
 def _write_npz(path: Path, arrays: dict) -> None:

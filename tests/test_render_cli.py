@@ -272,3 +272,32 @@ def test_png_encoder_round_trips_through_opencv(tmp_path):
     assert np.array_equal(read_png(tmp_path / "f.png"), img)
     with pytest.raises(ValueError, match="uint16"):
         encode_png16(img.astype(np.int32))
+
+
+def test_truth_archive_is_a_standard_reproducible_npz(monkeypatch):
+    """encode_npz: np.load and zipfile read it back exactly (NaN, dtypes, shapes, member names and
+    order), the same arrays give the same bytes, and the zipfile fallback holds the same arrays."""
+    import io
+    import zipfile
+
+    import sim.writer as writer
+
+    rng = np.random.default_rng(3)
+    arrays = {"stripe_u": np.where(rng.random(500) < 0.2, np.nan, rng.random(500) * 1216),
+              "point_mm": rng.normal(size=(40, 30, 3)).astype(np.float32),
+              "object_id": rng.integers(0, 4, (40, 30)).astype(np.uint16), "count": np.int64(7)}
+    outs = [writer.encode_npz(arrays)]
+    monkeypatch.setattr(writer, "_libdeflate", None)
+    outs.append(writer.encode_npz(arrays))
+    for data in outs:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            assert zf.testzip() is None
+            assert [i.filename for i in zf.infolist()] == [f"{k}.npy" for k in arrays]
+            assert all(i.date_time == (1980, 1, 1, 0, 0, 0) for i in zf.infolist())
+        back = np.load(io.BytesIO(data))
+        assert back.files == list(arrays)
+        for k, v in arrays.items():
+            assert back[k].dtype == np.asarray(v).dtype and back[k].shape == np.shape(v)
+            np.testing.assert_array_equal(back[k], v)
+    monkeypatch.undo()
+    assert writer.encode_npz(arrays) == outs[0]
