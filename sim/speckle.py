@@ -270,7 +270,12 @@ class SurfaceSpeckle:
             laser + coherent·(S − 1) [e⁻].
         """
         s = self.pixel_speckle(laser)
-        return (laser + coherent * (s - np.float32(1.0))).astype(np.float32, copy=False)
+        if not (laser.dtype == coherent.dtype == np.float32):
+            return (laser + coherent * (s - np.float32(1.0))).astype(np.float32)
+        s -= np.float32(1.0)          # float32 in place: the same values, no frame-sized temporaries
+        np.multiply(coherent, s, out=s)
+        np.add(laser, s, out=s)
+        return s
 
     def pixel_speckle(self, laser, keep_fine: bool = False) -> np.ndarray:
         """Speckle factor S of each pixel (mean 1; 1 where no laser light).
