@@ -69,17 +69,17 @@ def configure_threads(n: int) -> None:
     _THREADS["n"] = n
 
 
-_BLAS_SETTERS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-                 "openblas_set_num_threads64_", "openblas_set_num_threads")
-
-
 def set_blas_threads(n: int) -> int:
-    """Size the thread pool of every OpenBLAS loaded in this process (numpy's, scipy's) to ``n``.
+    """Size the thread pool of every BLAS library loaded in this process (numpy's, scipy's) to ``n``.
 
-    The libraries are found in the process's memory map (Linux); elsewhere, or for
-    another BLAS, nothing changes.  A long dot product's sum may be split among the
-    threads, so its last bits may depend on ``n``; the twin's frames and truth do not
-    (checked bit for bit, one and two threads).
+    Through threadpoolctl (OpenBLAS, MKL, BLIS; the limit stays set) for the libraries
+    loaded now, numpy's among them, and ``OPENBLAS_NUM_THREADS``/``MKL_NUM_THREADS``
+    for those loaded later.  A one-core
+    worker needs it: after a large matrix product an idle OpenBLAS thread spins on
+    the other core (≈ 95 ms of CPU per realistic frame, `benchmarks/RESULTS.md`).  A
+    long dot product's sum may be split among the threads, so its last bits may
+    depend on ``n``; the twin's frames and truth do not (checked bit for bit, one and
+    two threads).
 
     Parameters
     ----------
@@ -89,27 +89,16 @@ def set_blas_threads(n: int) -> int:
     Returns
     -------
     int
-        The number of libraries set.
+        The number of BLAS libraries set.
     """
-    import ctypes
+    import numpy  # noqa: F401 - loads numpy's BLAS, so that the limit reaches it
+    from threadpoolctl import threadpool_info, threadpool_limits
 
-    try:
-        with open("/proc/self/maps", encoding="utf-8", errors="replace") as maps:
-            paths = sorted({line.split()[-1] for line in maps
-                            if "openblas" in line.lower() and ".so" in line})
-    except OSError:  # pragma: no cover - not Linux
-        return 0
-    done = 0
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:  # pragma: no cover - unloadable
-            continue
-        setter = next((getattr(lib, s) for s in _BLAS_SETTERS if hasattr(lib, s)), None)
-        if setter is not None:
-            setter(ctypes.c_int(max(1, int(n))))
-            done += 1
-    return done
+    n = max(1, int(n))
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):   # BLAS libraries loaded later (scipy's)
+        os.environ[var] = str(n)
+    threadpool_limits(limits=n, user_api="blas")
+    return sum(1 for lib in threadpool_info() if lib.get("user_api") == "blas")
 
 
 def tune_malloc() -> None:
