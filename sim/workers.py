@@ -63,6 +63,7 @@ from .writer import (
     encode_png16,
     frame_paths,
     generator_info,
+    is_realistic,
 )
 
 __all__ = ["AUTO_MIN_PIXELS", "RenderJob", "auto_workers", "is_realistic", "render_with_workers"]
@@ -77,25 +78,6 @@ IN_FLIGHT_PER_WORKER = 2
 #: break even at ≈ 30 realistic full frames and are ≈ 15 % faster at 60, ≈ 1.5× on long
 #: scans (benchmarks/RESULTS.md).
 AUTO_MIN_PIXELS = 60 * 1936 * 1216
-
-
-def is_realistic(rig: Rig) -> bool:
-    """Whether the rig's twin is more than the ideal first-surface one.
-
-    Parameters
-    ----------
-    rig : Rig
-        The rig.
-
-    Returns
-    -------
-    bool
-        True with ``[twin] bounces`` > 1, ``subsurface`` on, or surface-attached speckle
-        (``speckle_model = "surface"`` with ``[laser] speckle_contrast`` > 0).
-    """
-    t = rig.twin
-    return t.bounces > 1 or bool(t.subsurface) or (t.speckle_model == "surface"
-                                                      and rig.laser.speckle_contrast > 0)
 
 
 def auto_workers(rig: Rig, frames: int, n_cores: int | None = None,
