@@ -74,12 +74,11 @@ def set_blas_threads(n: int) -> int:
 
     Through threadpoolctl (OpenBLAS, MKL, BLIS; the limit stays set) for the libraries
     loaded now, numpy's among them, and ``OPENBLAS_NUM_THREADS``/``MKL_NUM_THREADS``
-    for those loaded later.  A one-core
-    worker needs it: after a large matrix product an idle OpenBLAS thread spins on
-    the other core (≈ 95 ms of CPU per realistic frame, `benchmarks/RESULTS.md`).  A
-    long dot product's sum may be split among the threads, so its last bits may
-    depend on ``n``; the twin's frames and truth do not (checked bit for bit, one and
-    two threads).
+    for those loaded later.  A one-core worker needs it: after a large matrix
+    product an idle OpenBLAS thread spins on the other core (≈ 95 ms of CPU per
+    realistic frame, `benchmarks/RESULTS.md`).  A long dot product's sum may be split
+    among the threads, so its last bits may depend on ``n``; the twin's frames and
+    truth do not (checked bit for bit, one and two threads).
 
     Parameters
     ----------

@@ -6,7 +6,7 @@ alone), so a scan is rendered by N worker processes at once, frame by frame,
 with the same files as one process writes, bit for bit:
 
 * each worker is started with *spawn* (Dr.Jit registers no fork handlers),
-  sizes its Dr.Jit, numba and Blosc thread pools to ``cores // N`` and tunes
+  sizes its Dr.Jit, numba, Blosc and BLAS thread pools to ``cores // N`` and tunes
   malloc (:func:`sim.threads.configure_threads`), builds the scenario and its
   own twin once, then renders the frames it is handed: render, sensor noise,
   truth, and the encoded truth file and PNG (:func:`sim.writer.encode_npz`,
@@ -46,7 +46,7 @@ from pathlib import Path
 from scheimpflug.callbacks import ProgressCallback
 from scheimpflug.errors import RenderError, ScheimpflugError
 from scheimpflug.io.atomic import write_bytes_atomic
-from scheimpflug.model.rig import Rig
+from scheimpflug.model.rig import Rig, is_realistic
 
 from .threads import configure_threads, cores
 from .writer import (
@@ -63,10 +63,9 @@ from .writer import (
     encode_png16,
     frame_paths,
     generator_info,
-    is_realistic,
 )
 
-__all__ = ["AUTO_MIN_PIXELS", "RenderJob", "auto_workers", "is_realistic", "render_with_workers"]
+__all__ = ["AUTO_MIN_PIXELS", "RenderJob", "auto_workers", "render_with_workers"]
 
 #: Frames handed to each worker at most at a time (one rendering, one queued).
 IN_FLIGHT_PER_WORKER = 2
@@ -75,8 +74,8 @@ IN_FLIGHT_PER_WORKER = 2
 #: ``auto_workers`` starts workers only for a job of at least this many pixels (frames ×
 #: rows × columns; 60 full paper frames).  Two workers start ≈ 2 s later than one process
 #: (each one imports, builds its twin and warms its first frame on one core), so they
-#: break even at ≈ 30 realistic full frames and are ≈ 15 % faster at 60, ≈ 1.5× on long
-#: scans (benchmarks/RESULTS.md).
+#: break even at ≈ 30 realistic full frames and are ≈ 15 % faster at 60, 1.73× on a
+#: 360-frame scan (benchmarks/RESULTS.md).
 AUTO_MIN_PIXELS = 60 * 1936 * 1216
 
 
@@ -84,9 +83,10 @@ def auto_workers(rig: Rig, frames: int, n_cores: int | None = None,
                  worker_bytes: float | None = None, ram_bytes: float | None = None) -> int:
     """Worker processes for ``--workers auto``: one per core for a realistic twin's long job, else 1.
 
-    The realistic twin's frame costs ≈ 0.33 s of CPU on one core and its stages are
-    largely serial, so two single-threaded workers on 2 cores render ≈ 1.55× the
-    frames per second of one process using both (benchmarks/RESULTS.md); the ideal
+    The realistic twin's frame costs ≈ 0.31 s of CPU on one core and its stages are
+    largely serial, so two single-threaded workers on 2 cores render 1.73× the
+    frames per second of one process using both (a 360-frame pile scan, start-up
+    included, benchmarks/RESULTS.md); the ideal
     twin keeps one process (its frames are cheap, the workers' start-up and memory
     are not: 2 workers gain ≈ 1.2× per frame and start ≈ 1.3 s later).
 
@@ -106,7 +106,8 @@ def auto_workers(rig: Rig, frames: int, n_cores: int | None = None,
     Returns
     -------
     int
-        ≥ 1: ``n_cores`` when the twin :func:`is_realistic` and the job holds at least
+        ≥ 1: ``n_cores`` when the twin is realistic
+        (:func:`scheimpflug.model.rig.is_realistic`) and the job holds at least
         :data:`AUTO_MIN_PIXELS` pixels, 1 otherwise.
     """
     n = cores() if n_cores is None else int(n_cores)

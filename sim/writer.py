@@ -68,7 +68,7 @@ from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import RenderError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
 from scheimpflug.io.folder import LEDGER_NAME, LOCK_NAME, FileLedger, FolderLock
-from scheimpflug.model.rig import Rig, rig_to_dict
+from scheimpflug.model.rig import Rig, is_realistic, rig_to_dict
 
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
@@ -86,7 +86,6 @@ __all__ = [
     "encode_npz",
     "encode_png16",
     "estimate_job",
-    "is_realistic",
     "frame_paths",
     "generator_info",
     "prepare_folder",
@@ -581,25 +580,6 @@ def _size(n: float) -> str:
     return f"{n / 1e6:.2g} MB"
 
 
-def is_realistic(rig: Rig) -> bool:
-    """Whether the rig's twin is more than the ideal first-surface one.
-
-    Parameters
-    ----------
-    rig : Rig
-        The rig.
-
-    Returns
-    -------
-    bool
-        True with ``[twin] bounces`` > 1, ``subsurface`` on, or surface-attached speckle
-        (``speckle_model = "surface"`` with ``[laser] speckle_contrast`` > 0).
-    """
-    t = rig.twin
-    return t.bounces > 1 or bool(t.subsurface) or (t.speckle_model == "surface"
-                                                      and rig.laser.speckle_contrast > 0)
-
-
 def estimate_job(rig: Rig, frames: int, truth_pixels_every: int, workers: int = 1) -> JobEstimate:
     """Estimate a render's output size and memory from the sensor and the frame count.
 
@@ -618,7 +598,8 @@ def estimate_job(rig: Rig, frames: int, truth_pixels_every: int, workers: int = 
     Notes
     -----
     A renderer holds ≈ 400 MB (Mitsuba, the scene) plus, per sensor pixel, ≈ 120 B for
-    the ideal twin and ≈ 450 B for a realistic one (:func:`is_realistic`: speckle
+    the ideal twin and ≈ 450 B for a realistic one
+    (:func:`scheimpflug.model.rig.is_realistic`: speckle
     scratch arrays, transport images, subsurface tables) — measured peaks at full paper
     resolution (2.35 Mpx): 0.6 GB ideal, 1.45 GB realistic (a 360-frame pile scan).
 

@@ -224,11 +224,16 @@ def _pipeline_view(summary: dict) -> dict:
             "ring": summary["pile"]["ring"], "binning": summary["plan"]["binning"]}
 
 
+def _within_2x(ratio: float) -> bool:
+    """The issue's test of a twin figure against the paper's: within a factor of 2."""
+    return 0.5 <= ratio <= 2.0
+
+
 def _ratio(value, paper) -> str:
     if value is None or isinstance(paper, list):
         return ""
     r = value / paper
-    return f" ({r:.2g}×{'' if 0.5 <= r <= 2.0 else ', outside 2×'})"
+    return f" ({r:.2g}×{'' if _within_2x(r) else ', outside 2×'})"
 
 
 def _as_the_paper_lines(s: dict) -> list[str]:
@@ -275,9 +280,8 @@ def _verdict(m: dict) -> list[str]:
             out.append(f"{name}: not measured")
             continue
         ratio = value / paper
-        inside = 0.5 <= ratio <= 2.0
-        out.append(f"{name} {value:.4g} = {ratio:.2g} × the paper's ({'within' if inside else 'outside'} "
-                   "a factor of 2)")
+        out.append(f"{name} {value:.4g} = {ratio:.2g} × the paper's "
+                   f"({'within' if _within_2x(ratio) else 'outside'} a factor of 2)")
     return out
 
 

@@ -42,6 +42,7 @@ __all__ = [
     "Sensor",
     "Stage",
     "active_error_models",
+    "is_realistic",
     "Twin",
     "load_preset",
     "load_rig",
@@ -833,6 +834,29 @@ def active_error_models(rig: Rig) -> tuple[str, ...]:
             if getattr(obj, name) != default:
                 on.append(key)
     return tuple(on)
+
+
+def is_realistic(rig: Rig) -> bool:
+    """Whether the rig's twin is more than the ideal first-surface one.
+
+    The twin's physical light (:data:`TWIN_EFFECTS`, surface-attached speckle) costs
+    ≈ 3 × an ideal frame's time and ≈ 2.5 × its memory (benchmarks/RESULTS.md); the
+    render's job sizing and its ``--workers auto`` depend on it.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+
+    Returns
+    -------
+    bool
+        True with ``[twin] bounces`` > 1, ``subsurface`` on, or surface-attached speckle
+        (``speckle_model = "surface"`` with ``[laser] speckle_contrast`` > 0).
+    """
+    t = rig.twin
+    return t.bounces > 1 or bool(t.subsurface) or (t.speckle_model == "surface"
+                                                      and rig.laser.speckle_contrast > 0)
 
 
 def with_error_models(rig: Rig, source: Rig, groups) -> Rig:
