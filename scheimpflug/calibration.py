@@ -99,8 +99,10 @@ __all__ = [
     "CalibrationTolerances",
     "PlateMeasurement",
     "accuracy_warnings",
+    "c_sigma_from_endpoint_fits",
     "calibrate_folder",
     "calibrate_measurements",
+    "endpoint_residual_px",
     "measure_plate_frame",
 ]
 
@@ -743,6 +745,78 @@ def _per_frame_C(H, uh, vh, top, bot):
     at = (top[:, 1] - vh) / (top[:, 0] - uh)
     ab = (bot[:, 1] - vh) / (bot[:, 0] - uh)
     return H / (at - ab)
+
+
+def endpoint_residual_px(slope: float, r2: float, u_px) -> float:
+    """Residual σ of an endpoint line that a reported R² implies [px].
+
+    A line ``v = a u + b`` fitted by least squares to points whose columns
+    ``u_px`` spread with variance s² (population variance, as R² uses) has
+    ``var(v) = a² s² + σ²`` and ``R² = 1 − σ²/var(v)``, so
+    ``σ = |a| · s · sqrt((1 − R²) / R²)`` (σ² the residuals' mean square).
+
+    Parameters
+    ----------
+    slope : float
+        The line's slope a [px/px].
+    r2 : float
+        Its coefficient of determination, 0 < R² ≤ 1 [-].
+    u_px : (n,) array_like
+        The columns of the fitted endpoints (one per frame) [px].
+
+    Returns
+    -------
+    float
+        The residual σ in rows [px].
+    """
+    u = np.asarray(u_px, dtype=np.float64)
+    if not 0.0 < r2 <= 1.0 or u.size < 3 or not np.all(np.isfinite(u)):
+        raise ValueError(f"need 0 < R² ≤ 1 and ≥ 3 finite columns (R² = {r2}, {u.size} columns)")
+    return abs(slope) * float(u.std()) * math.sqrt((1.0 - r2) / r2)
+
+
+def c_sigma_from_endpoint_fits(C_mm: float, slopes: tuple[float, float], residuals_px: tuple[float, float],
+                               u_px, hinge_u_px: float) -> float:
+    """σ(C) that the plate endpoints' scatter about their two lines implies (closed form) [mm].
+
+    Per frame ``C_i = H / (α_t − α_b)``, ``α = (v − v_h)/(u − u_h)`` (paper Eq. 12
+    at both edges).  An endpoint lying r rows off its line moves its α by
+    ``r/(u − u_h)`` (a column error δu moves it as a row error −a·δu would), so
+    independent residuals of σ_t and σ_b rows on the two lines scatter C by
+
+        σ(C) / C = sqrt(σ_t² + σ_b²) · rms(1/(u − u_h)) / |a_t − a_b|
+
+    over the frames (first order; the hinge's own error adds a smooth trend of
+    C_i with u that this leaves out).  With :func:`endpoint_residual_px` it
+    turns a reported R² into the σ(C) it implies: the paper's R² = 0.9998 for
+    both lines, over its 27 frames, implies σ(C) ≈ 0.20 mm — the 0.2014 it
+    reports (benchmarks/RESULTS.md).
+
+    Parameters
+    ----------
+    C_mm : float
+        The height coefficient C [mm].
+    slopes : (float, float)
+        The two endpoint lines' slopes a_t, a_b [px/px].
+    residuals_px : (float, float)
+        The residual σ of each line, in rows [px].
+    u_px : (n,) array_like
+        The frames' columns [px] (the sensor frame of DESIGN.md §3).
+    hinge_u_px : float
+        The image hinge's column u_h [px].
+
+    Returns
+    -------
+    float
+        σ(C) [mm].
+    """
+    u = np.asarray(u_px, dtype=np.float64)
+    gap = abs(slopes[0] - slopes[1])
+    d = u - hinge_u_px
+    if gap <= 0.0 or u.size == 0 or not np.all(np.isfinite(d)) or np.any(d == 0.0):
+        raise ValueError("need two converging endpoint lines and frames off the hinge column")
+    rms_inv = math.sqrt(float(np.mean(1.0 / d ** 2)))
+    return abs(C_mm) * math.hypot(*residuals_px) * rms_inv / gap
 
 
 def _std(x: np.ndarray) -> float:

@@ -291,3 +291,87 @@ def test_accuracy_warning_when_the_plan_is_too_thin():
     ok = calibrate_measurements(_ideal_measurements(geo, np.linspace(-10.0, 250.0, 27), rng, 0.002, 0.05),
                                 columns=1216, rows=1936).refined
     assert ok.warnings == ()
+
+
+# ---------------------------------------------------------------- σ(C) from the endpoint lines (issue 11)
+
+
+def _column_noise(ms, rng, sigma_t, sigma_b):
+    """The same measurements with Gaussian noise on the endpoints' columns (rows untouched)."""
+    out = []
+    for m in ms:
+        (ut, vt), (ub, vb) = m.top_px, m.bottom_px
+        out.append(PlateMeasurement(stage_mm=m.stage_mm, u_mean_px=m.u_mean_px, n_rows=m.n_rows, line=m.line,
+                                    top_px=(ut + rng.normal(0, sigma_t), vt),
+                                    bottom_px=(ub + rng.normal(0, sigma_b), vb), rows=m.rows, u=m.u))
+    return out
+
+
+@pytest.mark.parametrize("noise", ["rows", "columns"])
+def test_c_sigma_closed_form_matches_repeated_calibrations(noise):
+    """Monte Carlo: 120 paper calibrations of the paper's 27 frames with endpoint scatter of known σ —
+    in rows (1.5 px on one line, 1.0 px on the other) or in columns (4 px on both, a row residual of
+    |a|·4 px) — give a mean square σ(C) within 12 % of the closed form's square (sampling error of
+    a mean of 120 squared spreads ≈ 2.5 %; the closed form is first order, leaves out the hinge's
+    own error and the 2 of 27 degrees of freedom each line fit absorbs — measured 0.94 and 1.02);
+    and each calibration's σ(C) predicted from its own R² lies within 25 % of it on average."""
+    from scheimpflug.calibration import c_sigma_from_endpoint_fits, endpoint_residual_px
+
+    geo = Geometry()
+    stages = np.arange(27) * 10.0
+    u = geo.column(stages)
+    rng = np.random.default_rng(11)
+    a_t, a_b = [(geo.row(u[-1], h) - geo.row(u[0], h)) / (u[-1] - u[0]) for h in (35.0, -54.0)]
+    if noise == "rows":
+        sig_t, sig_b = 1.5, 1.0
+    else:
+        sig_t, sig_b = 4.0 * abs(a_t), 4.0 * abs(a_b)
+    want = c_sigma_from_endpoint_fits(geo.C_mm, (a_t, a_b), (sig_t, sig_b), u, geo.hinge_u_px)
+    got, ratio = [], []
+    for _ in range(120):
+        if noise == "rows":
+            ms = _ideal_measurements(geo, stages, rng, 0.0, 0.0)
+            ms = [PlateMeasurement(stage_mm=m.stage_mm, u_mean_px=m.u_mean_px, n_rows=m.n_rows, line=m.line,
+                                   top_px=(m.top_px[0], m.top_px[1] + rng.normal(0, sig_t)),
+                                   bottom_px=(m.bottom_px[0], m.bottom_px[1] + rng.normal(0, sig_b)),
+                                   rows=m.rows, u=m.u) for m in ms]
+        else:
+            ms = _column_noise(_ideal_measurements(geo, stages, rng), rng, 4.0, 4.0)
+        cal = calibrate_measurements(ms, columns=1216, rows=1936).paper
+        got.append(cal.C_sigma_mm)
+        tops = np.array([m.top_px[0] for m in ms])
+        bots = np.array([m.bottom_px[0] for m in ms])
+        r2t, r2b = cal.endpoint_fit_r2
+        own = c_sigma_from_endpoint_fits(cal.C_mm, (a_t, a_b), (endpoint_residual_px(a_t, r2t, tops),
+                                                                  endpoint_residual_px(a_b, r2b, bots)),
+                                         u, cal.hinge_u_px)
+        ratio.append(own / cal.C_sigma_mm)
+    assert abs(np.mean(np.square(got)) / want ** 2 - 1) < 0.12, (np.sqrt(np.mean(np.square(got))), want)
+    assert abs(np.mean(ratio) - 1) < 0.25, np.mean(ratio)
+
+
+def test_paper_r2_implies_its_sigma_C():
+    """The paper's own figures agree with the closed form: its endpoint lines (slopes −0.3693 and
+    0.2408 — printed 0.2048, but only 0.2408 puts the lines' intersection at its hinge (3196, 771)),
+    R² = 0.9998 for both (0.99975–0.99985 as rounded), over its 27 frames 10 mm apart from its first
+    endpoint (Eq. 11: px 93 … 1204; 20 mm steps would put 13 of them beyond the sensor), imply
+    σ(C) = 0.18–0.23 mm; it reports 0.2014."""
+    from scheimpflug.calibration import c_sigma_from_endpoint_fits, endpoint_residual_px
+
+    slopes = (-0.3693, 0.2408)
+    u = PAPER["u_h"] + PAPER["F2"] / (np.arange(27) * 10.0 - PAPER["d0"])
+    assert abs(u[0] - 97) < 5 and u[-1] < 1216
+    pred = [c_sigma_from_endpoint_fits(PAPER["C"], slopes, tuple(endpoint_residual_px(a, r2, u) for a in slopes),
+                                       u, PAPER["u_h"]) for r2 in (0.99985, 0.9998, 0.99975)]
+    assert pred[0] < 0.2014 < pred[2] and abs(pred[1] / 0.2014 - 1) < 0.05, pred
+    ut = (1952 - 1.377) / (0.3693 + slopes[1])  # the lines' intersection with the slope as corrected
+    assert abs(ut - PAPER["u_h"]) < 3 and abs(1.377 + slopes[1] * ut - PAPER["v_h"]) < 1
+
+
+def test_closed_form_inputs_are_checked():
+    from scheimpflug.calibration import c_sigma_from_endpoint_fits, endpoint_residual_px
+
+    with pytest.raises(ValueError, match="R²"):
+        endpoint_residual_px(0.3, 1.2, [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="converging"):
+        c_sigma_from_endpoint_fits(145.0, (0.2, 0.2), (1.0, 1.0), [100.0, 200.0], 3196.0)

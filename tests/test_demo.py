@@ -107,6 +107,12 @@ def test_frames_measured_as_the_paper_measured(quick_demo):
         assert p["calibration"]["F2_sigma_px_mm"] > 5 * run["calibration"]["best"]["F2_sigma_px_mm"]
         assert p["box_plane"] is not None and p["ring"] is not None
         assert abs(p["axis_mm"] - run["axis"]["axis_mm"]) < 1.0  # an edge, one whole pixel: < 1 mm
+        e = p["endpoint_lines"]
+        # σ(C) follows the endpoints' scatter about their lines (closed form within 25 % of the measured
+        # spread, as on synthetic data in tests/test_calibration.py) — and the paper's R² its σ(C)
+        assert abs(e["C_sigma_implied_mm"] / e["C_sigma_mm"] - 1) < 0.25, e
+        assert abs(e["paper"]["C_sigma_implied_mm"] / 0.2014 - 1) < 0.05
     report = (out / "report" / "report.md").read_text()
     assert "## Measured as the paper measured" in report
     assert "| figure | paper | as built, paper's processing |" in report
+    assert "**Where σ(C) comes from.**" in report and "| paper (residuals from its R²) |" in report

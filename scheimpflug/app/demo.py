@@ -452,11 +452,12 @@ def _as_the_paper(rig: Rig, plan: DemoPlan, out: Path, res: dict, quiet: bool, t
     from scheimpflug.axis import locate_axis
     from scheimpflug.calibration import calibrate_folder
 
-    cal = timer.run(f"{label}calibrate as the paper", calibrate_folder, out / "calibration",
-                    method="paper", detector="paper").best
+    result = timer.run(f"{label}calibrate as the paper", calibrate_folder, out / "calibration",
+                       method="paper", detector="paper")
+    cal = result.best
     axis_mm = float(locate_axis(out / "blocker", cal, detector="paper").axis_mm)
     got = {"calibration": cal.to_json_dict(), "axis_mm": axis_mm, "box_plane": None, "ring": None,
-           "binning": plan.binning}
+           "binning": plan.binning, "endpoint_lines": endpoint_lines(result)}
     if res["pile"] is not None:
         every = max(1, round((pile_step_deg or plan.pile_step_deg) / plan.pile_step_deg))
         scan = timer.run(f"{label}reconstruct + score pile as the paper", _scan, out / "pile", cal, axis_mm,
@@ -464,6 +465,43 @@ def _as_the_paper(rig: Rig, plan: DemoPlan, out: Path, res: dict, quiet: bool, t
         m = _pile_metrics(scan, rig)
         got.update(box_plane=m["box_plane"], ring=m["ring"], pile_step_deg=plan.pile_step_deg * every)
     return got
+
+
+#: The paper's endpoint lines (Section 3, Fig. 3b): their slopes as printed except the second,
+#: printed 0.2048 — only 0.2408 puts the two lines' intersection at the paper's own hinge
+#: (3196, 771) —, and its 27 frames 10 mm apart from its first endpoint (Eq. 11: px 93 … 1204;
+#: with the 20 mm it states, frames 15–27 would lie beyond the sensor).
+PAPER_ENDPOINT_SLOPES = (-0.3693, 0.2408)
+PAPER_FRAME_STAGES_MM = tuple(10.0 * k for k in range(27))
+
+
+def endpoint_lines(result) -> dict:
+    """How far the plate endpoints scatter about their two lines, and the σ(C) that implies.
+
+    ``result`` a :class:`scheimpflug.calibration.CalibrationResult` (method "paper").
+    Returns the lines' slopes, R² and residual σ [px] (from R², as the paper's are), the σ(C)
+    the closed form (:func:`scheimpflug.calibration.c_sigma_from_endpoint_fits`) gives from
+    them beside the measured one, and the same for the paper's own reported figures (its
+    residuals inferred from its R² over its frames).
+    """
+    from scheimpflug.calibration import c_sigma_from_endpoint_fits, endpoint_residual_px
+
+    both = [m for m in result.measurements if m.top_px is not None and m.bottom_px is not None]
+    cal = result.paper
+    slopes = (result.top_line[0], result.bottom_line[0])
+    u = np.array([m.u_mean_px for m in both])
+    resid = tuple(endpoint_residual_px(a, r2, [m.top_px[0] if i == 0 else m.bottom_px[0] for m in both])
+                  for i, (a, r2) in enumerate(zip(slopes, cal.endpoint_fit_r2, strict=True)))
+    (uh, _), r2 = PAPER["hinge_px"], PAPER["endpoint_fit_r2"]
+    paper_u = uh + PAPER["F2_px_mm"] / (np.array(PAPER_FRAME_STAGES_MM) - PAPER["d0_mm"])
+    paper_resid = tuple(endpoint_residual_px(a, q, paper_u) for a, q in zip(PAPER_ENDPOINT_SLOPES, r2, strict=True))
+    return {"slopes": list(slopes), "r2": list(cal.endpoint_fit_r2), "residual_px": list(resid),
+            "C_sigma_mm": cal.C_sigma_mm,
+            "C_sigma_implied_mm": c_sigma_from_endpoint_fits(cal.C_mm, slopes, resid, u, cal.hinge_u_px),
+            "paper": {"slopes": list(PAPER_ENDPOINT_SLOPES), "r2": list(r2), "residual_px": list(paper_resid),
+                      "C_sigma_mm": PAPER["C_sigma_mm"],
+                      "C_sigma_implied_mm": c_sigma_from_endpoint_fits(PAPER["C_mm"], PAPER_ENDPOINT_SLOPES,
+                                                                       paper_resid, paper_u, uh)}}
 
 
 def _models(res: dict, rig: Rig, out: Path, quick: bool, timer: _Timer) -> None:
@@ -647,6 +685,13 @@ def _print_summary(s: dict, out: Path) -> None:
                          f"{_num(_times(c.get('F2_sigma_px_mm'), k))} px·mm, σ(C) {_num(c.get('C_sigma_mm'))} mm, "
                          f"box RMSE {_num(box.get('rmse_mm'))} mm, ring mean |error| "
                          f"{_num(ring.get('mean_abs_error_mm'))} mm")
+            e = p.get("endpoint_lines")
+            if e:
+                lines.append(f"  endpoints    scatter about their lines {_num(k * min(e['residual_px']))}, "
+                             f"{_num(k * max(e['residual_px']))} full-resolution px (paper, from its R²: "
+                             f"{_num(min(e['paper']['residual_px']))}, {_num(max(e['paper']['residual_px']))} "
+                             f"px): σ(C) {_num(e['C_sigma_implied_mm'])} mm implied (paper "
+                             f"{_num(e['paper']['C_sigma_implied_mm'])} implied, 0.2014 reported)")
     for name, m in s.get("models", {}).items():
         if m.get("true_volume_mm3"):
             lines.append(f"  {name + ' model':<12} volume {m['volume_mm3']:.6g} mm³ vs truth "
