@@ -768,6 +768,11 @@ def endpoint_residual_px(slope: float, r2: float, u_px) -> float:
     -------
     float
         The residual σ in rows [px].
+
+    Raises
+    ------
+    ValueError
+        If R² is not in (0, 1] or fewer than 3 finite columns are given.
     """
     u = np.asarray(u_px, dtype=np.float64)
     if not 0.0 < r2 <= 1.0 or u.size < 3 or not np.all(np.isfinite(u)):
@@ -809,6 +814,11 @@ def c_sigma_from_endpoint_fits(C_mm: float, slopes: tuple[float, float], residua
     -------
     float
         σ(C) [mm].
+
+    Raises
+    ------
+    ValueError
+        If the two slopes are equal, no frame is given, or a frame lies on the hinge column.
     """
     u = np.asarray(u_px, dtype=np.float64)
     gap = abs(slopes[0] - slopes[1])
