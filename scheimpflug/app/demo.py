@@ -475,18 +475,21 @@ PAPER_ENDPOINT_SLOPES = (-0.3693, 0.2408)
 PAPER_FRAME_STAGES_MM = tuple(10.0 * k for k in range(27))
 
 
-def endpoint_lines(result) -> dict:
+def endpoint_lines(result) -> dict | None:
     """How far the plate endpoints scatter about their two lines, and the σ(C) that implies.
 
     ``result`` a :class:`scheimpflug.calibration.CalibrationResult` (method "paper").
     Returns the lines' slopes, R² and residual σ [px] (from R², as the paper's are), the σ(C)
     the closed form (:func:`scheimpflug.calibration.c_sigma_from_endpoint_fits`) gives from
     them beside the measured one, and the same for the paper's own reported figures (its
-    residuals inferred from its R² over its frames).
+    residuals inferred from its R² over its frames); None with fewer than 3 frames that
+    show both plate edges or an endpoint fit's R² outside (0, 1] (no line residual to speak of).
     """
     from scheimpflug.calibration import c_sigma_from_endpoint_fits, endpoint_residual_px
 
     both = [m for m in result.measurements if m.top_px is not None and m.bottom_px is not None]
+    if len(both) < 3 or not all(0.0 < r2 <= 1.0 for r2 in result.paper.endpoint_fit_r2):
+        return None
     cal = result.paper
     slopes = (result.top_line[0], result.bottom_line[0])
     u = np.array([m.u_mean_px for m in both])
