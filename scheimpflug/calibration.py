@@ -606,6 +606,13 @@ def _edge_row(frame, line, v_end: int, direction: int, side: int,
     ``v_end`` is the last lit row, ``direction`` −1 for the top edge, +1 for the
     bottom one; the band is summed on ``side`` of the stripe, away from light
     that may continue past the edge (table in front, scene behind the plate).
+    The crossing is the first row below the level scanning outward from
+    ``edge_inset_rows`` inside ``v_end``.  Where that row is already below it —
+    dim light beyond the bright face that the stripe detector still counts as
+    lit, such as a broken (chamfered) plate edge in a well-exposed frame — the
+    scan starts at the plateau's innermost row instead and the crossing is the
+    first row below the level that the next row does not rise above again
+    (a speckle dip inside the face is one or two rows, an edge is not).
     """
     n = frame.shape[0]
     ins, gap, cnt = tol.edge_inset_rows, tol.background_gap_rows, tol.plateau_rows
@@ -615,15 +622,33 @@ def _edge_row(frame, line, v_end: int, direction: int, side: int,
         return None
     plateau = np.median(_band_profile(frame, inner, line, side, tol.band_px))
     bg = np.median(_band_profile(frame, outer, line, side, tol.band_px))
+    if plateau <= bg:
+        return None
     level = 0.5 * (plateau + bg)
     scan = v_end - direction * ins + direction * np.arange(0, ins + gap + 1)
     prof = _band_profile(frame, scan, line, side, tol.band_px)
     below = np.flatnonzero(prof < level)
-    if plateau <= bg or below.size == 0 or below[0] == 0:
+    if below.size == 0:
         return None
+    if below[0] == 0:
+        return _edge_from_plateau(frame, line, v_end, direction, side, tol, level)
     j = below[0]
     frac = (prof[j - 1] - level) / (prof[j - 1] - prof[j])
     return float(scan[j - 1] + direction * frac)
+
+
+def _edge_from_plateau(frame, line, v_end: int, direction: int, side: int,
+                       tol: CalibrationTolerances, level: float) -> float | None:
+    """:func:`_edge_row`'s crossing scanned from the plateau's innermost row (its docstring)."""
+    ins, gap, cnt = tol.edge_inset_rows, tol.background_gap_rows, tol.plateau_rows
+    scan = v_end - direction * (ins + cnt - 1) + direction * np.arange(0, ins + cnt + gap)
+    prof = _band_profile(frame, scan, line, side, tol.band_px)
+    low = prof < level
+    for j in range(1, len(scan) - 1):
+        if low[j] and low[j + 1] and not low[j - 1]:
+            frac = (prof[j - 1] - level) / (prof[j - 1] - prof[j])
+            return float(scan[j - 1] + direction * frac)
+    return None
 
 
 def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "cog",
