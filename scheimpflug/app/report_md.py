@@ -311,7 +311,8 @@ def _endpoint_lines_lines(ab_paper: dict, ideal_paper: dict) -> list[str]:
               f"({p_res[0] / t_res[0]:.2g}× and {p_res[1] / t_res[1]:.2g}× less), and its σ(C) is "
               f"{_f(c_ab / ab['paper']['C_sigma_mm'], '{:.2g}')}× the paper's. "
               + ("What scatters a real plate's endpoints by 1–2 px per frame, while the bar's middle row "
-                 "scatters as in the twin (σ(F²) above), is not modelled." if k == 1 else
+                 "scatters as in the twin (σ(F²) above), is not modelled at the rig's aperture (the paper "
+                 "gives none; how the figures move with it: benchmarks/RESULTS.md)." if k == 1 else
                  f"In this binned run one whole pixel is {k} of the paper's, which alone scatters the "
                  "endpoints that much; the full demo shows the twin's own scatter."), ""]
     return lines
