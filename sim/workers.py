@@ -51,18 +51,18 @@ from scheimpflug.model.rig import Rig, is_realistic
 from .threads import configure_threads, cores
 from .writer import (
     RenderStats,
-    _describe,
-    _frame_files,
-    _frame_products,
-    _locked,
-    _ranges,
-    _render_locked,
-    _scene_arrays,
     build_manifest,
+    describe_frame,
     encode_npz,
     encode_png16,
+    frame_file_names,
     frame_paths,
+    frame_products,
     generator_info,
+    index_ranges,
+    render_locked,
+    run_locked,
+    scene_arrays,
 )
 
 __all__ = ["AUTO_MIN_PIXELS", "RenderJob", "auto_workers", "render_with_workers"]
@@ -195,7 +195,7 @@ def _build(job: RenderJob) -> dict:
         warnings.simplefilter("always")
         scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
         twin = (job.twin_factory or MitsubaTwin)(job.rig, scenario.assembly, spp=job.spp)
-    return {"job": job, "scenario": scenario, "twin": twin, "mesh": _scene_arrays(scenario),
+    return {"job": job, "scenario": scenario, "twin": twin, "mesh": scene_arrays(scenario),
             "frames": {f.index: f for f in scenario.frames}, "model": SensorModel.from_rig(job.rig),
             "warnings": list(scenario.warnings) + [str(w.message) for w in caught]}
 
@@ -226,7 +226,7 @@ def _frame_task(index: int) -> _FrameResult:
     st = _state()
     frame = st["frames"][index]
     stats, warns = RenderStats(), []
-    image, arrays = _frame_products(st["job"].rig, st["scenario"], st["twin"], frame, stats,
+    image, arrays = frame_products(st["job"].rig, st["scenario"], st["twin"], frame, stats,
                                     warns.append, st["mesh"], st["model"])
     t0 = time.perf_counter()
     npz = encode_npz(arrays)
@@ -294,10 +294,10 @@ class _Pool:
 
 def _frame_error(exc: BaseException, frame, pool: _Pool, inflight) -> Exception:
     """One error for a frame that failed in a worker (or whose worker died)."""
-    where = f"frame {frame.index} ({_describe(frame)})"
+    where = f"frame {frame.index} ({describe_frame(frame)})"
     if isinstance(exc, BrokenProcessPool):
         time.sleep(0.1)     # let the dead process's exit code arrive
-        frames = _ranges([frame.index, *(f.index for f in inflight)])
+        frames = index_ranges([frame.index, *(f.index for f in inflight)])
         return RenderError(f"a render worker process ended unexpectedly ({pool._exit_codes()}: killed, "
                            f"or out of memory?) while frames {frames} were in flight; the frames "
                            "already written are complete: rerun to resume")
@@ -323,7 +323,7 @@ def _write_result(out: Path, result: _FrameResult, stats: RenderStats, ledger) -
         raise RenderError(f"cannot write frame {str(png)!r}: {exc.strerror or exc}") from None
     stats.seconds["truth_write"] += t1 - t0
     stats.seconds["png"] += time.perf_counter() - t1
-    ledger.record(result.index, _frame_files(result.index))
+    ledger.record(result.index, frame_file_names(result.index))
 
 
 def _merge(stats: RenderStats, result: _FrameResult, warn) -> None:
@@ -433,6 +433,6 @@ def render_with_workers(job: RenderJob, out, workers: int, progress: ProgressCal
         def loop(todo, stats, bar, ledger):
             _pool_loop(pool, out, warn, todo, stats, bar, ledger)
 
-        stats = _locked(out, warn, lambda: _render_locked(job.rig, scenario, out, manifest,
+        stats = run_locked(out, warn, lambda: render_locked(job.rig, scenario, out, manifest,
                                                           progress, warn, loop))
     return stats, manifest

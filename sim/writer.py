@@ -47,6 +47,12 @@ variant and frames); otherwise :class:`RenderError` names the first difference.
 A non-empty folder without a manifest is refused.  A write that fails (a full
 disk) raises :class:`RenderError` naming the folder; nothing is half-written
 and the run resumes.
+
+The frame loop's steps are shared with the worker pool of :mod:`sim.workers`
+(one folder protocol, two ways to render it): :func:`run_locked`,
+:func:`render_locked`, :func:`scene_arrays`, :func:`frame_products`,
+:func:`frame_file_names`, :func:`describe_frame` and :func:`index_ranges` are that
+shared part — public to the package, not in ``__all__``.
 """
 
 from __future__ import annotations
@@ -868,7 +874,7 @@ def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None) -> dict:
     return arrays
 
 
-def _scene_arrays(scenario: Scenario) -> dict:
+def scene_arrays(scenario: Scenario) -> dict:
     """Per-run truth inputs, part frame.
 
     Vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,) (plus ``directions``,
@@ -935,10 +941,10 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     def loop(todo, stats, bar, ledger):
         _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger)
 
-    return _locked(out, warn, lambda: _render_locked(rig, scenario, out, manifest, progress, warn, loop))
+    return run_locked(out, warn, lambda: render_locked(rig, scenario, out, manifest, progress, warn, loop))
 
 
-def _locked(out: Path, warn, body):
+def run_locked(out: Path, warn, body):
     """``body()`` while holding the folder's lock; an OSError becomes one RenderError."""
     _writable_folder(out)
     with FolderLock(out, error=RenderError) as lock:
@@ -953,7 +959,7 @@ def _locked(out: Path, warn, body):
                               "nothing is half-written: fix the cause and rerun to resume") from None
 
 
-def _render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderStats:
+def render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderStats:
     """The body of :func:`render_scenario`, run while holding the folder's lock.
 
     ``loop(todo, stats, bar, ledger)`` renders and writes the frames ``todo``.
@@ -972,22 +978,22 @@ def _render_locked(rig, scenario, out, manifest, progress, warn, loop) -> Render
     _finish(out, manifest, scenario, stats, done)
     if stats.frames_without_stripe:
         warn(f"{len(stats.frames_without_stripe)} of {stats.frames_rendered} rendered frames hold "
-             f"no stripe: {_ranges(stats.frames_without_stripe)}")
+             f"no stripe: {index_ranges(stats.frames_without_stripe)}")
     return stats
 
 
-def _frame_files(index: int) -> list[str]:
+def frame_file_names(index: int) -> list[str]:
     """A frame's files relative to its folder (PNG, truth), as the ledger records them."""
     return [p.as_posix() for p in frame_paths(Path(), index)]
 
 
 def _verified(done: set[int], ledger: FileLedger, warn) -> set[int]:
     """The frames of ``done`` whose files match their ledger record; warns about the others."""
-    bad = {i: reason for i in sorted(done) if (reason := ledger.mismatch(i, _frame_files(i)))}
+    bad = {i: reason for i in sorted(done) if (reason := ledger.mismatch(i, frame_file_names(i)))}
     if bad:
         first = min(bad)
         warn(f"rendering again {len(bad)} frame(s) whose files do not match {LEDGER_NAME}: "
-             f"{_ranges(bad)} (frame {first}: {bad[first]})")
+             f"{index_ranges(bad)} (frame {first}: {bad[first]})")
     return done - set(bad)
 
 
@@ -1007,11 +1013,11 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
     from concurrent.futures import ThreadPoolExecutor
 
     model = SensorModel.from_rig(rig)
-    mesh = _scene_arrays(scenario)
+    mesh = scene_arrays(scenario)
     pending: list = []
     with ThreadPoolExecutor(max_workers=1) as pool:
         for frame in todo:
-            image, arrays = _frame_products(rig, scenario, twin, frame, stats, warn, mesh, model)
+            image, arrays = frame_products(rig, scenario, twin, frame, stats, warn, mesh, model)
             job = (out, model, frame, None, image, arrays, stats, ledger)
             if not overlap:
                 _finish_frame(*job)
@@ -1026,7 +1032,7 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
             bar.update()
 
 
-def _ranges(indices) -> str:
+def index_ranges(indices) -> str:
     """'0, 3–7, 9' for [0, 3, 4, 5, 6, 7, 9]."""
     parts, idx = [], sorted(indices)
     start = prev = idx[0]
@@ -1047,7 +1053,7 @@ def _timed(stats: RenderStats, key: str, fn, *args):
     return result
 
 
-def _frame_products(rig, scenario, twin, frame, stats, warn, mesh, model) -> tuple:
+def frame_products(rig, scenario, twin, frame, stats, warn, mesh, model) -> tuple:
     """One frame's raw ADC image and truth arrays: render, sensor noise, truth."""
     electrons = _timed(stats, "render", twin.render, frame)
     # the noise right after the render, before the truth's ray queries
@@ -1070,7 +1076,7 @@ def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
     if not np.isfinite(arrays["stripe_u"]).any():
         stats.frames_without_stripe.append(frame.index)
         if frame.index not in scenario.expected_empty:
-            warn(f"frame {frame.index} ({_describe(frame)}) holds no stripe: nothing lit by the "
+            warn(f"frame {frame.index} ({describe_frame(frame)}) holds no stripe: nothing lit by the "
                  "laser is in view")
     return arrays
 
@@ -1087,10 +1093,11 @@ def _finish_frame(out, model, frame, electrons, image, arrays, stats, ledger=Non
     _timed(stats, "truth_write", _write_npz, npz, arrays)
     _timed(stats, "png", write_png, png, image)
     if ledger is not None:
-        ledger.record(frame.index, _frame_files(frame.index))
+        ledger.record(frame.index, frame_file_names(frame.index))
 
 
-def _describe(frame: FrameSpec) -> str:
+def describe_frame(frame: FrameSpec) -> str:
+    """'stage 120 mm' or 'angle 35°': a frame's commanded position, for messages."""
     if frame.stage_mm is not None:
         return f"stage {frame.stage_mm:g} mm"
     return f"angle {frame.angle_deg:g}°"
