@@ -611,8 +611,8 @@ def _edge_row(frame, line, v_end: int, direction: int, side: int,
     dim light beyond the bright face that the stripe detector still counts as
     lit, such as a broken (chamfered) plate edge in a well-exposed frame — the
     scan starts at the plateau's innermost row instead and the crossing is the
-    first row below the level that the next row does not rise above again
-    (a speckle dip inside the face is one or two rows, an edge is not).
+    first row below the level whose next row is below it too (a one-row speckle
+    dip inside the face is passed over).
     """
     n = frame.shape[0]
     ins, gap, cnt = tol.edge_inset_rows, tol.background_gap_rows, tol.plateau_rows

@@ -694,7 +694,8 @@ def _print_summary(s: dict, out: Path) -> None:
                              f"{_num(k * max(e['residual_px']))} full-resolution px (paper, from its R²: "
                              f"{_num(min(e['paper']['residual_px']))}, {_num(max(e['paper']['residual_px']))} "
                              f"px): σ(C) {_num(e['C_sigma_implied_mm'])} mm implied (paper "
-                             f"{_num(e['paper']['C_sigma_implied_mm'])} implied, 0.2014 reported)")
+                             f"{_num(e['paper']['C_sigma_implied_mm'])} implied, "
+                             f"{_num(e['paper']['C_sigma_mm'])} reported)")
     for name, m in s.get("models", {}).items():
         if m.get("true_volume_mm3"):
             lines.append(f"  {name + ' model':<12} volume {m['volume_mm3']:.6g} mm³ vs truth "
