@@ -36,7 +36,6 @@ import signal
 import sys
 import threading
 import time
-import warnings
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -51,14 +50,13 @@ from scheimpflug.model.rig import Rig, is_realistic
 from .threads import configure_threads, cores
 from .writer import (
     RenderStats,
-    build_manifest,
+    build_run,
     describe_frame,
     encode_npz,
     encode_png16,
     frame_file_names,
     frame_paths,
     frame_products,
-    generator_info,
     index_ranges,
     render_locked,
     run_locked,
@@ -187,17 +185,13 @@ def _init_worker(job: RenderJob, threads: int) -> None:
 
 
 def _build(job: RenderJob) -> dict:
-    from .scenarios import build_scenario
     from .sensor import SensorModel
-    from .writer import MitsubaTwin
 
-    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
-        warnings.simplefilter("always")
-        scenario = build_scenario(job.scenario_name, job.rig, seed=job.seed, **job.options)
-        twin = (job.twin_factory or MitsubaTwin)(job.rig, scenario.assembly, spp=job.spp)
-    return {"job": job, "scenario": scenario, "twin": twin, "mesh": scene_arrays(scenario),
-            "frames": {f.index: f for f in scenario.frames}, "model": SensorModel.from_rig(job.rig),
-            "warnings": list(scenario.warnings) + [str(w.message) for w in caught]}
+    scenario, twin, manifest, messages = build_run(job.rig, job.scenario_name, job.seed, job.spp, job.options,
+                                                   job.twin_factory)
+    return {"job": job, "scenario": scenario, "twin": twin, "manifest": manifest, "warnings": messages,
+            "mesh": scene_arrays(scenario), "frames": {f.index: f for f in scenario.frames},
+            "model": SensorModel.from_rig(job.rig)}
 
 
 def _state() -> dict:
@@ -209,11 +203,7 @@ def _state() -> dict:
 def _manifest_task() -> tuple[dict, object, list]:
     """The run's manifest (as :func:`sim.writer.render_folder` builds it), scenario and warnings."""
     st = _state()
-    job, twin = st["job"], st["twin"]
-    describe = twin.describe() if hasattr(twin, "describe") else None
-    manifest = build_manifest(job.rig, st["scenario"], job.seed, getattr(twin, "spp", 1),
-                              getattr(twin, "variant", "unknown"), generator_info(), describe)
-    return manifest, st["scenario"], st["warnings"]
+    return st["manifest"], st["scenario"], st["warnings"]
 
 
 def _ready_task() -> bool:

@@ -50,7 +50,7 @@ and the run resumes.
 
 The frame loop's steps are shared with the worker pool of :mod:`sim.workers`
 (one folder protocol, two ways to render it): :func:`run_locked`,
-:func:`render_locked`, :func:`scene_arrays`, :func:`frame_products`,
+:func:`render_locked`, :func:`build_run`, :func:`scene_arrays`, :func:`frame_products`,
 :func:`frame_file_names`, :func:`describe_frame` and :func:`index_ranges` are that
 shared part — public to the package, not in ``__all__``.
 """
@@ -1169,25 +1169,37 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     ScheimpflugError
         An unknown scenario or option, a bad part.
     """
-    import warnings
-
-    from .scenarios import build_scenario
-
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     if workers != 1:
         from .workers import RenderJob, render_with_workers  # it builds on this module
 
         job = RenderJob(rig, scenario_name, seed=seed, spp=spp, options=dict(scenario_options))
         return render_with_workers(job, out, workers, progress=progress, warn=warn)
-    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
-        warnings.simplefilter("always")
-        scenario = build_scenario(scenario_name, rig, seed=seed, **scenario_options)
-        twin = MitsubaTwin(rig, scenario.assembly, spp=spp)
-    for msg in scenario.warnings:
+    scenario, twin, manifest, messages = build_run(rig, scenario_name, seed, spp, scenario_options)
+    for msg in messages:
         warn(msg)
-    for w in caught:
-        warn(str(w.message))
-    manifest = build_manifest(rig, scenario, seed, twin.spp, twin.variant, generator_info(),
-                              twin.describe())
     stats = render_scenario(rig, scenario, out, twin, manifest, progress=progress, warn=warn)
     return stats, manifest
+
+
+def build_run(rig: Rig, scenario_name: str, seed: int, spp: int | None, options: dict,
+              twin_factory: Callable | None = None) -> tuple[Scenario, Twin, dict, list[str]]:
+    """A run's scenario, its twin and its manifest, and the warnings building them gave.
+
+    Shared by :func:`render_folder` and the workers of :mod:`sim.workers` (each
+    worker builds its own twin; the first one's manifest is the run's).
+    ``twin_factory(rig, assembly, spp=…)`` makes the twin (default :class:`MitsubaTwin`).
+    The warnings: the scenario's, then those of loading its parts (MeshWarning).
+    """
+    import warnings
+
+    from .scenarios import build_scenario
+
+    with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
+        warnings.simplefilter("always")
+        scenario = build_scenario(scenario_name, rig, seed=seed, **options)
+        twin = (twin_factory or MitsubaTwin)(rig, scenario.assembly, spp=spp)
+    describe = twin.describe() if hasattr(twin, "describe") else None
+    manifest = build_manifest(rig, scenario, seed, getattr(twin, "spp", 1), getattr(twin, "variant", "unknown"),
+                              generator_info(), describe)
+    return scenario, twin, manifest, list(scenario.warnings) + [str(w.message) for w in caught]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
@@ -13,7 +15,12 @@ def _blas_threads() -> list[int]:
     return [lib["num_threads"] for lib in threadpool_info() if lib.get("user_api") == "blas"]
 
 
-def test_set_blas_threads_sizes_numpy_blas_and_keeps_products():
+def test_set_blas_threads_sizes_numpy_blas_and_keeps_products(monkeypatch):
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):   # set_blas_threads sets them: restored after
+        old = os.environ.get(var)
+        monkeypatch.setenv(var, old or "1")     # recorded, so teardown puts back the old value or none
+        if old is None:
+            monkeypatch.delenv(var)
     np.ones((2, 2)) @ np.ones((2, 2))            # numpy's BLAS is loaded
     before = _blas_threads()
     if not before:

@@ -457,7 +457,7 @@ def _as_the_paper(rig: Rig, plan: DemoPlan, out: Path, res: dict, quiet: bool, t
     cal = result.best
     axis_mm = float(locate_axis(out / "blocker", cal, detector="paper").axis_mm)
     got = {"calibration": cal.to_json_dict(), "axis_mm": axis_mm, "box_plane": None, "ring": None,
-           "binning": plan.binning, "endpoint_lines": endpoint_lines(result)}
+           "binning": plan.binning, "endpoint_lines": _endpoint_lines(result)}
     if res["pile"] is not None:
         every = max(1, round((pile_step_deg or plan.pile_step_deg) / plan.pile_step_deg))
         scan = timer.run(f"{label}reconstruct + score pile as the paper", _scan, out / "pile", cal, axis_mm,
@@ -475,7 +475,7 @@ PAPER_ENDPOINT_SLOPES = (-0.3693, 0.2408)
 PAPER_FRAME_STAGES_MM = tuple(10.0 * k for k in range(27))
 
 
-def endpoint_lines(result) -> dict | None:
+def _endpoint_lines(result) -> dict | None:
     """How far the plate endpoints scatter about their two lines, and the σ(C) that implies.
 
     ``result`` a :class:`scheimpflug.calibration.CalibrationResult` (method "paper").
@@ -493,8 +493,11 @@ def endpoint_lines(result) -> dict | None:
     cal = result.paper
     slopes = (result.top_line[0], result.bottom_line[0])
     u = np.array([m.u_mean_px for m in both])
-    resid = tuple(endpoint_residual_px(a, r2, [m.top_px[0] if i == 0 else m.bottom_px[0] for m in both])
-                  for i, (a, r2) in enumerate(zip(slopes, cal.endpoint_fit_r2, strict=True)))
+    # each line's R² is over the frames that show its edge: its residual over their columns
+    edge_u = [[m.top_px[0] for m in result.measurements if m.top_px is not None],
+              [m.bottom_px[0] for m in result.measurements if m.bottom_px is not None]]
+    resid = tuple(endpoint_residual_px(a, r2, cols)
+                  for a, r2, cols in zip(slopes, cal.endpoint_fit_r2, edge_u, strict=True))
     (uh, _), r2 = PAPER["hinge_px"], PAPER["endpoint_fit_r2"]
     paper_u = uh + PAPER["F2_px_mm"] / (np.array(PAPER_FRAME_STAGES_MM) - PAPER["d0_mm"])
     paper_resid = tuple(endpoint_residual_px(a, q, paper_u) for a, q in zip(PAPER_ENDPOINT_SLOPES, r2, strict=True))

@@ -188,10 +188,10 @@ def _as_built_lines(s: dict) -> list[str]:
         return []
     plan = ab["plan"]
     ring = ab["pile"]["ring"] or {}
-    verdict = _verdict(_pipeline_view(ab))
+    verdict = _verdict(_pipeline_view(ab), s["paper"])
     if "as_the_paper" in ab:
         verdict += ["measured as the paper measured its frames (whole pixels, next section): "
-                    + ", ".join(_verdict(ab["as_the_paper"]))]
+                    + ", ".join(_verdict(ab["as_the_paper"], s["paper"]))]
     return [
         "*Twin, as built*: the `paper-as-built` preset — every error source the twin models on, at "
         "values of the kind of parts the paper used (sources in `rig-as-built.toml`; none was tuned to "
@@ -206,14 +206,17 @@ def _as_built_lines(s: dict) -> list[str]:
     ]
 
 
-#: The paper's scatter figures: (label, paper's value, getter of a measurement dict, format).
+#: The paper's scatter figures: (label, key of the paper's value in the summary's ``paper``,
+#: getter of a measurement dict, format).
 _PAPER_FIGURES = (
-    ("σ(F²) [full-resolution px·mm]", 581.0,
+    ("σ(F²) [full-resolution px·mm]", "F2_sigma_px_mm",
      lambda m: m["calibration"]["F2_sigma_px_mm"] * m.get("binning", 1), "{:.4g}"),
-    ("σ(C) [mm]", 0.2014, lambda m: m["calibration"].get("C_sigma_mm"), "{:.4g}"),
-    ("box side plane RMSE [mm]", 0.1775, lambda m: (m.get("box_plane") or {}).get("rmse_mm"), "{:.4g}"),
-    ("ring mean \\|error\\| [mm]", 2.0, lambda m: (m.get("ring") or {}).get("mean_abs_error_mm"), "{:.3g}"),
-    ("endpoint line fits R² (top, bottom)", [0.9998, 0.9998],
+    ("σ(C) [mm]", "C_sigma_mm", lambda m: m["calibration"].get("C_sigma_mm"), "{:.4g}"),
+    ("box side plane RMSE [mm]", "box_plane_rmse_mm", lambda m: (m.get("box_plane") or {}).get("rmse_mm"),
+     "{:.4g}"),
+    ("ring mean \\|error\\| [mm]", "ring_mean_error_mm", lambda m: (m.get("ring") or {}).get("mean_abs_error_mm"),
+     "{:.3g}"),
+    ("endpoint line fits R² (top, bottom)", "endpoint_fit_r2",
      lambda m: m["calibration"].get("endpoint_fit_r2"), "{:.6f}"),
 )
 
@@ -258,7 +261,8 @@ def _as_the_paper_lines(s: dict) -> list[str]:
                 "whole-pixel columns overstate the paper's processing; the full demo has the real figures."
                 if ab["plan"]["binning"] > 1 else ""), "",
              "| figure | paper | " + " | ".join(c for c, _ in cols) + " |", "|---|---|" + "---|" * len(cols)]
-    for label, paper, get, fmt in _PAPER_FIGURES:
+    for label, key, get, fmt in _PAPER_FIGURES:
+        paper = s["paper"][key]
         cells = []
         for i, (_, m) in enumerate(cols):
             v = _get(get, m)
@@ -318,11 +322,12 @@ def _endpoint_lines_lines(ab_paper: dict, ideal_paper: dict) -> list[str]:
     return lines
 
 
-def _verdict(m: dict) -> list[str]:
-    """σ(F²), σ(C) and the box RMSE of one measurement against the paper's, with the factor-2 verdict."""
+def _verdict(m: dict, paper_figures: dict) -> list[str]:
+    """σ(F²), σ(C) and the box RMSE of one measurement against the paper's (``paper_figures``: the
+    summary's ``paper``), with the factor-2 verdict."""
     out = []
-    for label, paper, get, _ in _PAPER_FIGURES[:3]:
-        name = label.split(" [")[0]
+    for label, key, get, _ in _PAPER_FIGURES[:3]:
+        name, paper = label.split(" [")[0], paper_figures[key]
         value = _get(get, m)
         if value is None:
             out.append(f"{name}: not measured")
