@@ -15,6 +15,16 @@ Order of precedence
 2. ``prefer`` (default ``llvm_ad_rgb``) when its backend is usable.
 3. ``scalar_rgb`` with a :class:`RuntimeWarning`.
 
+Emulating another machine
+-------------------------
+``SCHEIMPFLUG_LLVM_TARGET=avx2`` (or ``CPU:FEATURES:WIDTH``, e.g.
+``haswell:+avx2,+fma,-avx512f:8``) makes Dr.Jit compile its kernels for that
+CPU instead of this one (``jit_llvm_set_target`` of drjit-core), so that a
+machine with AVX-512 can render what an AVX2-only machine renders and the
+suite can be run as on one (``benchmarks/bench_cross_machine.py``).  numba
+and OpenBLAS read their own variables (``NUMBA_CPU_NAME``,
+``OPENBLAS_CORETYPE``) when they load.
+
 The scalar fallback can load scenes and answer ray queries one ray at a time
 only; :class:`sim.render.Renderer` needs a JIT variant and raises
 :class:`~scheimpflug.errors.RenderError` otherwise (install ``libllvm19``:
@@ -23,6 +33,7 @@ only; :class:`sim.render.Renderer` needs a JIT variant and raises
 
 from __future__ import annotations
 
+import ctypes
 import glob
 import os
 import re
@@ -36,7 +47,9 @@ __all__ = [
     "FALLBACK_VARIANT",
     "MIN_LLVM_VERSION",
     "find_libllvm",
+    "LLVM_TARGETS",
     "is_jit_variant",
+    "llvm_target_from_env",
     "llvm_version_from_path",
     "select_variant",
 ]
@@ -44,6 +57,12 @@ __all__ = [
 MIN_LLVM_VERSION = 17
 FALLBACK_VARIANT = "scalar_rgb"
 _ENV = "SCHEIMPFLUG_VARIANT"
+_TARGET_ENV = "SCHEIMPFLUG_LLVM_TARGET"
+#: named targets for SCHEIMPFLUG_LLVM_TARGET: (LLVM CPU, features, Dr.Jit vector width [lanes])
+LLVM_TARGETS = {
+    "avx2": ("haswell", "+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+avx,+avx2,+fma,+f16c,+bmi,+bmi2,"
+                        "+lzcnt,+movbe,-avx512f,-avx512dq,-avx512bw,-avx512vl,-avx512cd", 8),
+}
 _GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
           "/usr/lib/libLLVM*.so*", "/usr/lib64/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*",
           "/usr/lib/llvm-*/lib/libLLVM*.so*", "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib",
@@ -150,11 +169,57 @@ def _llvm_usable() -> tuple[bool, str]:
     return True, f"using {path} (LLVM {version})"
 
 
+def llvm_target_from_env() -> tuple[str, str, int] | None:
+    """The Dr.Jit LLVM target asked for by ``SCHEIMPFLUG_LLVM_TARGET``, if any.
+
+    Returns
+    -------
+    tuple of (str, str, int) or None
+        LLVM CPU name, feature string and vector width [lanes]; None when the
+        variable is unset or empty.
+
+    Raises
+    ------
+    RenderError
+        When the value is neither a named target (``avx2``) nor ``CPU:FEATURES:WIDTH``.
+    """
+    value = os.environ.get(_TARGET_ENV, "").strip()
+    if not value:
+        return None
+    if value in LLVM_TARGETS:
+        return LLVM_TARGETS[value]
+    parts = value.split(":")
+    if len(parts) != 3 or not parts[2].isdigit() or int(parts[2]) not in (4, 8, 16):
+        raise RenderError(f"{_TARGET_ENV}={value!r}: expected one of {sorted(LLVM_TARGETS)} or "
+                          "CPU:FEATURES:WIDTH with a width of 4, 8 or 16 lanes")
+    return parts[0], parts[1], int(parts[2])
+
+
+_TARGET_APPLIED: list[tuple[str, str, int]] = []
+
+
+def _apply_llvm_target() -> None:
+    target = llvm_target_from_env()
+    if target is None or target in _TARGET_APPLIED:
+        return
+    import drjit as dr
+
+    core = ctypes.CDLL(os.path.join(os.path.dirname(dr.__file__), "libdrjit-core.so"))
+    set_target = core._Z19jit_llvm_set_targetPKcS0_j          # jit_llvm_set_target(cpu, features, width)
+    set_target.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    set_target.restype = None
+    dr.llvm.Float(0.0)                                       # the LLVM backend is initialised
+    set_target(target[0].encode(), target[1].encode(), target[2])
+    _TARGET_APPLIED.append(target)
+
+
 def _set(variant: str) -> str:
     import mitsuba as mi
 
     if mi.variant() != variant:
         mi.set_variant(variant)
+    if variant.startswith("llvm_"):
+        _apply_llvm_target()
     return variant
 
 
@@ -180,7 +245,8 @@ def select_variant(prefer: str = "llvm_ad_rgb") -> str:
     ------
     RenderError
         When the wanted variant (``SCHEIMPFLUG_VARIANT`` or ``prefer``) is not
-        among the variants this Mitsuba build provides.
+        among the variants this Mitsuba build provides, or ``SCHEIMPFLUG_LLVM_TARGET``
+        is malformed.
 
     Warns
     -----
@@ -192,6 +258,7 @@ def select_variant(prefer: str = "llvm_ad_rgb") -> str:
     import mitsuba as mi
 
     wanted = os.environ.get(_ENV) or prefer
+    llvm_target_from_env()                  # a bad SCHEIMPFLUG_LLVM_TARGET is refused before loading
     if wanted not in mi.variants():
         raise RenderError(f"Mitsuba variant {wanted!r} is not available "
                           f"(available: {', '.join(mi.variants())})")

@@ -89,9 +89,12 @@ def test_as_built_column_and_budget_by_source(quick_demo):
     assert ab["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface"}
     assert ideal["twin"] == {"bounces": 1, "subsurface": False, "speckle_model": "surface"}
     # on the quick plan's metal plate and blocker, neither extra bounces nor subsurface light
-    # change anything: those runs give the ideal run's calibration and axis exactly
+    # change the stripes: those runs give the ideal run's σ(C) — to a tolerance, not bit for bit: the
+    # runs render through different kernels, whose floats differ in the last bits between CPUs
+    # (AVX2 vs AVX-512: 9e-7 relative, measured with SCHEIMPFLUG_LLVM_TARGET=avx2); the tolerance
+    # is 100 × that scatter
     for src in ("inter-reflections", "subsurface"):
-        assert b["rows"][src]["C_sigma_mm"] == b["rows"]["none (ideal)"]["C_sigma_mm"]
+        assert b["rows"][src]["C_sigma_mm"] == pytest.approx(b["rows"]["none (ideal)"]["C_sigma_mm"], rel=1e-4)
     assert all(d in b["sources"] or d is None for d in b["dominant"].values())
     # the budget's ideal run is the ideal rig: no stage error, so its axis is found to < 0.05 mm
     assert abs(b["rows"]["none (ideal)"]["axis_error_mm"]) < 0.05

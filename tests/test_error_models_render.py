@@ -23,16 +23,6 @@ pytestmark = pytest.mark.render
 BIN = 4
 
 
-@pytest.fixture(scope="module")
-def variant():
-    from sim.variant import is_jit_variant, select_variant
-
-    v = select_variant()
-    if not is_jit_variant(v):
-        pytest.skip("no usable libLLVM ≥ 17: the renderer needs a JIT variant")
-    return v
-
-
 def _rig(**tables):
     rig = load_preset("paper").replace(environment={"ambient_irradiance_w_m2": 0.0})
     return binned_rig(rig.replace(**tables) if tables else rig, BIN)

@@ -61,16 +61,6 @@ def dark_rig(rig, **sensor):
     return rig.replace(environment={"ambient_irradiance_w_m2": 0.0}, sensor=sensor)
 
 
-@pytest.fixture(scope="module")
-def variant():
-    from sim.variant import is_jit_variant, select_variant
-
-    v = select_variant()
-    if not is_jit_variant(v):
-        pytest.skip("no usable libLLVM ≥ 17: the renderer needs a JIT variant")
-    return v
-
-
 def make(rig, parts, **settings):
     from sim.render import Renderer, RenderSettings
     from sim.scene import SimScene

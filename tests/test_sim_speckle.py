@@ -26,16 +26,6 @@ from scheimpflug.model.rig import load_preset
 pytestmark = pytest.mark.render
 
 
-@pytest.fixture(scope="module")
-def variant():
-    from sim.variant import is_jit_variant, select_variant
-
-    v = select_variant()
-    if not is_jit_variant(v):
-        pytest.skip("no usable libLLVM ≥ 17: the renderer needs a JIT variant")
-    return v
-
-
 def _facing_plate_pose(rig, distance_mm, yaw_deg=0.0, lift_mm=0.0):
     """Pose of a plate (face x = 0 of its frame) at the sheet point D, facing the lens."""
     g = hinge_geometry(rig)

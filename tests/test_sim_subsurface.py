@@ -25,16 +25,6 @@ from scheimpflug.model.rig import load_preset
 pytestmark = pytest.mark.render
 
 
-@pytest.fixture(scope="module")
-def variant():
-    from sim.variant import is_jit_variant, select_variant
-
-    v = select_variant()
-    if not is_jit_variant(v):
-        pytest.skip("no usable libLLVM ≥ 17: the renderer needs a JIT variant")
-    return v
-
-
 def h_function(albedo, n=64):
     """Chandrasekhar's H(μ) for isotropic scattering (callable), by fixed-point iteration."""
     x, w = np.polynomial.legendre.leggauss(n)

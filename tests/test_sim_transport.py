@@ -26,16 +26,6 @@ from scheimpflug.model.rig import load_preset
 pytestmark = pytest.mark.render
 
 
-@pytest.fixture(scope="module")
-def variant():
-    from sim.variant import is_jit_variant, select_variant
-
-    v = select_variant()
-    if not is_jit_variant(v):
-        pytest.skip("no usable libLLVM ≥ 17: the renderer needs a JIT variant")
-    return v
-
-
 # ------------------------------------------------------------------ Mitsuba comparison
 F_MM, F_NUMBER, FOCUS_MM = 50.0, 4.0, 400.0
 S_MM = F_MM * FOCUS_MM / (FOCUS_MM - F_MM)          # sensor distance behind the lens

@@ -128,7 +128,7 @@ _GRID = 2001                 # samples of D for the interval searches [-]
 class WorkingVolume:
     """The part of the sheet that a rig sees and lights, in sheet coordinates (D, h).
 
-    Attributes
+    Parameters
     ----------
     near_mm, far_mm : float
         Distances D from the object hinge seen by the first and last usable
@@ -598,7 +598,7 @@ class _Probe:
 class CalibrationPlan:
     """Where the calibration plate goes, frame by frame.
 
-    Attributes
+    Parameters
     ----------
     plate_height_mm, table_z_mm : float
         The plate and its table [mm].
@@ -713,7 +713,7 @@ def _plate_note(vol: WorkingVolume, plan: CalibrationPlan, d0: float) -> str:
 class RotaryPlan:
     """What fits on the rotary stage of a rig.
 
-    Attributes
+    Parameters
     ----------
     axis_mm : float
         Axis position in stage coordinates [mm].
