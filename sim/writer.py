@@ -58,10 +58,7 @@ shared part — public to the package, not in ``__all__``.
 from __future__ import annotations
 
 import io
-import json
-import os
 import sys
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -73,9 +70,10 @@ import numpy as np
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import RenderError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
-from scheimpflug.io.folder import LEDGER_NAME, LOCK_NAME, FileLedger, FolderLock
+from scheimpflug.io.folder import LEDGER_NAME, LOCK_NAME, FileLedger
 from scheimpflug.model.rig import Rig, is_realistic, rig_to_dict
 
+from .jobfolder import JobKind, check_identity, create_folder, open_job, remove_temporaries
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
 from .stages import invert
@@ -109,6 +107,13 @@ FORMAT = "scheimpflug-frames/1"
 #: the comparison).  Noise-dominated frames gain little from filters or higher levels.
 PNG_COMPRESSION = 1
 _IDENTITY_KEYS = ("format", "rig", "scenario", "scenario_params", "seed", "render", "frames")
+#: the frame folder as a job (:mod:`sim.jobfolder`): its manifest is its identity
+FRAME_FOLDER = JobKind(
+    error=RenderError, meta_file="manifest.json", noun="run", folder_noun="frame folder",
+    differs="output folder {out!r} holds a different run ({where!r} differs from this command's); "
+            "choose another --out or delete the folder to start over",
+    unreadable="{meta!r} exists but cannot be read ({exc}); remove the folder or choose another --out",
+    depth=1, subset_keys=(), own_files=(LOCK_NAME, LEDGER_NAME), own_dirs=("frames", "truth"))
 
 
 class Twin(Protocol):
@@ -713,18 +718,6 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
     }
 
 
-def _first_difference(old: dict, new: dict) -> str:
-    for key in _IDENTITY_KEYS:
-        a, b = old.get(key), new.get(key)
-        if json.dumps(a, sort_keys=True) != json.dumps(b, sort_keys=True):
-            if isinstance(a, dict) and isinstance(b, dict):
-                for sub in sorted(set(a) | set(b)):
-                    if json.dumps(a.get(sub), sort_keys=True) != json.dumps(b.get(sub), sort_keys=True):
-                        return f"{key}.{sub}"
-            return key
-    return ""
-
-
 def prepare_folder(out, manifest: dict) -> set[int]:
     """Create or reopen the frame folder.
 
@@ -751,58 +744,21 @@ def prepare_folder(out, manifest: dict) -> set[int]:
         (the message names the first differing key).
     """
     out = Path(out)
-    _writable_folder(out)
+    create_folder(out, RenderError)
     done = _existing_run(out, manifest)
     for sub in ("frames", "truth"):
         (out / sub).mkdir(exist_ok=True)
-    _remove_stale_temporaries(out)
+    remove_temporaries(out, ("frames", "truth"))
     write_json_atomic(out / "manifest.json", manifest)
     return done
 
 
-_PROBE = ".write-probe-"
-
-
-def _writable_folder(out: Path) -> None:
-    """Create ``out`` and check that a file can be written in it (RenderError if not)."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f"{_PROBE}{os.getpid()}-{threading.get_ident()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise RenderError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
-
-
 def _existing_run(out: Path, manifest: dict) -> set[int]:
-    path = out / "manifest.json"
-    if not path.exists():
-        others = [p.name for p in out.iterdir()          # a waiting writer's probe is no content
-                  if p.name not in ("frames", "truth", LOCK_NAME, LEDGER_NAME)
-                  and not p.name.startswith(_PROBE)]
-        others += [f"{d}/{p.name}" for d in ("frames", "truth") if (out / d).is_dir()
-                   for p in (out / d).iterdir()]
-        if others:
-            raise RenderError(f"output folder {str(out)!r} is not empty and holds no manifest.json "
-                              f"(found {others[0]!r}); choose a new or empty folder")
+    """Frames present of the same run in ``out`` (:func:`sim.jobfolder.check_identity`); else raise."""
+    if check_identity(out, FRAME_FOLDER, {k: manifest.get(k) for k in _IDENTITY_KEYS}) is None:
         return set()
-    try:
-        old = json.loads(path.read_text("utf-8"))
-    except (OSError, ValueError) as exc:
-        raise RenderError(f"{str(path)!r} exists but cannot be read ({exc}); remove the folder "
-                          "or choose another --out") from None
-    diff = _first_difference(old, manifest)
-    if diff:
-        raise RenderError(f"output folder {str(out)!r} holds a different run ({diff!r} differs from "
-                          "this command's); choose another --out or delete the folder to start over")
     indices = [int(Path(e["file"]).stem) for e in manifest["frames"]]
     return {i for i in indices if all(p.exists() for p in frame_paths(out, i))}
-
-
-def _remove_stale_temporaries(out: Path) -> None:
-    for d in (out, out / "frames", out / "truth"):
-        for p in d.glob(".*.tmp*"):
-            p.unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------ the loop
@@ -945,18 +901,9 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
 
 
 def run_locked(out: Path, warn, body):
-    """``body()`` while holding the folder's lock; an OSError becomes one RenderError."""
-    _writable_folder(out)
-    with FolderLock(out, error=RenderError) as lock:
-        if lock.stale_owner:
-            warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
-                 f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
-        try:
-            return body()
-        except OSError as exc:
-            raise RenderError(f"cannot write into the frame folder {str(out)!r}: "
-                              f"{exc.strerror or exc}{f' ({exc.filename})' if exc.filename else ''}; "
-                              "nothing is half-written: fix the cause and rerun to resume") from None
+    """``body()`` in the locked folder (:func:`sim.jobfolder.open_job`); an OSError becomes a RenderError."""
+    with open_job(out, FRAME_FOLDER, None, warn):
+        return body()
 
 
 def render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderStats:

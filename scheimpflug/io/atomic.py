@@ -2,18 +2,25 @@
 
 Everything is written to a temporary name in the destination folder and then
 renamed over the final name (``os.replace`` is atomic on POSIX).
+:func:`target_path` names the file a temporary stands for (messages name
+the real target, never a temporary name); :func:`finite_json` makes any
+result strict JSON (undefined numbers become ``null``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
-__all__ = ["atomic_path", "write_bytes_atomic", "write_json_atomic", "write_text_atomic"]
+__all__ = ["atomic_path", "finite_json", "target_path", "write_bytes_atomic", "write_json_atomic",
+           "write_text_atomic"]
 
 
 @contextlib.contextmanager
@@ -110,3 +117,67 @@ def write_json_atomic(path: str | os.PathLike, obj, indent: int = 2) -> None:
         If ``obj`` holds something JSON cannot represent; nothing is written.
     """
     write_text_atomic(path, json.dumps(obj, indent=indent, allow_nan=False) + "\n")
+
+
+#: temporary names and the part of them that is the real name: atomic_path's ``.STEM.XXXXXXXX.tmpSFX``,
+#: a frame loop's ``.NAME.tmpPID-THREAD``, a work folder's ``.NAME.partial``
+_TEMPORARY = (re.compile(r"^\.(?P<stem>.+)\.[A-Za-z0-9_]{8}\.tmp(?P<suffix>\.[^.]*)?$"),
+              re.compile(r"^\.(?P<stem>.+)\.tmp\d+-\d+$"),
+              re.compile(r"^\.(?P<stem>.+)\.partial$"))
+
+
+def target_path(path: str | os.PathLike) -> str:
+    """The path a temporary name stands for (every temporary component replaced by its target).
+
+    ``samples/.000003.partial/frames/.00002.png.tmp12-34`` → ``samples/000003/frames/00002.png``;
+    ``.index.k3j4l5m6.tmp.parquet`` → ``index.parquet``; other paths are returned as they are.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A path, perhaps of a temporary file or inside a work folder.
+
+    Returns
+    -------
+    str
+        The path of the real target.
+    """
+    text = os.fspath(path)
+    if not text:
+        return text
+    parts = []
+    for part in text.split(os.sep):
+        for pattern in _TEMPORARY:
+            m = pattern.match(part)
+            if m:
+                part = m.group("stem") + (m.groupdict().get("suffix") or "")
+                break
+        parts.append(part)
+    return os.sep.join(parts)
+
+
+def finite_json(obj: Any) -> Any:
+    """``obj`` with every NaN or ±inf float replaced by None (JSON ``null``: undefined).
+
+    Dicts, lists and tuples are copied recursively (tuples become lists); numpy
+    scalars and arrays become Python numbers and lists.
+
+    Parameters
+    ----------
+    obj : object
+        A JSON-like value.
+
+    Returns
+    -------
+    object
+        The same value, strict JSON (:func:`json.dumps` with ``allow_nan=False`` accepts it).
+    """
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if hasattr(obj, "dtype") and hasattr(obj, "tolist"):     # numpy scalars and arrays
+        return finite_json(obj.tolist())
+    return obj

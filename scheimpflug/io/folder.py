@@ -1,7 +1,12 @@
 """Folders with one writer at a time, whose finished files can be verified.
 
-Two pieces that every writer of a frame folder (``sim.writer``) or of a
-dataset uses:
+The pieces that every writer of a frame folder (``sim.writer``), a dataset
+or a study uses (the job skeleton on top of them is ``sim.jobfolder``):
+
+* :func:`unwritable_reason` — the one check, before any work, that new files
+  can be made at a path (the nearest existing folder, and why not);
+  :func:`make_writable_folder` creates a folder and proves it by writing a
+  probe file (``.write-probe-PID-THREAD``, :data:`PROBE_PREFIX`; no content).
 
 * :class:`FolderLock` — an exclusive lock on a folder: the lock file
   ``DIR/.scheimpflug.lock`` holds the owner's pid, host, start time and
@@ -39,7 +44,8 @@ from pathlib import Path
 from scheimpflug.errors import LockError, ScheimpflugError
 from scheimpflug.io.atomic import write_text_atomic
 
-__all__ = ["LEDGER_NAME", "LOCK_NAME", "MANAGED_NAMES", "FileLedger", "FolderLock", "file_record"]
+__all__ = ["LEDGER_NAME", "LOCK_NAME", "MANAGED_NAMES", "PROBE_PREFIX", "FileLedger", "FolderLock", "file_record",
+           "make_writable_folder", "unwritable_reason"]
 
 LOCK_NAME = ".scheimpflug.lock"
 """Lock file of a folder being written (:class:`FolderLock`)."""
@@ -47,8 +53,59 @@ LEDGER_NAME = "checksums.jsonl"
 """Size and SHA-256 of every finished frame's files (:class:`FileLedger`)."""
 MANAGED_NAMES = ("manifest.json", "frames", "truth", LOCK_NAME, LEDGER_NAME)
 """Top-level names of a frame folder that belong to its writer."""
+PROBE_PREFIX = ".write-probe-"
+"""Name prefix of the empty file :func:`make_writable_folder` writes and removes (no content)."""
 
 _NO_FLOCK = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
+
+
+def unwritable_reason(path: str | os.PathLike) -> tuple[Path, str | None]:
+    """The nearest existing folder at or above ``path``, and why no file can be created there.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A folder or file that may not exist yet.
+
+    Returns
+    -------
+    probe : Path
+        ``path`` itself if it exists, else its nearest existing ancestor.
+    reason : str or None
+        ``"is not a folder"``, ``"is not writable"`` (no write or search permission),
+        or None when files can be created there.
+    """
+    probe = Path(path)
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        return probe, "is not a folder"
+    if not os.access(probe, os.W_OK | os.X_OK):
+        return probe, "is not writable"
+    return probe, None
+
+
+def make_writable_folder(folder: str | os.PathLike) -> None:
+    """Create ``folder`` (and its parents) and prove a file can be written in it.
+
+    Writes and removes an empty probe file named ``PROBE_PREFIX + PID-THREAD`` (a
+    folder that another process probes at the same moment holds no content).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder.
+
+    Raises
+    ------
+    OSError
+        When the folder cannot be created or written (the caller names it).
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    probe = folder / f"{PROBE_PREFIX}{os.getpid()}-{threading.get_ident()}"
+    probe.write_bytes(b"")
+    probe.unlink()
 
 
 def _owner() -> dict:

@@ -19,6 +19,7 @@ import numpy as np
 
 from scheimpflug.errors import MeshError
 from scheimpflug.io.atomic import atomic_path
+from scheimpflug.io.folder import unwritable_reason
 from scheimpflug.io.ply import write_mesh_ply
 
 __all__ = ["MESH_SUFFIXES", "check_mesh_destination", "write_mesh", "write_stl"]
@@ -86,10 +87,8 @@ def check_mesh_destination(path: str | os.PathLike) -> Path:
         raise MeshError(f"model file {str(p)!r}: the name must end in .stl or .ply")
     if p.is_dir():
         raise MeshError(f"model file {str(p)!r} is a folder")
-    parent = p.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+    parent, reason = unwritable_reason(p.parent)
+    if reason:
         raise MeshError(f"model file {str(p)!r} cannot be written: {str(parent)!r} is not a writable folder")
     if p.exists() and not os.access(p, os.W_OK):
         raise MeshError(f"model file {str(p)!r} cannot be written: the file is read-only")

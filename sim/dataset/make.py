@@ -20,7 +20,6 @@ resume frame by frame, nothing is made twice.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import shutil
 import sys
@@ -42,9 +41,8 @@ from scheimpflug.dataset import (
 )
 from scheimpflug.errors import DatasetError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic, write_text_atomic
-from scheimpflug.io.folder import FolderLock
 
-from ..jobfolder import check_identity, check_writable
+from ..jobfolder import JobKind, check_identity, open_job, remove_temporaries, run_with_retries
 from ..writer import generator_info
 from .engine import Engine
 from .sample import SAMPLE_FILE, ZarrLayout, make_sample, sample_folder
@@ -122,10 +120,6 @@ def _plans(spec: DatasetSpec, storage: str) -> list[SamplePlan]:
     return plans
 
 
-def _check_writable(out: Path) -> None:
-    check_writable(out, DatasetError)
-
-
 def _inputs(spec: DatasetSpec) -> dict:
     out = {}
     for p in spec.input_files():
@@ -141,14 +135,16 @@ def _identity(spec: DatasetSpec, storage: str) -> dict:
     return {"format": DATASET_FORMAT, "spec": spec.raw, "storage": storage, "inputs": _inputs(spec)}
 
 
-_WHAT = {"spec": "a different spec", "storage": "another --format",
-         "inputs": "other input files (a rig, mesh or scene file changed)",
-         "format": "another version of this program"}
+#: the dataset folder as a job (:mod:`sim.jobfolder`)
+DATASET_JOB = JobKind(error=DatasetError, meta_file=META_FILE, noun="dataset", folder_noun="dataset folder",
+                      what={"spec": "a different spec", "storage": "another --format",
+                            "inputs": "other input files (a rig, mesh or scene file changed)",
+                            "format": "another version of this program"})
 
 
 def _check_existing(out: Path, identity: dict) -> dict | None:
     """The existing ``dataset.json`` of the same spec, None for an empty/new folder; else raise."""
-    return check_identity(out, META_FILE, {k: identity[k] for k in _IDENTITY}, _WHAT, DatasetError, "dataset")
+    return check_identity(out, DATASET_JOB, {k: identity[k] for k in _IDENTITY})
 
 
 # ------------------------------------------------------------------ the store
@@ -180,18 +176,6 @@ def _create_store(out: Path, plans: list[SamplePlan], name: str) -> list[int]:
                            compressors=codec, dimension_names=dims,
                            chunk_key_encoding={"name": "default", "separator": "."})
     return offsets
-
-
-def _remove_temporaries(out: Path) -> None:
-    """Temporary files of killed writers (atomic_path's ``.*.tmp*``, Zarr's ``*.partial``)."""
-    for base in (out, out / "samples", out / ZARR_STORE):
-        if not base.is_dir():
-            continue
-        pattern = "**/*" if base.name == ZARR_STORE else "*"
-        for p in base.glob(pattern):
-            if p.is_file() and ((p.name.startswith(".") and ".tmp" in p.name)
-                                or (base.name == ZARR_STORE and p.name.endswith(".partial"))):
-                p.unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------ index and ledger
@@ -315,31 +299,15 @@ def make_dataset(spec: DatasetSpec, out, *, storage: str = "png", workers: int =
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
     plans = _plans(spec, storage)
-    _check_writable(out)
     identity = _identity(spec, storage)
-    _check_existing(out, identity)                  # before anything is created in ``out``
-    created = not out.exists()
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
-    try:
-        with FolderLock(out, error=DatasetError) as lock:   # one `make` per dataset folder at a time
-            if lock.stale_owner:
-                warn(f"took over the lock left in {str(out)!r} by a writer that is no longer running "
-                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
-            return _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries,
-                                connect_timeout_s, progress, warn)
-    except BaseException:
-        if created:                     # a failure before anything was written leaves no folder
-            with contextlib.suppress(OSError):
-                out.rmdir()
-        raise
+    # checked, created, locked (one `make` per dataset folder at a time): sim.jobfolder
+    with open_job(out, DATASET_JOB, {k: identity[k] for k in _IDENTITY}, warn) as old:
+        return _make_locked(spec, out, plans, identity, old, storage, workers, scheduler, retries,
+                            connect_timeout_s, progress, warn)
 
 
-def _make_locked(spec, out, plans, identity, storage, workers, scheduler, retries, connect_timeout_s,
+def _make_locked(spec, out, plans, identity, old, storage, workers, scheduler, retries, connect_timeout_s,
                  progress, warn) -> MakeResult:
-    old = _check_existing(out, identity)
     if old is not None and old.get("generator", {}).get("versions") != generator_info()["versions"]:
         warn("the dataset was started with other library versions; frames made now may differ")
     t0 = time.perf_counter()
@@ -349,7 +317,7 @@ def _make_locked(spec, out, plans, identity, storage, workers, scheduler, retrie
             (out / "samples").mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DatasetError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
-        _remove_temporaries(out)
+        remove_temporaries(out, ("samples",), deep=(ZARR_STORE,))
         offsets = _create_store(out, plans, spec.name) if storage == "zarr" else [0] * len(plans)
         info = _info(spec, identity, plans, storage, engine)
         write_json_atomic(out / META_FILE, info)
@@ -390,42 +358,23 @@ class _Job:
 
 
 def _run(engine, plans, offsets, out, storage, records, result, retries, warn) -> None:
-    todo = [p for p in plans if p.index not in records]
-    base = sum(p.frames for p in plans if p.index in records)
-    total = sum(p.frames for p in plans)
-    job = _Job(str(out), storage, offsets)
-    errors: dict[int, str] = {}
-    last_flush = time.monotonic()
-    for attempt in range(retries + 1):
-        if not todo:
-            break
-        failed = []
-        for plan, res in engine.map(job, todo, key=lambda p: f"sample-{p.index:06d}",
-                                    sizes=lambda p: p.frames, base=base, grand_total=total):
-            if isinstance(res, BaseException):
-                errors[plan.index] = _reason(res)
-                failed.append(plan)
-                if attempt < retries:
-                    warn(f"sample {plan.index} failed ({errors[plan.index]}); it will be tried again")
-                continue
-            errors.pop(plan.index, None)
-            records[plan.index] = _part(out, plan.index, res.record)
-            base += plan.frames
-            result.samples_made += 1
-            result.frames_rendered += res.frames_rendered
-            for k, v in res.seconds.items():
-                result.seconds[k] = result.seconds.get(k, 0.0) + v
-            if time.monotonic() - last_flush > _FLUSH_S:
-                _write_index(out, records)
-                last_flush = time.monotonic()
-        todo = failed
-    result.failures = [{"sample": k, "error": errors[k]} for k in sorted(errors)]
-    for f in result.failures:
-        warn(f"sample {f['sample']} failed: {f['error']}")
+    last_flush = [time.monotonic()]
 
+    def done(plan, res) -> None:
+        records[plan.index] = _part(out, plan.index, res.record)
+        result.samples_made += 1
+        result.frames_rendered += res.frames_rendered
+        for k, v in res.seconds.items():
+            result.seconds[k] = result.seconds.get(k, 0.0) + v
+        if time.monotonic() - last_flush[0] > _FLUSH_S:
+            _write_index(out, records)
+            last_flush[0] = time.monotonic()
 
-def _reason(exc: BaseException) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
+    result.failures = run_with_retries(
+        engine, _Job(str(out), storage, offsets), [p for p in plans if p.index not in records], noun="sample",
+        key=lambda p: f"sample-{p.index:06d}", size=lambda p: p.frames,
+        base=sum(p.frames for p in plans if p.index in records), grand_total=sum(p.frames for p in plans),
+        retries=retries, warn=warn, on_done=done)
 
 
 def _finish(out, spec, info, plans, records, result, storage, wall_s) -> None:

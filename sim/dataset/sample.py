@@ -43,7 +43,7 @@ import numpy as np
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.dataset import TRUTH_ARRAYS, ZARR_STORE, file_sha256
 from scheimpflug.errors import RenderError
-from scheimpflug.io.atomic import atomic_path, write_json_atomic
+from scheimpflug.io.atomic import atomic_path, finite_json, write_json_atomic
 
 from ..scenarios import Scenario, build_scenario, reuse_assemblies
 from ..sensor import SensorModel, apply_sensor, frame_rng
@@ -522,7 +522,7 @@ def _finish(plan, root, partial, final, manifest, scenario, rig, results, storag
               "parts": [{"object_id": p.object_id, "name": p.name, "material": p.material}
                         for p in scenario.assembly.parts],
               "frames_without_stripe": no_stripe, "rows": rows, "files": files}
-    write_json_atomic(partial / SAMPLE_FILE, _json_safe(record))
+    write_json_atomic(partial / SAMPLE_FILE, finite_json(record))
     _commit(partial, final)
     return json.loads((final / SAMPLE_FILE).read_text("utf-8"))
 
@@ -590,14 +590,3 @@ def _commit(partial: Path, final: Path) -> None:
             shutil.rmtree(partial, ignore_errors=True)
             return
         raise
-
-
-def _json_safe(obj):
-    """NaN → None (JSON has no NaN)."""
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_json_safe(v) for v in obj]
-    return obj

@@ -25,9 +25,7 @@ depend on the number of workers.
 
 from __future__ import annotations
 
-import contextlib
 import json
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -37,11 +35,10 @@ from pathlib import Path
 from scheimpflug.callbacks import ProgressCallback
 from scheimpflug.dataset import file_sha256
 from scheimpflug.errors import StudyError
-from scheimpflug.io.atomic import atomic_path, write_json_atomic
-from scheimpflug.io.folder import FolderLock
+from scheimpflug.io.atomic import atomic_path, finite_json, write_json_atomic
 
 from ..dataset.engine import Engine
-from ..jobfolder import check_identity, check_writable
+from ..jobfolder import JobKind, open_job, remove_temporaries, run_with_retries
 from ..writer import generator_info
 from .analysis import analyse_sweep, analyse_tolerance, table_rows
 from .draw import DRAW_FILE, PROGRESS_UNITS, draw_folder, run_draw
@@ -54,8 +51,10 @@ META_FILE = "study.json"
 SUMMARY_FILE = "summary.json"
 ANALYTIC_FILE = "analytic.json"
 TABLE_FILE = "draws.parquet"
-_WHAT = {"format": "another version of this program", "kind": "the other study command",
-         "spec": "a different spec", "inputs": "another rig file"}
+#: the study folder as a job (:mod:`sim.jobfolder`)
+STUDY_JOB = JobKind(error=StudyError, meta_file=META_FILE, noun="study", folder_noun="study folder", owner="run",
+                    what={"format": "another version of this program", "kind": "the other study command",
+                          "spec": "a different spec", "inputs": "another rig file"})
 
 
 @dataclass
@@ -127,14 +126,6 @@ def _load_records(out: Path, plans: list[DrawPlan]) -> dict[int, dict]:
     return records
 
 
-def _remove_temporaries(out: Path) -> None:
-    for p in (out, out / "draws"):
-        if p.is_dir():
-            for f in p.glob(".*.tmp*"):
-                if f.is_file():
-                    f.unlink(missing_ok=True)
-
-
 def run_study(spec: StudySpec, out, *, workers: int = 1, scheduler: str | None = None, retries: int = 1,
               connect_timeout_s: float = 10.0, near_mm: float | None = None, far_mm: float | None = None,
               max_error_mm: float | None = None, progress: ProgressCallback | None = None,
@@ -181,36 +172,19 @@ def run_study(spec: StudySpec, out, *, workers: int = 1, scheduler: str | None =
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
     plans = plan_draws(spec)
-    check_writable(out, StudyError)
     identity = _identity(spec)
-    check_identity(out, META_FILE, identity, _WHAT, StudyError, "study")      # before anything is created
-    created = not out.exists()
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise StudyError(f"output folder {str(out)!r} is not writable: {exc.strerror or exc}") from None
-    try:
-        with FolderLock(out, error=StudyError) as lock:        # one run per study folder at a time
-            if lock.stale_owner:
-                warn(f"took over the lock left in {str(out)!r} by a run that is no longer running "
-                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
-            return _run_locked(spec, out, plans, identity, workers, scheduler, retries, connect_timeout_s,
-                               (near_mm, far_mm, max_error_mm), progress, warn)
-    except BaseException:
-        if created:                     # a failure before anything was written leaves no folder
-            with contextlib.suppress(OSError):
-                out.rmdir()
-        raise
+    with open_job(out, STUDY_JOB, identity, warn):     # checked, created, locked: sim.jobfolder
+        return _run_locked(spec, out, plans, identity, workers, scheduler, retries, connect_timeout_s,
+                           (near_mm, far_mm, max_error_mm), progress, warn)
 
 
 def _run_locked(spec, out, plans, identity, workers, scheduler, retries, connect_timeout_s, constraints,
                 progress, warn) -> StudyResult:
-    check_identity(out, META_FILE, identity, _WHAT, StudyError, "study")
     t0 = time.perf_counter()
     result = StudyResult(out, spec)
     with Engine(workers=workers, scheduler=scheduler, timeout_s=connect_timeout_s, progress=progress) as engine:
         (out / "draws").mkdir(parents=True, exist_ok=True)
-        _remove_temporaries(out)
+        remove_temporaries(out, ("draws",))
         info = {**identity, "complete": False, "name": spec.name, "generator": generator_info(),
                 "planned": len(plans), "engine": {"workers": engine.workers, "scheduler": engine.scheduler}}
         write_json_atomic(out / META_FILE, info)
@@ -223,31 +197,15 @@ def _run_locked(spec, out, plans, identity, workers, scheduler, retries, connect
 
 def _run(engine: Engine, plans, out: Path, records: dict, result: StudyResult, retries: int, warn) -> None:
     todo = [p for p in plans if p.index not in records]
-    base = PROGRESS_UNITS * (len(plans) - len(todo))
-    errors: dict[int, str] = {}
-    for attempt in range(retries + 1):
-        if not todo:
-            break
-        failed = []
-        for plan, res in engine.map(_Job(str(out)), todo, key=lambda p: f"draw-{p.index:06d}",
-                                    sizes=lambda p: PROGRESS_UNITS, base=base,
-                                    grand_total=PROGRESS_UNITS * len(plans)):
-            if isinstance(res, BaseException):
-                if isinstance(res, StudyError):
-                    raise res
-                errors[plan.index] = " ".join(f"{type(res).__name__}: {res}".split())
-                failed.append(plan)
-                if attempt < retries:
-                    warn(f"draw {plan.index} failed ({errors[plan.index]}); it will be tried again")
-                continue
-            errors.pop(plan.index, None)
-            records[plan.index] = res
-            base += PROGRESS_UNITS
-            result.draws_run += 1
-        todo = failed
-    result.failures = [{"draw": k, "error": errors[k]} for k in sorted(errors)]
-    for f in result.failures:
-        warn(f"draw {f['draw']} failed: {f['error']}")
+
+    def done(plan, res) -> None:
+        records[plan.index] = res
+        result.draws_run += 1
+
+    result.failures = run_with_retries(
+        engine, _Job(str(out)), todo, noun="draw", key=lambda p: f"draw-{p.index:06d}",
+        size=lambda p: PROGRESS_UNITS, base=PROGRESS_UNITS * (len(plans) - len(todo)),
+        grand_total=PROGRESS_UNITS * len(plans), retries=retries, warn=warn, on_done=done, fatal=(StudyError,))
 
 
 def _analytic(spec: StudySpec, out: Path, progress, n_plans: int) -> dict | None:
@@ -269,17 +227,6 @@ def _analytic(spec: StudySpec, out: Path, progress, n_plans: int) -> dict | None
         return {"error": " ".join(f"{type(exc).__name__}: {exc}".split())}
     write_json_atomic(path, json.loads(json.dumps(res, default=float)))
     return res
-
-
-def _jsonable(obj):
-    """NaN and ±inf → None, recursively (strict JSON)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_jsonable(v) for v in obj]
-    return obj
 
 
 def _write_table(out: Path, rows: list[dict]) -> None:
@@ -310,7 +257,7 @@ def _finish(spec, out, info, plans, records, result, analytic, constraints, wall
         summary["analytic"] = analytic
     else:
         summary.update(analyse_sweep(spec, rows, near, far, max_err if max_err is not None else spec.max_error_mm))
-    summary = _jsonable(json.loads(json.dumps(summary, default=float)))
+    summary = finite_json(json.loads(json.dumps(summary, default=float)))
     write_json_atomic(out / SUMMARY_FILE, summary)
     result.records, result.rows, result.summary = recs, rows, summary
     write_json_atomic(out / META_FILE, dict(info, complete=result.complete, draws=len(recs),

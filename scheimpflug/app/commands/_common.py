@@ -24,7 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from scheimpflug.errors import ScheimpflugError
-from scheimpflug.io.folder import MANAGED_NAMES
+from scheimpflug.io.atomic import finite_json
+from scheimpflug.io.folder import MANAGED_NAMES, unwritable_reason
 from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig
 
 __all__ = ["PLOT_FORMATS", "add_force_option", "add_rig_options", "check_output", "check_plot",
@@ -42,19 +43,6 @@ def rig_from_args(args: argparse.Namespace) -> Rig:
     if getattr(args, "rig", None):
         return load_rig(args.rig)
     return load_preset(getattr(args, "preset", None) or "paper")
-
-
-def finite_json(obj: Any) -> Any:
-    """``obj`` with every NaN or ±inf float replaced by None (JSON ``null``: undefined)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: finite_json(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite_json(v) for v in obj]
-    if hasattr(obj, "dtype") and hasattr(obj, "tolist"):     # numpy scalars and arrays
-        return finite_json(obj.tolist())
-    return obj
 
 
 def print_json(obj: Any) -> None:
@@ -162,12 +150,10 @@ def check_output(path: str | os.PathLike | None, option: str, *, force: bool = F
 
 
 def _check_writable(p: Path, option: str) -> None:
-    probe = p.parent if str(p.parent) else Path(".")
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
+    probe, reason = unwritable_reason(p.parent if str(p.parent) else Path("."))
+    if reason == "is not a folder":
         raise ScheimpflugError(f"{option} {str(p)!r}: {str(probe)!r} is not a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
+    if reason:
         raise ScheimpflugError(f"{option} {str(p)!r}: cannot write there (permission denied)")
 
 

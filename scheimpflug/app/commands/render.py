@@ -169,16 +169,9 @@ def _rig(args):
 
 def _check_out(path: str) -> None:
     """Fail before any rendering when ``--out`` cannot be a writable folder."""
-    import os
-    from pathlib import Path
+    from sim.jobfolder import check_writable
 
-    p = Path(path)
-    probe = p
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        what = "is not a folder" if not probe.is_dir() else "is not writable"
-        raise RenderError(f"output folder {path!r} is not writable: {str(probe)!r} {what}")
+    check_writable(path, RenderError)
 
 
 def _check_job(args, rig, opts: dict) -> int:
