@@ -96,13 +96,23 @@ class Part:
         parameters, and ``mesh_from_part`` (4 × 4 nested list).
     object_id : int, default 1
         1-based id, unique within an assembly (0 = background).
+    texture : dict, optional
+        An albedo map on the surface (``kind``: a pattern of :mod:`scenes.patterns`,
+        ``"image"`` — ``albedo`` (H, W) in [0, 1] over ``extent_mm`` [u0, v0, u1, v1] —
+        or ``"uniform"`` — ``albedo``), in the texture coordinates (u, v) [mm]; the
+        renderer then shades the part as a matte (Lambertian) surface of that albedo.
+        None = the material's own reflectance.
+    uv_mm : (m, 2) ndarray float, optional
+        Texture coordinates (u, v) of each mesh vertex [mm]; None with a texture =
+        planar coordinates (``texture["planar"]``: ``origin_mm``, ``u_axis``, ``v_axis``
+        in the part frame; default the part's x and y).
 
     Raises
     ------
     MeshError
         For an unknown material, an object id that is not an int ≥ 0, a mesh
-        without triangles, or an analytic description that is not
-        JSON-serialisable (NaN included).
+        without triangles, an analytic description that is not
+        JSON-serialisable (NaN included), or ``uv_mm`` not of shape (vertices, 2).
     """
 
     name: str
@@ -110,6 +120,8 @@ class Part:
     material: str = "metal"
     analytic: dict = field(default_factory=dict)
     object_id: int = 1
+    texture: dict | None = None
+    uv_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.material not in MATERIALS:
@@ -120,6 +132,9 @@ class Part:
         if len(self.mesh.faces) == 0:
             raise MeshError(f"part {self.name!r}: mesh has no triangles")
         _check_json(self.name, self.analytic)
+        if self.uv_mm is not None and np.shape(self.uv_mm) != (len(self.mesh.vertices), 2):
+            raise MeshError(f"part {self.name!r}: uv_mm must be ({len(self.mesh.vertices)}, 2), "
+                            f"got {np.shape(self.uv_mm)}")
 
     @property
     def mesh_from_part(self) -> np.ndarray:

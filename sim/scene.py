@@ -72,6 +72,27 @@ class _PartSpec:
     material: str
     object_id: int
     name: str
+    texture: dict | None = None   # albedo texture (sim.textures), or None
+    uv: np.ndarray | None = None  # (m, 2) float64 texture coordinates [mm], or None
+
+
+def _planar_uv(vertices: np.ndarray, texture: dict) -> np.ndarray:
+    """Planar texture coordinates of vertices: (P − origin)·(u_axis, v_axis) [mm]."""
+    plane = texture.get("planar", {})
+    origin = np.asarray(plane.get("origin_mm", (0.0, 0.0, 0.0)), dtype=np.float64)
+    u = np.asarray(plane.get("u_axis", (1.0, 0.0, 0.0)), dtype=np.float64)
+    v = np.asarray(plane.get("v_axis", (0.0, 1.0, 0.0)), dtype=np.float64)
+    rel = vertices - origin
+    return np.stack([rel @ (u / np.linalg.norm(u)), rel @ (v / np.linalg.norm(v))], axis=1)
+
+
+def _texture_of(item: Any, vertices: np.ndarray) -> tuple[dict | None, np.ndarray | None]:
+    texture = getattr(item, "texture", None)
+    if texture is None:
+        return None, None
+    uv = getattr(item, "uv_mm", None)
+    uv = _planar_uv(vertices, texture) if uv is None else np.asarray(uv, dtype=np.float64)
+    return texture, uv
 
 
 def _as_spec(item: Any, index: int) -> _PartSpec:
@@ -91,7 +112,8 @@ def _as_spec(item: Any, index: int) -> _PartSpec:
         raise MeshError(f"part {name!r}: face indices out of range [0, {len(v)})")
     if int(object_id) < 1:
         raise MeshError(f"part {name!r}: object_id must be ≥ 1 (0 means 'no hit'), got {object_id}")
-    return _PartSpec(v, f.astype(np.uint32), str(material), int(object_id), name)
+    texture, uv = _texture_of(item, v)
+    return _PartSpec(v, f.astype(np.uint32), str(material), int(object_id), name, texture, uv)
 
 
 def _as_transforms(rig_from_part, n_parts: int) -> list[np.ndarray]:
@@ -161,15 +183,17 @@ class SimScene:
         self.specs = [_as_spec(p, i) for i, p in enumerate(parts)]
         self.materials = materials or MaterialSettings()
         self.subsurface = bool(subsurface)
-        #: per part: its interior medium (subsurface on, translucent tag) or None
-        self.media = [self.materials.medium(sp.material) if self.subsurface else None
-                      for sp in self.specs]
+        #: per part: its interior medium (subsurface on, translucent tag, no texture) or None
+        self.media = [self.materials.medium(sp.material) if self.subsurface and sp.texture is None
+                      else None for sp in self.specs]
         shapes = {f"s{i}": self._mesh(f"s{i}", s) for i, s in enumerate(self.specs)}
         self.scene = mi.load_dict({"type": "scene", **shapes})
         self.params = mi.traverse(self.scene)
         self._keys = [f"s{i}.vertex_positions" for i in range(len(self.specs))]
         self._id_table = self._object_id_table()
         self._part_table = self._part_index_table()
+        #: (part index, Dr.Jit albedo function) of the textured parts (:mod:`sim.textures`)
+        self.textures = self._texture_functions()
         self.rig_from_part = [np.eye(4)] * len(self.specs)
         self.scene_from_rig = np.eye(4)  # (4, 4) float64: rig → Mitsuba scene coordinates
         self._vertices_in_part_frame = True
@@ -178,14 +202,54 @@ class SimScene:
     def _mesh(self, name: str, spec: _PartSpec):
         mi = self._mi
         props = mi.Properties()
-        props["bsdf"] = mi.load_dict(bsdf_dict(spec.material, self.materials, self.subsurface))
+        if spec.texture is None:
+            props["bsdf"] = mi.load_dict(bsdf_dict(spec.material, self.materials, self.subsurface))
+        else:   # a matte surface of albedo 1, scaled by the texture (albedo_dr)
+            props["bsdf"] = mi.load_dict({"type": "twosided", "material": {
+                "type": "diffuse", "reflectance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}}})
         mesh = mi.Mesh(name, len(spec.vertices), len(spec.faces), has_vertex_normals=False,
-                       has_vertex_texcoords=False, props=props)
+                       has_vertex_texcoords=spec.uv is not None, props=props)
         p = mi.traverse(mesh)
         p["vertex_positions"] = mi.Float(spec.vertices.astype(np.float32).ravel())
         p["faces"] = mi.UInt32(spec.faces.ravel())
+        if spec.uv is not None:
+            p["vertex_texcoords"] = mi.Float(spec.uv.astype(np.float32).ravel())
         p.update()
         return mesh
+
+    def _texture_functions(self) -> list:
+        if not any(sp.texture is not None for sp in self.specs) or not is_jit_variant(self.variant):
+            return []
+        import drjit as dr
+
+        from .textures import texture_function
+
+        return [(i, texture_function(sp.texture, self._mi, dr)) for i, sp in enumerate(self.specs)
+                if sp.texture is not None]
+
+    def albedo_dr(self, si):
+        """Texture albedo of hits (1 on untextured parts and misses), as ``mi.Float``.
+
+        A textured part's BSDF is a Lambertian of albedo 1; its reflectance is this
+        factor times the BSDF's value.
+
+        Parameters
+        ----------
+        si : mitsuba.SurfaceInteraction3f
+            Hits of this scene (their ``uv`` are the texture coordinates [mm]).
+
+        Returns
+        -------
+        mitsuba.Float
+            The albedo per hit [-].
+        """
+        import drjit as dr
+
+        part = self.part_index_dr(si)
+        albedo = self._mi.Float(1.0)
+        for index, fn in self.textures:
+            albedo = dr.select(part == index + 1, fn(si.uv), albedo)
+        return albedo
 
     def _object_id_table(self) -> np.ndarray:
         """Lookup: Dr.Jit registry id of a shape → object id (0 for none)."""

@@ -389,10 +389,30 @@ class Environment:
     ----------
     ambient_irradiance_w_m2 : float, default 0.02
         Diffuse ambient irradiance on the scene within the camera's spectral
-        band [W/m²], in [0, 1e5].
+        band [W/m²], in [0, 1e5]: a uniform environment of radiance E/π.
+    flood_irradiance_w_m2 : float, default 0.0
+        The flood light (a square, uniformly emitting area light facing its aim
+        point): the irradiance it gives a surface facing it at the aim point, within
+        the camera's band [W/m²], in [0, 1e5]; 0 = no flood light.  The aim point is
+        the sheet point imaged at the sensor centre.
+    flood_size_mm : float, default 200.0
+        Side of the flood light's square [mm], in (0, 1e5].
+    flood_distance_mm : float, default 400.0
+        Distance of the light's centre from the aim point [mm], in (0, 1e6].
+    flood_azimuth_deg : float, default 30.0
+        Direction of the light seen from the aim point: turned about +z from the
+        horizontal direction toward the lens centre, counter-clockwise seen from
+        above [deg], in [-180, 180].
+    flood_elevation_deg : float, default 30.0
+        Elevation of that direction above the horizontal [deg], in [-89, 89].
     """
 
     ambient_irradiance_w_m2: float = 0.02
+    flood_irradiance_w_m2: float = 0.0
+    flood_size_mm: float = 200.0
+    flood_distance_mm: float = 400.0
+    flood_azimuth_deg: float = 30.0
+    flood_elevation_deg: float = 30.0
 
 
 SPECKLE_MODELS = ("surface", "sensor")
@@ -419,11 +439,18 @@ class Twin:
         lit surface (moves with the part); ``"sensor"`` — a random pattern fixed to the
         sensor.  Its strength is ``[laser] speckle_contrast`` (0 = no speckle); range
         {"surface", "sensor"}.
+    camera_spp : int
+        Samples per pixel of the camera pass (:mod:`sim.camera_pass`: every pixel's
+        area and the lens aperture sampled, the scene's environment and flood light
+        traced, ``bounces`` deep) for all light but the laser's; 0 = the coarse ambient
+        pass of :mod:`sim.render` (one chief ray per 8 × 8 pixels, no defocus, no
+        flood light) [-], range [0, 4096].
     """
 
     bounces: int = 1
     subsurface: bool = False
     speckle_model: str = "surface"
+    camera_spp: int = 0
 
 
 @dataclass(frozen=True)
@@ -571,9 +598,11 @@ KEY_RANGES: dict[str, dict[str, str]] = {
               "plate_flatness_um": "[-5000, 5000]", "plate_edge_break_mm": "[0, 2]",
               "plate_tilt_deg": "[-10, 10]",
               "plate_yaw_deg": "[-10, 10]"},
-    "environment": {"ambient_irradiance_w_m2": "[0, 1e5]"},
+    "environment": {"ambient_irradiance_w_m2": "[0, 1e5]", "flood_irradiance_w_m2": "[0, 1e5]",
+                    "flood_size_mm": "(0, 1e5]", "flood_distance_mm": "(0, 1e6]",
+                    "flood_azimuth_deg": "[-180, 180]", "flood_elevation_deg": "[-89, 89]"},
     "twin": {"bounces": "[1, 64]", "subsurface": "{true, false}",
-             "speckle_model": '{"surface", "sensor"}'},
+             "speckle_model": '{"surface", "sensor"}', "camera_spp": "[0, 4096]"},
 }
 """The physical range of every rig key, ``{table: {key: "[lo, hi]"}}`` (``(`` / ``)`` = open end).
 
