@@ -33,13 +33,21 @@ Scoring a detector (:func:`score_dataset`).  A detector is a function
 ``detect(frame) -> centres``: ``frame`` a (rows, columns) uint16 array of raw ADC
 values [DN], ``centres`` a (rows,) float array, the sub-pixel column of the stripe
 centre in every row [px] (pixel k's centre is at u = k), NaN where it finds none.
-Per row with truth and a detection, the error is e = detected − truth.  Statistics:
+Per row with truth and a detection, the error is e = detected − truth (a detection of
+±inf is a detection, infinitely wrong).  Statistics:
 ``bias_px`` and ``rms_px`` — mean and RMS of e over the rows with |e| ≤ 1 px
-(inliers); ``p99_px`` — 99th percentile of |e| over all rows with both;
-``outlier_rate`` — share of those with |e| > 1 px; ``missed_rate`` — share of
-truth rows without a detection; ``false_rate`` — share of rows without truth
-where the detector found a stripe.  The same statistics are broken down by
-material, distance, angle of incidence and scenario.
+(inliers); ``p99_px`` — 99th percentile of |e| over all rows with both (to the
+0.0005 px bin below 2 px, exact above 1e5 px: never capped; ``null`` in JSON when it is
+infinite, with ``infinite_rows`` saying how many rows were); ``outlier_rate`` — share of
+those with |e| > 1 px; ``missed_rate`` — share of truth rows without a detection;
+``false_rate`` — share of rows without truth where the detector found a stripe.  The
+same statistics are broken down by material, distance, angle of incidence and scenario.
+
+The regression gate (:func:`compare_scores`): a detector regresses against a baseline
+when its |bias|, RMS or p99 is worse by more than ``max_regression_px``, when it lacks a
+figure the baseline has (a detector that finds nothing has no RMS), or when its missed,
+outlier or false-detection rate is higher than the baseline's by more than
+``max_rate_increase`` (default 0: any increase).
 """
 
 from __future__ import annotations
@@ -502,6 +510,9 @@ class VerifyReport:
         Listed files whose SHA-256 differs.
     extra : list of str
         Files in the folder that no ledger lists (temporaries included).
+    duplicates : list of str
+        Frames listed twice in the index (the same file twice, or the same content under two
+        names) and files listed twice in the ledger, each naming both entries.
     """
 
     frames: int = 0
@@ -509,11 +520,12 @@ class VerifyReport:
     missing: list = field(default_factory=list)
     corrupt: list = field(default_factory=list)
     extra: list = field(default_factory=list)
+    duplicates: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
-        """No missing, corrupt or extra file."""
-        return not (self.missing or self.corrupt or self.extra)
+        """No missing, corrupt, extra or duplicate file."""
+        return not (self.missing or self.corrupt or self.extra or self.duplicates)
 
     def to_json(self, limit: int = 20) -> dict:
         """The JSON of ``dataset verify --json`` (INTERFACE.md: frames, missing, corrupt, extra).
@@ -529,9 +541,9 @@ class VerifyReport:
             Counts, ``ok`` and the first paths of each kind.
         """
         return {"frames": self.frames, "files": self.files, "missing": len(self.missing),
-                "corrupt": len(self.corrupt), "extra": len(self.extra), "ok": self.ok,
-                "missing_files": self.missing[:limit], "corrupt_files": self.corrupt[:limit],
-                "extra_files": self.extra[:limit]}
+                "corrupt": len(self.corrupt), "extra": len(self.extra), "duplicates": len(self.duplicates),
+                "ok": self.ok, "missing_files": self.missing[:limit], "corrupt_files": self.corrupt[:limit],
+                "extra_files": self.extra[:limit], "duplicate_frames": self.duplicates[:limit]}
 
 
 #: files of a dataset folder that no ledger lists (they describe the ledger or are rewritten)
@@ -554,7 +566,8 @@ def verify_dataset(path: str | os.PathLike, progress: ProgressCallback | None = 
     Returns
     -------
     VerifyReport
-        The findings.
+        The findings; a frame listed twice in the index (the same measurement counted twice)
+        is a finding too, naming both entries.
 
     Raises
     ------
@@ -567,13 +580,15 @@ def verify_dataset(path: str | os.PathLike, progress: ProgressCallback | None = 
     read_info(folder)
     try:
         ledger = pq.read_table(folder / FILES_FILE).to_pydict()
-        frames = pq.read_table(folder / INDEX_FILE).num_rows
+        index = pq.read_table(folder / INDEX_FILE,
+                              columns=["sample", "frame", "file", "sha256", "lit_rows"]).to_pydict()
+        frames = len(index["file"])
     except FileNotFoundError as exc:
         raise DatasetError(f"dataset {str(folder)!r} has no ledger ({exc.filename})") from None
     except Exception as exc:  # noqa: BLE001
         raise DatasetError(f"dataset {str(folder)!r}: the ledgers cannot be read: {exc}") from None
     expected = dict(zip(ledger["path"], ledger["sha256"]))
-    result = VerifyReport(frames=frames, files=len(expected))
+    result = VerifyReport(frames=frames, files=len(expected), duplicates=_duplicates(index, ledger["path"]))
     items = sorted(expected.items())
 
     def check(item):
@@ -590,6 +605,31 @@ def verify_dataset(path: str | os.PathLike, progress: ProgressCallback | None = 
             report(progress, done, len(items))
     result.extra = _extra_files(folder, set(expected))
     return result
+
+
+def _duplicates(index: dict, ledger_paths: list) -> list[str]:
+    """Frames the index lists twice (same file, or same SHA-256 under two names); ledger paths listed twice.
+
+    Two frames without a stripe may hold the same bytes (a blank frame of a noiseless sensor): only
+    frames with a lit row count as the same content.
+    """
+    found, by_file, by_sha = [], {}, {}
+    for s_, f_, path, sha, lit in zip(index["sample"], index["frame"], index["file"], index["sha256"],
+                                      index["lit_rows"]):
+        entry = f"sample {s_} frame {f_} ({path})"
+        if path in by_file:
+            found.append(f"{by_file[path]} and {entry}: the same file listed twice")
+        elif lit and sha in by_sha:
+            found.append(f"{by_sha[sha]} and {entry}: the same content (SHA-256) under two names")
+        by_file.setdefault(path, entry)
+        if lit:
+            by_sha.setdefault(sha, entry)
+    seen = set()
+    for path in ledger_paths:
+        if path in seen:
+            found.append(f"{path} is listed twice in {FILES_FILE}")
+        seen.add(path)
+    return found
 
 
 def _extra_files(folder: Path, listed: set) -> list[str]:
@@ -642,7 +682,7 @@ def load_detector(spec: str) -> tuple[str, Callable[[np.ndarray], np.ndarray]]:
             mod = importlib.import_module(module_name)
     except DatasetError:
         raise
-    except Exception as exc:  # noqa: BLE001 - whatever the user's module raises
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - whatever the user's module raises (sys.exit too)
         raise DatasetError(f"detector {spec!r}: cannot import {module_name!r}: "
                            f"{type(exc).__name__}: {exc}") from None
     fn = getattr(mod, func, None)
@@ -710,7 +750,10 @@ class ErrorStats:
         are added with ``math.fsum`` (exactly rounded), so the result does not depend on
         the order in which partial statistics are merged.
     hist : (bins,) int64
-        Histogram of |e| over all matched rows (edges ``_EDGES``).
+        Histogram of |e| ≤ ``_EDGES[-1]`` over the matched rows (edges ``_EDGES``).
+    tail : list of float
+        |e| of the matched rows beyond the histogram (> ``_EDGES[-1]`` px, ±inf included), kept
+        exactly [px].
     """
 
     truth_rows: int = 0
@@ -721,6 +764,7 @@ class ErrorStats:
     sum_e: list = field(default_factory=list)
     sum_e2: list = field(default_factory=list)
     hist: np.ndarray = field(default_factory=lambda: np.zeros(len(_EDGES), dtype=np.int64))
+    tail: list = field(default_factory=list)
 
     def add(self, detected: np.ndarray, truth: np.ndarray) -> None:
         """Count one frame's rows (or any subset of rows).
@@ -732,7 +776,7 @@ class ErrorStats:
         truth : (n,) float
             Truth centres [px], NaN = none.
         """
-        has_t, has_d = np.isfinite(truth), np.isfinite(detected)
+        has_t, has_d = np.isfinite(truth), ~np.isnan(detected)      # NaN = none; ±inf is a detection
         both = has_t & has_d
         e = detected[both] - truth[both]
         inl = np.abs(e) <= OUTLIER_PX
@@ -743,7 +787,10 @@ class ErrorStats:
         self.inliers += int(inl.sum())
         self.sum_e.append(float(e[inl].sum()))
         self.sum_e2.append(float((e[inl] ** 2).sum()))
-        idx = np.clip(np.searchsorted(_EDGES, np.abs(e), side="right") - 1, 0, len(_EDGES) - 1)
+        a = np.abs(e)
+        beyond = ~(a <= _EDGES[-1])
+        self.tail += a[beyond].tolist()
+        idx = np.clip(np.searchsorted(_EDGES, a[~beyond], side="right") - 1, 0, len(_EDGES) - 1)
         self.hist += np.bincount(idx, minlength=len(_EDGES))
 
     def merge(self, other: ErrorStats) -> ErrorStats:
@@ -759,7 +806,7 @@ class ErrorStats:
         ErrorStats
             ``self``.
         """
-        for name in ("truth_rows", "matched", "empty_rows", "false_rows", "inliers", "sum_e", "sum_e2"):
+        for name in ("truth_rows", "matched", "empty_rows", "false_rows", "inliers", "sum_e", "sum_e2", "tail"):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         self.hist = self.hist + other.hist
         return self
@@ -775,12 +822,18 @@ class ErrorStats:
         Returns
         -------
         float
-            NaN when no row matched.
+            NaN when no row matched; beyond the histogram the exact order statistic of the
+            tail (inf if it is infinite).
         """
         if self.matched == 0:
             return float("nan")
-        k = int(np.searchsorted(np.cumsum(self.hist), q * self.matched, side="left"))
-        return float(_EDGES[min(k + 1, len(_EDGES) - 1)])
+        cum = np.cumsum(self.hist)
+        target = q * self.matched
+        if cum[-1] >= target and cum[-1] > 0:
+            k = int(np.searchsorted(cum, target, side="left"))
+            return float(_EDGES[min(k + 1, len(_EDGES) - 1)])
+        rank = max(1, math.ceil(target - cum[-1]))
+        return float(sorted(self.tail)[min(rank, len(self.tail)) - 1])
 
     def summary(self) -> dict:
         """The statistics (module docstring) as a JSON-ready dict.
@@ -789,7 +842,8 @@ class ErrorStats:
         -------
         dict
             ``n_rows``, ``bias_px``, ``rms_px``, ``p99_px``, ``outlier_rate``,
-            ``missed_rate``, ``false_rate``, ``matched_rows``, ``empty_rows``.
+            ``missed_rate``, ``false_rate``, ``matched_rows``, ``empty_rows``,
+            ``infinite_rows`` (matched rows with an infinite error).
         """
         def ratio(a, b):
             return a / b if b else None
@@ -801,7 +855,8 @@ class ErrorStats:
                 "bias_px": bias, "rms_px": rms, "p99_px": None if math.isnan(p99) else p99,
                 "outlier_rate": ratio(self.matched - self.inliers, self.matched),
                 "missed_rate": ratio(self.truth_rows - self.matched, self.truth_rows),
-                "false_rate": ratio(self.false_rows, self.empty_rows)}
+                "false_rate": ratio(self.false_rows, self.empty_rows),
+                "infinite_rows": sum(1 for v in self.tail if v == math.inf)}
 
 
 #: breakdown name → how a row's group is found
@@ -857,7 +912,7 @@ def score_frame(detect: Callable, image: np.ndarray, truth: dict, meta: dict,
     """
     try:
         found = np.asarray(detect(image), dtype=np.float64)
-    except Exception as exc:  # noqa: BLE001 - the user's code
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - the user's code (sys.exit is its failure too)
         raise DatasetError(f"the detector failed on sample {meta.get('sample')} frame "
                            f"{meta.get('frame')}: {type(exc).__name__}: {exc}") from None
     rows = image.shape[0]
@@ -1034,8 +1089,14 @@ class _SampleScorer:
         return score_sample(self.path, rows, self.detector)
 
 
-def compare_scores(score: ScoreReport, baseline: ScoreReport, max_regression_px: float) -> dict:
-    """Whether a detector is worse than a baseline by more than ``max_regression_px``.
+#: the gate's figures: JSON key of the difference → (summary key, unit, |value| compared)
+_GATE_PX = {"d_abs_bias_px": ("bias_px", True), "d_rms_px": ("rms_px", False), "d_p99_px": ("p99_px", False)}
+_GATE_RATES = {"d_missed_rate": "missed_rate", "d_outlier_rate": "outlier_rate", "d_false_rate": "false_rate"}
+
+
+def compare_scores(score: ScoreReport, baseline: ScoreReport, max_regression_px: float,
+                   max_rate_increase: float = 0.0) -> dict:
+    """Whether a detector regresses against a baseline (the rule in the module docstring).
 
     Parameters
     ----------
@@ -1043,22 +1104,44 @@ def compare_scores(score: ScoreReport, baseline: ScoreReport, max_regression_px:
         The detector's and the baseline's statistics on the same frames.
     max_regression_px : float
         Allowed worsening of |bias|, RMS and p99 [px].
+    max_rate_increase : float
+        Allowed increase of the missed, outlier and false-detection rates [-] (0: none).
 
     Returns
     -------
     dict
-        ``regression`` (bool), ``max_regression_px`` and the differences
-        ``d_abs_bias_px``, ``d_rms_px``, ``d_p99_px`` (detector − baseline, positive = worse).
+        ``regression`` (bool), ``reasons`` (one phrase per figure that regressed),
+        ``max_regression_px``, ``max_rate_increase`` and the differences ``d_abs_bias_px``,
+        ``d_rms_px``, ``d_p99_px``, ``d_missed_rate``, ``d_outlier_rate``, ``d_false_rate``
+        (detector − baseline, positive = worse; None when either lacks the figure).
     """
     a, b = score.overall.summary(), baseline.overall.summary()
+    d, reasons = {}, []
+    for name, (key, absolute) in _GATE_PX.items():
+        d[name] = _worse(a[key], b[key], absolute)
+        reasons += _regressed(key, a[key], b[key], d[name], max_regression_px, "px")
+    for name, key in _GATE_RATES.items():
+        d[name] = _worse(a[key], b[key], False)
+        reasons += _regressed(key, a[key], b[key], d[name], max_rate_increase, "")
+    return {"regression": bool(reasons), "reasons": reasons, "max_regression_px": max_regression_px,
+            "max_rate_increase": max_rate_increase, **d}
 
-    def diff(key, absolute=False):
-        if a[key] is None or b[key] is None:
-            return None
-        x, y = (abs(a[key]), abs(b[key])) if absolute else (a[key], b[key])
-        return x - y
 
-    d = {"d_abs_bias_px": diff("bias_px", True), "d_rms_px": diff("rms_px"), "d_p99_px": diff("p99_px")}
-    worse = [v for v in d.values() if v is not None and v > max_regression_px]
-    return {"regression": bool(worse), "max_regression_px": max_regression_px, **d}
+def _worse(x, y, absolute: bool):
+    """Detector − baseline (of |values| if ``absolute``); None when either is missing."""
+    if x is None or y is None:
+        return None
+    x, y = (abs(x), abs(y)) if absolute else (x, y)
+    if math.isinf(x) and math.isinf(y):
+        return 0.0
+    return x - y
+
+
+def _regressed(key: str, x, y, diff, allowed: float, unit: str) -> list[str]:
+    """One phrase if the figure ``key`` regressed: missing while the baseline has it, or worse."""
+    if x is None and y is not None:
+        return [f"no {key} (the baseline's is {y:.4g}{unit and ' ' + unit})"]
+    if diff is not None and (diff > allowed or math.isnan(diff)):
+        return [f"{key} {x:.4g} against {y:.4g}{unit and ' ' + unit} (allowed +{allowed:g})"]
+    return []
 

@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from scheimpflug.io.atomic import target_path
+from scheimpflug.io.atomic import target_path, target_text
 from scheimpflug.io.folder import LOCK_NAME, PROBE_PREFIX, FolderLock, make_writable_folder, unwritable_reason
 
 __all__ = ["JobKind", "check_identity", "check_writable", "create_folder", "failure_reason", "first_difference",
@@ -281,15 +281,14 @@ def open_job(out: str | os.PathLike, kind: JobKind, identity: dict | None,
         check_identity(out, kind, identity)
     created = create_folder(out, kind.error)
     try:
-        with FolderLock(out, error=kind.error) as lock:
-            if lock.stale_owner:
-                warn(f"took over the lock left in {str(out)!r} by a {kind.owner} that is no longer running "
-                     f"(pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
-            old = check_identity(out, kind, identity) if identity is not None else None
-            try:
-                yield old
-            except OSError as exc:
-                raise kind.error(write_failure(out, kind, exc)) from None
+        try:
+            with FolderLock(out, error=kind.error) as lock:
+                if lock.stale_owner:
+                    warn(f"took over the lock left in {str(out)!r} by a {kind.owner} that is no longer "
+                         f"running (pid {lock.stale_owner.get('pid')} on {lock.stale_owner.get('host')!r})")
+                yield check_identity(out, kind, identity) if identity is not None else None
+        except OSError as exc:          # the lock file or the body's writes (a full disk)
+            raise kind.error(write_failure(out, kind, exc)) from None
     except BaseException:
         if created:
             with contextlib.suppress(OSError):
@@ -316,7 +315,8 @@ def write_failure(out: Path, kind: JobKind, exc: OSError) -> str:
         nothing is half-written: fix the cause and rerun to resume"``.
     """
     where = f" ({target_path(exc.filename)})" if exc.filename else ""
-    return (f"cannot write into the {kind.folder_noun} {str(out)!r}: {exc.strerror or exc}{where}; "
+    reason = target_text(exc.strerror or str(exc))
+    return (f"cannot write into the {kind.folder_noun} {str(out)!r}: {reason}{where}; "
             "nothing is half-written: fix the cause and rerun to resume")
 
 
@@ -384,9 +384,14 @@ def failure_reason(exc: BaseException) -> str:
     Returns
     -------
     str
-        The exception's type and message on one line.
+        The exception's type and message on one line; temporary names replaced by their targets
+        (:func:`scheimpflug.io.atomic.target_text`).
     """
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
+    if isinstance(exc, OSError) and exc.filename:
+        text = f"{type(exc).__name__}: {exc.strerror or exc} ({exc.filename})"
+    else:
+        text = f"{type(exc).__name__}: {exc}"
+    return " ".join(target_text(text).split())
 
 
 def run_with_retries(engine, fn: Callable, todo: list, *, noun: str, key: Callable, size: Callable,
@@ -447,6 +452,20 @@ def run_with_retries(engine, fn: Callable, todo: list, *, noun: str, key: Callab
             on_done(item, res)
         todo = failed
     failures = [{noun: k, "error": errors[k]} for k in sorted(errors)]
-    for f in failures:
-        warn(f"{noun} {f[noun]} failed: {f['error']}")
+    by_reason: dict[str, list[int]] = {}
+    for k in sorted(errors):
+        by_reason.setdefault(errors[k], []).append(k)
+    for reason, ks in by_reason.items():          # one line per reason
+        warn(f"{noun} {ks[0]} failed: {reason}" if len(ks) == 1 else
+             f"{noun}s {_ranges(ks)} failed: {reason}")
     return failures
+
+
+def _ranges(indices: list[int]) -> str:
+    """'0, 3–7, 9' for [0, 3, 4, 5, 6, 7, 9]."""
+    parts, start = [], indices[0]
+    for a, b in zip(indices, indices[1:] + [None]):
+        if b != a + 1:
+            parts.append(f"{start}" if start == a else f"{start}–{a}")
+            start = b
+    return ", ".join(parts)

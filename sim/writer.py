@@ -757,7 +757,9 @@ def _existing_run(out: Path, manifest: dict) -> set[int]:
     """Frames present of the same run in ``out`` (:func:`sim.jobfolder.check_identity`); else raise."""
     if check_identity(out, FRAME_FOLDER, {k: manifest.get(k) for k in _IDENTITY_KEYS}) is None:
         return set()
-    indices = [int(Path(e["file"]).stem) for e in manifest["frames"]]
+    # the frames stored in this folder (a dataset's Zarr sample lists chunks of its store instead)
+    indices = [int(e["file"][7:-4]) for e in manifest["frames"]
+               if e["file"].startswith("frames/") and e["file"].endswith(".png") and e["file"][7:-4].isdigit()]
     return {i for i in indices if all(p.exists() for p in frame_paths(out, i))}
 
 

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_path", "finite_json", "target_path", "write_bytes_atomic", "write_json_atomic",
+__all__ = ["atomic_path", "finite_json", "target_path", "target_text", "write_bytes_atomic", "write_json_atomic",
            "write_text_atomic"]
 
 
@@ -154,6 +154,22 @@ def target_path(path: str | os.PathLike) -> str:
                 break
         parts.append(part)
     return os.sep.join(parts)
+
+
+def target_text(text: str) -> str:
+    """A message with every temporary path in it replaced by its target (:func:`target_path`).
+
+    Parameters
+    ----------
+    text : str
+        A message that may name temporary files or work folders.
+
+    Returns
+    -------
+    str
+        The message naming the real targets.
+    """
+    return re.sub(r"[^\s'\"()]+", lambda m: target_path(m.group()) if "." in m.group() else m.group(), str(text))
 
 
 def finite_json(obj: Any) -> Any:

@@ -187,7 +187,8 @@ class FolderLock:
         ScheimpflugError
             ``error``, naming the owner, when another writer holds the folder.
         OSError
-            When the lock file cannot be created (e.g. a read-only folder).
+            When the lock file cannot be created or written (a read-only folder, a full disk:
+            then no lock file is left); its ``filename`` is the lock file.
         """
         for _ in range(20):
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -228,12 +229,20 @@ class FolderLock:
         return os.fstat(fd).st_ino == st.st_ino and os.fstat(fd).st_dev == st.st_dev
 
     def _claim(self, fd: int) -> None:
+        """Write this process as the owner; a write that fails (a full disk) leaves no lock file."""
         previous = self._read_owner()
+        data = json.dumps(_owner()).encode("utf-8")
+        try:
+            os.ftruncate(fd, 0)
+            if os.pwrite(fd, data, 0) != len(data):
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                self.path.unlink()          # an empty lock file would name no owner
+            os.close(fd)
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
         if previous:
             self.stale_owner = previous
-        data = json.dumps(_owner()).encode("utf-8")
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, data, 0)
         self._fd = fd
 
     def _acquire_exclusive(self) -> None:
@@ -320,7 +329,7 @@ class FileLedger:
                 continue
             self.records[index] = files
 
-    def record(self, index: int, files: list[str]) -> None:
+    def record(self, index: int, files: list[str], known: dict | None = None) -> None:
         """Hash a finished frame's files and append their record.
 
         Parameters
@@ -329,8 +338,12 @@ class FileLedger:
             Frame index.
         files : list of str
             The frame's files, relative to the folder (``frames/00005.png``).
+        known : dict, optional
+            Relative path → ``{"bytes", "sha256"}`` of files the caller has just written and
+            hashed (they are not read again).
         """
-        entry = {rel: file_record(self.folder / rel) for rel in files}
+        known = known or {}
+        entry = {rel: dict(known[rel]) if rel in known else file_record(self.folder / rel) for rel in files}
         line = json.dumps({"frame": int(index), "files": entry}, sort_keys=True) + "\n"
         with self._mutex:
             with open(self.path, "a", encoding="utf-8") as fh:

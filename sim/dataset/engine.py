@@ -23,6 +23,7 @@ client sums the latest report of every item.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 import time
@@ -73,6 +74,19 @@ def _run_on_worker(fn, item, key: str, workers_by_host: dict):
     host = urlparse(get_worker().address).hostname
     threads = max(1, _cores() // max(1, workers_by_host.get(host, 1)))
     return fn(item, progress=_Reporter(key), threads=threads)
+
+
+def _task_failure(fut, name: str) -> BaseException:
+    """The exception of a failed Dask task; a worker that died running it is one :class:`EngineError`."""
+    from distributed import KilledWorker
+
+    result = fut.exception()
+    if isinstance(result, KilledWorker):
+        return EngineError(f"the worker process running {name} died each time it ran it (killed, out of "
+                           "memory, or the task ended its process, e.g. with os._exit)")
+    if not isinstance(result, BaseException):
+        return RuntimeError(f"task {name} ended as {fut.status}")
+    return result
 
 
 class Engine:
@@ -142,14 +156,16 @@ class Engine:
         from distributed import Client, LocalCluster
 
         # spawn: Dr.Jit registers no fork handlers; no statistical profiler sampling the task
-        # thread every 10 ms (the nanny hands this configuration to its worker process)
+        # thread every 10 ms (the nanny hands this configuration to its worker process); Dask's
+        # own logs below CRITICAL silenced: a task's failure comes back to the caller, which
+        # reports it in one line (no "Compute Failed" traceback blocks on stderr)
         dask.config.set({"distributed.worker.multiprocessing-method": "spawn",
                          "distributed.worker.daemon": False,
                          "distributed.worker.profile.enabled": False})
         try:
             self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                         host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                                        local_directory=tempfile.gettempdir(), silence_logs=40)
+                                        local_directory=tempfile.gettempdir(), silence_logs=logging.CRITICAL)
             self.client = Client(self.cluster)
         except Exception as exc:  # noqa: BLE001 - whatever keeps the cluster from starting
             self.close()
@@ -291,9 +307,7 @@ class Engine:
                 if fut.status == "finished":
                     result = fut.result()
                 else:
-                    result = fut.exception()
-                    if not isinstance(result, BaseException):
-                        result = RuntimeError(f"task {fut.key} ended as {fut.status}")
+                    result = _task_failure(fut, key(item))
                 fut.release()
                 self._report(fut.key, size(item))
                 if todo:

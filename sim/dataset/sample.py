@@ -7,7 +7,12 @@ is written atomically and a frame counts as done when its last file exists (PNG:
 the frame after its truth; Zarr: the frame chunk after the truth chunks), so a
 killed run loses at most the frames in flight; rerunning resumes the partial
 folder frame by frame (the manifest must describe the same sample, see
-:func:`sim.writer.prepare_folder`).
+:func:`sim.writer.prepare_folder`).  While a sample is partial, the size and SHA-256
+of every finished frame's files go to the partial folder's ``checksums.jsonl``
+(:class:`scheimpflug.io.folder.FileLedger`, as in a render's frame folder); a
+resumed sample skips only the frames whose files match their record and renders
+the others again (a frame truncated or altered after a kill is never kept).
+A complete sample's record is its ``sample.json``; the ledger is removed then.
 
 The frame loop (:func:`make_sample`) renders, adds sensor noise and computes the
 per-row truth (:class:`sim.truth.SceneTruth`) on the calling thread — these use
@@ -44,6 +49,7 @@ from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.dataset import TRUTH_ARRAYS, ZARR_STORE, file_sha256
 from scheimpflug.errors import RenderError
 from scheimpflug.io.atomic import atomic_path, finite_json, write_json_atomic
+from scheimpflug.io.folder import LEDGER_NAME, FileLedger
 
 from ..scenarios import Scenario, build_scenario, reuse_assemblies
 from ..sensor import SensorModel, apply_sensor, frame_rng
@@ -55,8 +61,10 @@ from ..writer import (
     build_manifest,
     encode_npz,
     encode_png16,
+    frame_file_names,
     frame_paths,
     generator_info,
+    index_ranges,
     prepare_folder,
 )
 from .spec import SamplePlan
@@ -226,21 +234,66 @@ def _write_atomic(path: Path, data) -> None:
         raise
 
 
-class _PngSink:
+class _Ledgered:
+    """What both sinks share: the partial folder's ledger of finished frames (module docstring)."""
+
+    ledger: FileLedger
+
+    def ledger_files(self, index: int) -> list[str]:
+        """The frame's files relative to the partial folder, its last (the one marking it done) last."""
+        raise NotImplementedError
+
+    def root_path(self, rel: str) -> str:
+        """A ledger path (relative to the partial folder) as the index names it (from the dataset root)."""
+        raise NotImplementedError
+
+    def _record(self, index: int, files: dict) -> None:
+        """Append the frame's files (``(path from the dataset root, sha256, bytes)``) to the ledger."""
+        rels = self.ledger_files(index)
+        items = [files["file"], files["truth_file"], *files["other"]]
+        by_path = {p: {"bytes": int(b), "sha256": h} for p, h, b in items}
+        self.ledger.record(index, rels, {rel: by_path[self.root_path(rel)] for rel in rels})
+
+    def done(self, indices, warn) -> set[int]:
+        """Frames whose files all match their record; warns about present frames that do not."""
+        done, bad = set(), {}
+        for i in indices:
+            rels = self.ledger_files(i)
+            if not (self.ledger.folder / rels[-1]).exists():
+                continue
+            reason = self.ledger.mismatch(i, rels)
+            if reason is None:
+                done.add(i)
+            else:
+                bad[i] = reason
+        if bad:
+            first = min(bad)
+            warn(f"rendering again {len(bad)} frame(s) whose files do not match {LEDGER_NAME}: "
+                 f"{index_ranges(bad)} (frame {first}: {bad[first]})")
+        return done
+
+
+class _PngSink(_Ledgered):
     """Frames as 16-bit PNG and truth as ``.npz`` in the sample's frame folder."""
 
     def __init__(self, folder: Path, rel: str) -> None:
         self.folder, self.rel = folder, rel
+        self.ledger = FileLedger(folder)
 
-    def done(self, indices) -> set[int]:
-        return {i for i in indices if all(p.exists() for p in frame_paths(self.folder, i))}
+    def ledger_files(self, index: int) -> list[str]:
+        return frame_file_names(index)[::-1]       # truth, then the PNG (written last)
+
+    def root_path(self, rel: str) -> str:
+        return f"{self.rel}/{rel}"
 
     def write(self, index: int, image: np.ndarray, truth: dict) -> dict:
         png_path, npz_path = frame_paths(self.folder, index)
         npz, png = encode_npz(truth), encode_png16(image)
         _write_atomic(npz_path, npz)
         _write_atomic(png_path, png)               # last: its presence marks the frame done
-        return self._files(index, _sha(png), len(png), _sha(npz), len(npz))
+        files = self._files(index, _sha(png), len(png), _sha(npz), len(npz))
+        self._record(index, files)
+        return files
 
     def read(self, index: int) -> tuple[dict, dict]:
         png_path, npz_path = frame_paths(self.folder, index)
@@ -255,17 +308,19 @@ class _PngSink:
                 "truth_file": (f"{self.rel}/{npz_rel}", npz_sha, npz_bytes), "other": []}
 
 
-class _ZarrSink:
+class _ZarrSink(_Ledgered):
     """Frames and per-row truth as chunks of the dataset's Zarr store (one frame per chunk).
 
     Chunks are encoded here with numcodecs' Blosc — byte for byte what Zarr writes for
     the store's codec (a test checks it) — and written atomically under Zarr's chunk keys.
+    The ledger is the partial sample folder's; its paths lead to the store (``../../frames.zarr/…``).
     """
 
-    def __init__(self, root: Path, layout: ZarrLayout) -> None:
+    def __init__(self, root: Path, layout: ZarrLayout, partial: Path) -> None:
         import numcodecs
 
         self.root, self.offset = Path(root), layout.offset
+        self.ledger = FileLedger(partial)
         shuffle = {"bitshuffle": numcodecs.Blosc.BITSHUFFLE, "shuffle": numcodecs.Blosc.SHUFFLE,
                    "noshuffle": numcodecs.Blosc.NOSHUFFLE}[layout.codec["shuffle"]]
         self.codec = numcodecs.Blosc(cname=layout.codec["cname"], clevel=layout.codec["clevel"],
@@ -276,8 +331,11 @@ class _ZarrSink:
         tail = {"frames": ".0.0", "stripe_point_mm": ".0.0"}.get(name, ".0")
         return f"{ZARR_STORE}/{name}/c.{g}{tail}"
 
-    def done(self, indices) -> set[int]:
-        return {i for i in indices if (self.root / self._rel("frames", i)).exists()}
+    def ledger_files(self, index: int) -> list[str]:
+        return [f"../../{self._rel(name, index)}" for name in (*TRUTH_ARRAYS, "frames")]
+
+    def root_path(self, rel: str) -> str:
+        return rel.removeprefix("../../")
 
     def write(self, index: int, image: np.ndarray, truth: dict) -> dict:
         files = {}
@@ -288,7 +346,9 @@ class _ZarrSink:
             rel = self._rel(name, index)
             _write_atomic(self.root / rel, data)
             files[name] = (rel, _sha(data), len(data))
-        return self._pack(files)
+        packed = self._pack(files)
+        self._record(index, packed)
+        return packed
 
     def read(self, index: int) -> tuple[dict, dict]:
         files, truth = {}, {}
@@ -411,11 +471,11 @@ def make_sample(plan: SamplePlan, root: str | os.PathLike, storage: str = "png",
     _link_pooled_mesh(root, partial, scenario)
     _scene_truth_files(partial, rig, scenario)
     sink = _PngSink(partial, final.relative_to(root).as_posix()) if storage == "png" \
-        else _ZarrSink(root, zarr)
+        else _ZarrSink(root, zarr, partial)
     seconds = {"setup": time.perf_counter() - t0, "render": 0.0, "noise": 0.0, "truth": 0.0, "write": 0.0,
                "cpu_setup": time.process_time() - c0}
     c1 = time.process_time()
-    done = sink.done([f.index for f in scenario.frames])
+    done = sink.done([f.index for f in scenario.frames], warn)
     results = _frame_loop(plan, rig, scenario, twin, scene_truth, sink,
                           [f for f in scenario.frames if f.index not in done], seconds, progress,
                           len(done))
@@ -511,7 +571,7 @@ def _finish(plan, root, partial, final, manifest, scenario, rig, results, storag
     shared = {p.name: _share(root, p, h) for p, h in sha.items()}
     rel = final.relative_to(root).as_posix()
     for p in sorted(partial.rglob("*")):
-        if p.is_file() and p.name != SAMPLE_FILE and p.parent != partial / "frames" \
+        if p.is_file() and p.name not in (SAMPLE_FILE, LEDGER_NAME) and p.parent != partial / "frames" \
                 and not (p.parent == partial / "truth" and p.suffix == ".npz"):
             link = shared.get(p.name) if p.parent == partial / "truth" else None
             files.append({"path": f"{rel}/{p.relative_to(partial).as_posix()}",
@@ -524,6 +584,7 @@ def _finish(plan, root, partial, final, manifest, scenario, rig, results, storag
               "frames_without_stripe": no_stripe, "rows": rows, "files": files}
     write_json_atomic(partial / SAMPLE_FILE, finite_json(record))
     _commit(partial, final)
+    (final / LEDGER_NAME).unlink(missing_ok=True)      # sample.json is the complete sample's record
     return json.loads((final / SAMPLE_FILE).read_text("utf-8"))
 
 

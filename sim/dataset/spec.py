@@ -70,6 +70,7 @@ from ..materials import MaterialSettings
 __all__ = [
     "DatasetSpec",
     "SamplePlan",
+    "frames_bound",
     "load_spec",
     "parse_spec",
     "plan_sample",
@@ -438,6 +439,8 @@ def _check_scenario_value(where: str, name: str, key: str, value) -> None:
         raise _fail(where, f"{name} = {value!r}: must be a finite number")
     if key in _INT_KEYS and (not float(value).is_integer() or value < 1):
         raise _fail(where, f"{name} = {value!r}: must be an integer >= 1")
+    if key == "step_deg" and not value > 0:
+        raise _fail(where, f"{name} = {value!r}: the rotary step must be > 0 degrees")
 
 
 def _truth_every(where: str, value) -> int:
@@ -563,6 +566,48 @@ def planned_frames(kind: str, options: dict) -> int:
         return int(opts["frames"])
     n_turn = max(1, int(round(360.0 / float(opts["step_deg"]))))
     return n_turn if opts.get("frames") is None else min(n_turn, int(opts["frames"]))
+
+
+def _candidates(spec: DatasetSpec, key: str) -> list[float]:
+    """The values a scenario key can take in any sample: fixed, range ends, choices, mean ± 4 sigma."""
+    var = spec.variation["scenario"].get(key)
+    if var is None:
+        return [spec.scenario[key]] if key in spec.scenario else []
+    if isinstance(var, dict) and "normal" in var:
+        mu, sigma = var["normal"]
+        return [mu - 4 * sigma, mu + 4 * sigma]
+    return [v for v in _possible_values(var) if _is_num(v)]
+
+
+def frames_bound(spec: DatasetSpec) -> tuple[int, str]:
+    """The most frames one sample of ``spec`` can have, from the spec alone (nothing is drawn).
+
+    Parameters
+    ----------
+    spec : DatasetSpec
+        The dataset spec.
+
+    Returns
+    -------
+    frames : int
+        Upper bound of any sample's frame count [-] (the largest ``steps`` or ``frames``, the
+        smallest ``step_deg`` the spec allows).
+    why : str
+        The keys that set it, e.g. ``"scenario.step_deg = 1e-09"``.
+    """
+    kind = spec.scenario["kind"]
+    defaults = _scenario_defaults(kind)
+    if kind in ("calibration", "blocker"):
+        key = "steps" if kind == "calibration" else "frames"
+        values = _candidates(spec, key) or [defaults[key]]
+        return int(max(values)), f"scenario.{key} = {max(values):g}"
+    steps = [v for v in _candidates(spec, "step_deg") or [defaults["step_deg"]] if v > 0]
+    step = min(steps) if steps else 360.0
+    n_turn = max(1, int(round(360.0 / step))) if 360.0 / step < 1e18 else 10**18
+    caps = _candidates(spec, "frames")
+    if caps and max(caps) < n_turn:
+        return int(max(caps)), f"scenario.frames = {max(caps):g}"
+    return n_turn, f"scenario.step_deg = {step:g}"
 
 
 def plan_sample(spec: DatasetSpec, k: int) -> SamplePlan:

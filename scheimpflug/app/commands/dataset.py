@@ -4,10 +4,12 @@
     every sample of the spec (format: :mod:`sim.dataset.spec`), resumable, on Dask
     (:mod:`sim.dataset.make`); exit 1 when some samples failed twice (listed).
 ``verify DIR [--json]``
-    re-hash every file against the ledger; exit 1 on a missing, corrupt or extra file.
+    re-hash every file against the ledger; exit 1 on a missing, corrupt or extra file or a frame
+    listed twice.
 ``score DIR --detector NAME|MODULE:FUNCTION [--baseline …] [--max-regression-px X] [--json]``
     error statistics of a detector against the per-row truth (:mod:`scheimpflug.dataset`);
-    exit 1 when it regresses against the baseline by more than X px.
+    exit 1 when it regresses against the baseline (|bias|, RMS or p99 worse by more than X px, a
+    figure the baseline has missing, or a higher missed, outlier or false-detection rate).
 """
 
 from __future__ import annotations
@@ -44,7 +46,9 @@ def add_parser(sub):
     m.set_defaults(func=_make)
 
     v = dsub.add_parser("verify", help="re-hash every file of a dataset against its index",
-                        description="Report missing, corrupt and extra files; exit 1 if any.")
+                        description="Report missing, corrupt and extra files and frames listed twice in "
+                                    "the index (the same file, or the same content under two names); "
+                                    "exit 1 if any.")
     v.add_argument("dir", metavar="DIR")
     v.add_argument("--json", action="store_true")
     v.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -58,7 +62,13 @@ def add_parser(sub):
                    help="cog, gaussian3, blais-rioux, edge, or your own MODULE:FUNCTION / FILE.py:FUNCTION")
     s.add_argument("--baseline", metavar="NAME|MODULE:FUNCTION", help="detector to compare with")
     s.add_argument("--max-regression-px", type=float, default=None, metavar="X",
-                   help="exit 1 when |bias|, RMS or p99 is worse than the baseline's by more than X px")
+                   help="exit 1 when the detector regresses against the baseline: |bias|, RMS or p99 worse "
+                        "by more than X px, a figure the baseline has missing (a detector that finds "
+                        "nothing has no RMS), or a missed, outlier or false-detection rate higher by more "
+                        "than --max-rate-increase")
+    s.add_argument("--max-rate-increase", type=float, default=0.0, metavar="R",
+                   help="allowed increase of the missed, outlier and false-detection rates over the "
+                        "baseline's, as a fraction of the rows (default 0: any increase regresses)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=1, metavar="N")
     g.add_argument("--scheduler", metavar="ADDRESS")
@@ -112,22 +122,27 @@ def _verify(args) -> int:
         print_json(rep.to_json())
     else:
         print(f"{rep.frames} frames, {rep.files} files: {len(rep.missing)} missing, "
-              f"{len(rep.corrupt)} corrupt, {len(rep.extra)} extra")
+              f"{len(rep.corrupt)} corrupt, {len(rep.extra)} extra"
+              + (f", {len(rep.duplicates)} listed twice" if rep.duplicates else ""))
         for kind in ("missing", "corrupt", "extra"):
             for path in getattr(rep, kind)[:20]:
                 print(f"  {kind}: {path}")
+        for text in rep.duplicates[:20]:
+            print(f"  duplicate: {text}")
     return 0 if rep.ok else 1
 
 
 def _score(args) -> int:
     from scheimpflug.app.progress import Progress
     from scheimpflug.dataset import compare_scores, load_detector, open_dataset, score_dataset
-    from sim.dataset import Engine
+    from sim.dataset import Engine, EngineError
 
     if args.max_regression_px is not None and args.baseline is None:
         raise DatasetError("--max-regression-px needs --baseline")
-    if args.max_regression_px is not None and not args.max_regression_px >= 0:
-        raise DatasetError(f"--max-regression-px {args.max_regression_px}: must be >= 0")
+    if args.max_regression_px is not None and not 0 <= args.max_regression_px < float("inf"):
+        raise DatasetError(f"--max-regression-px {args.max_regression_px}: must be a number >= 0")
+    if not 0 <= args.max_rate_increase <= 1:
+        raise DatasetError(f"--max-rate-increase {args.max_rate_increase}: must be a fraction in [0, 1]")
     ds = open_dataset(args.dir)
     if args.where:
         ds = ds.filter(**dict(_condition(w) for w in args.where))
@@ -140,13 +155,17 @@ def _score(args) -> int:
             if det is None:
                 continue
             with Progress(0, label=f"score {det}", quiet=args.quiet or args.json) as bar:
-                reports[role] = score_dataset(ds, det, map_fn=_mapper(engine), progress=bar)
+                try:
+                    reports[role] = score_dataset(ds, det, map_fn=_mapper(engine), progress=bar)
+                except EngineError as exc:       # the detector ended its worker process
+                    raise DatasetError(f"the detector {det!r} failed: {exc}") from None
     out = reports["detector"].to_json()
     status = 0
     if "baseline" in reports:
         out["baseline"] = reports["baseline"].to_json()
         cmp = compare_scores(reports["detector"], reports["baseline"],
-                             args.max_regression_px if args.max_regression_px is not None else 0.0)
+                             args.max_regression_px if args.max_regression_px is not None else 0.0,
+                             args.max_rate_increase)
         out.update(cmp)
         if args.max_regression_px is None:
             out["regression"] = None
@@ -161,8 +180,8 @@ def _score(args) -> int:
     else:
         _print_score(out)
     if status:
-        print(f"scheimpflug dataset score: {args.detector} regresses against {args.baseline} by more "
-              f"than {args.max_regression_px} px", file=sys.stderr)
+        print(f"scheimpflug dataset score: {args.detector} regresses against {args.baseline}: "
+              f"{'; '.join(out['reasons'])}", file=sys.stderr)
     return status
 
 
@@ -184,7 +203,8 @@ def _mapper(engine):
         return None
 
     def run(fn, items):
-        for _, res in engine.map(lambda item, progress=None, threads=None: fn(item), items):
+        for _, res in engine.map(lambda item, progress=None, threads=None: fn(item), items,
+                                 key=lambda rows: f"the score of sample {rows[0]['sample']}"):
             if isinstance(res, BaseException):
                 raise res
             yield res
@@ -214,4 +234,6 @@ def _print_score(out: dict) -> None:
     if out.get("regression") is not None:
         print(f"regression: {out['regression']} (|bias| {_fmt(out['d_abs_bias_px'])}, rms "
               f"{_fmt(out['d_rms_px'])}, p99 {_fmt(out['d_p99_px'])} px worse than the baseline; "
-              f"allowed {out['max_regression_px']})")
+              f"allowed {out['max_regression_px']}; missed {_fmt(out['d_missed_rate'])}, outliers "
+              f"{_fmt(out['d_outlier_rate'])}, false {_fmt(out['d_false_rate'])} higher; allowed "
+              f"{out['max_rate_increase']})")
