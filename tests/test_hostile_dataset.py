@@ -287,14 +287,15 @@ def test_failures_on_two_dask_workers_are_one_line_each(ref, tmp_path, capfd):
                        "--workers", "2", "--quiet"])
         err = capfd.readouterr().err.strip().splitlines()
         assert status == 2 and len(err) == 1 and words in err[0], err
+    # a missing part is a spec error, refused before any sample (before: 4 traceback blocks, then
+    # one warning per sample and try)
     spec = tmp_path / "missing.toml"
     spec.write_text(SPEC.replace('part = "cylinder"', 'part = "missing.stl"'))
     status = main(["dataset", "make", str(spec), "--out", str(tmp_path / "out"), "--workers", "2", "--quiet"])
-    err = capfd.readouterr().err
-    assert status == 1 and "Traceback" not in err and "Compute Failed" not in err, err
-    lines = err.strip().splitlines()
-    assert lines[-2].endswith("samples 0–1 failed: MeshError: " + f"{tmp_path / 'missing.stl'}: no such file")
-    assert lines[-1].startswith("scheimpflug dataset make: 2 of 2 samples failed")
+    err = capfd.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1, err
+    assert f"part 'missing.stl': no such file ({tmp_path / 'missing.stl'})" in err[0]
+    assert not (tmp_path / "out").exists()
 
 
 # ------------------------------------------------------------------ a full disk

@@ -61,6 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scenes import PART_NAMES
 from scheimpflug.errors import DatasetError, ScheimpflugError
 from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig, read_toml, rig_from_dict, rig_to_dict
@@ -326,7 +327,8 @@ def parse_spec(raw: dict, folder: str | os.PathLike = ".", where: str = "spec",
     Raises
     ------
     DatasetError
-        An unknown key, a missing required key, a bad value or variation.
+        An unknown key, a missing required key, a bad value or variation, a part that is
+        neither a preset name nor an existing file.
     """
     _known(where, "the spec", raw, _TOP)
     for table in _TOP:
@@ -344,7 +346,19 @@ def parse_spec(raw: dict, folder: str | os.PathLike = ".", where: str = "spec",
                        description=str(ds.get("description", "")), rig=rig, rig_source=rig_source,
                        scenario=scenario, materials=materials,
                        variation={"rig": rig_var, "scenario": scen_var, "materials": mat_var})
+    _check_parts(spec, where)
     return spec
+
+
+def _check_parts(spec: DatasetSpec, where: str) -> None:
+    """Every part the spec can draw exists: a preset name, or a file that is there (before any sample)."""
+    for part in _part_candidates(spec):
+        if Path(part).suffix:
+            if not spec.resolve(part).is_file():
+                raise _fail(where, f"part {part!r}: no such file ({spec.resolve(part)})")
+        elif part not in PART_NAMES:
+            raise _fail(where, f"part {part!r}: unknown (a preset name — {', '.join(PART_NAMES)} — "
+                               "or a mesh or scene file)")
 
 
 def _known(where: str, table: str, data: dict, known: set) -> None:
