@@ -2,6 +2,8 @@
 # One entry point that sets everything up (idempotently) and then runs a job.
 #   bash run.sh demo [ARGS...]   the main job: the paper's experiments in the twin
 #   bash run.sh test [ARGS...]   the test suite (pytest)
+#   bash run.sh docs [ARGS...]   the documentation site into docs/_build/html (Sphinx, warnings are errors,
+#                                the gallery run, internal links checked; ARGS go to sphinx-build)
 #   bash run.sh CMD  [ARGS...]   any `scheimpflug` subcommand, e.g. design --preset paper
 # Set-up: Debian's libllvm19 (Mitsuba's CPU JIT needs libLLVM >= 17) when run as
 # root with apt, a virtual environment in .venv, and the project installed into it.
@@ -44,7 +46,7 @@ stamp="$venv/.installed-$(cat "$here/pyproject.toml" | sha256sum | cut -c1-16)"
 if [ ! -f "$stamp" ]; then
     log "installing the project and its dependencies into .venv (first run takes a few minutes)"
     "$venv/bin/python" -m pip install -q --upgrade pip >/dev/null
-    "$venv/bin/python" -m pip install -q -e "$here[test]"
+    "$venv/bin/python" -m pip install -q -e "$here[test,docs]"
     rm -f "$venv"/.installed-*
     touch "$stamp"
 fi
@@ -54,5 +56,7 @@ job="${1:-demo}"
 cd "$here"
 case "$job" in
     test) exec "$venv/bin/python" -m pytest "$@" ;;
+    docs) "$venv/bin/python" -m sphinx -b html -W --keep-going -j 2 -q docs docs/_build/html "$@"
+          exec "$venv/bin/python" docs/_ext/scheimpflug_docs.py check-links docs/_build/html ;;
     *)    exec "$venv/bin/scheimpflug" "$job" "$@" ;;
 esac

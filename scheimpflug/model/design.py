@@ -103,6 +103,16 @@ def design_report(rig: Rig) -> dict:
         the axis or the plate out of view, naming the key).  Figures that do
         not exist (the columns of stage zero and the f check when stage zero is
         not in front of the hinge, e.g. d0 = 0) are None.
+
+    Examples
+    --------
+    The paper's rig (the paper measured F² = −1.446e6 px·mm, C = 145.91 mm and a
+    depth range of 276.7 mm with its real lens):
+
+    >>> from scheimpflug.model.rig import load_preset
+    >>> r = design_report(load_preset("paper"))
+    >>> round(r["tilt_deg"], 3), round(r["F2_px_mm"] / 1e6, 4), round(r["C_mm"], 2), round(r["depth_range_mm"], 1)
+    (21.646, -1.4292, 149.1, 274.3)
     """
     g = hinge_geometry(rig)
     s = rig.sensor

@@ -84,6 +84,15 @@ def stage_from_pixel(u_px, v_px, hinge_u_px: float, hinge_v_px: float, F2_px_mm:
     -----
     At ``u = u_h`` (the image hinge) the sheet point lies at infinity: both
     outputs are NaN there, never ±inf.
+
+    Examples
+    --------
+    The paper's calibration (Eqs. 11–12 with its constants): its first plate
+    frame, at column 97 and stage 0, and a point at the sensor's centre column.
+
+    >>> s, h = stage_from_pixel([97.0, 608.0], [700.0, 500.0], 3196.0, 771.0, -1.446e6, -466.0, 145.91)
+    >>> s.round(2).tolist(), h.round(3).tolist()
+    ([0.6, 92.73], [3.343, 15.279])
     """
     u, v = check_broadcast(u_px=u_px, v_px=v_px)
     inv = _inverse_or_nan(u - hinge_u_px)
@@ -113,6 +122,15 @@ def pixel_from_stage(stage_mm, h_mm, hinge_u_px: float, hinge_v_px: float, F2_px
     ------
     ValueError
         If ``stage_mm`` and ``h_mm`` do not broadcast together.
+
+    Examples
+    --------
+    The round trip through :func:`stage_from_pixel` returns the pixel:
+
+    >>> cal = (3196.0, 771.0, -1.446e6, -466.0, 145.91)
+    >>> u, v = pixel_from_stage(*stage_from_pixel(608.0, 500.0, *cal), *cal)
+    >>> round(float(u), 9), round(float(v), 9)
+    (608.0, 500.0)
     """
     s, h = check_broadcast(stage_mm=stage_mm, h_mm=h_mm)
     du = F2_px_mm * _inverse_or_nan(s - d0_mm)
@@ -170,6 +188,15 @@ def tilt_rad(focal_length_mm: float, scheimpflug_distance_mm: float, tan_phi: fl
     -------
     float
         β = atan2(f, d − f·tan φ), i.e. tan β = f / (d − f·tan φ) [rad].
+
+    Examples
+    --------
+    The paper's rig (f = 55 mm, d = 150 mm, tan φ = 0.2075; it measured tan β = 0.3969):
+
+    >>> import math
+    >>> beta = tilt_rad(55.0, 150.0, 0.2075)
+    >>> round(math.degrees(beta), 4), round(math.tan(beta), 5)
+    (21.6462, 0.39686)
     """
     return math.atan2(focal_length_mm, scheimpflug_distance_mm - focal_length_mm * tan_phi)
 
