@@ -1,6 +1,6 @@
 """Printed calibration patterns as parts: chessboard, ChArUco and circle grids on a plate.
 
-Pattern specs (INTERFACE.md ``--pattern SPEC``)
+Pattern specs (docs/reference/interface.md ``--pattern SPEC``)
 -----------------------------------------------
 ``chessboard:COLSxROWS:SQUARE_MM``
     COLS × ROWS *inner* corners (OpenCV's ``patternSize``), squares of edge

@@ -232,7 +232,7 @@ def measuring_volume_diagonal(stage_near_mm: float, stage_far_mm: float, axis_mm
     ``R = min(axis − s_near, s_far − axis)``; its height is the field's height
     at the nearest distance it reaches, ``(D_near_axis)·height_per_distance``
     (the height range grows in proportion to the distance from the object
-    hinge, DESIGN.md §3).  ``L0`` is its diagonal ``√((2R)² + H²)``.
+    hinge, docs/explanation/design-notes.md §3).  ``L0`` is its diagonal ``√((2R)² + H²)``.
 
     Parameters
     ----------

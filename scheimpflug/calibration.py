@@ -47,7 +47,7 @@ common to all frames (a miscalibrated stage, a lens error) is not in them.
 The default ("best") is the estimate with the smaller standard error of
 ``u_h``; with usable frames that is nearly always the refined one.
 
-Conventions (DESIGN.md §3): columns ``u`` increase with distance toward the
+Conventions (docs/explanation/design-notes.md §3): columns ``u`` increase with distance toward the
 hinge (``u − u_h < 0``, ``F² < 0``); rows ``v`` increase downward, a point
 above the optical axis (``h > 0``) images at ``v < v_h``.  Pixel ``k``'s centre
 is ``u = k``.
@@ -176,7 +176,7 @@ class Calibration:
 
     Two kinds of uncertainty are reported.  ``F2_sigma_px_mm`` and
     ``C_sigma_mm`` are the paper's σ(F²) and σ(C): the *spread* of the
-    per-frame values (INTERFACE.md).  The ``*_stderr_*`` fields and
+    per-frame values (docs/reference/interface.md).  The ``*_stderr_*`` fields and
     ``hinge_u_sigma_px``, ``hinge_v_sigma_px``, ``d0_sigma_mm`` are *standard
     errors* of the fitted constants, propagated to first order from the
     measurement noise that the fits' residuals show (module docstring); NaN
@@ -311,7 +311,7 @@ class Calibration:
                 "n_frames": self.n_frames, "n_frames_both_edges": self.n_frames_both_edges}
 
     def to_json_dict(self) -> dict[str, Any]:
-        """INTERFACE.md calibrate fields, the standard errors, both estimates and the sensor size.
+        """docs/reference/interface.md calibrate fields, the standard errors, both estimates and the sensor size.
 
         Returns
         -------
@@ -831,7 +831,7 @@ def c_sigma_from_endpoint_fits(C_mm: float, slopes: tuple[float, float], residua
     residuals_px : (float, float)
         The residual σ of each line, in rows [px].
     u_px : (n,) array_like
-        The frames' columns [px] (the sensor frame of DESIGN.md §3).
+        The frames' columns [px] (the sensor frame of docs/explanation/design-notes.md §3).
     hinge_u_px : float
         The image hinge's column u_h [px].
 
@@ -1373,7 +1373,7 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
                      method: str = "best", detector: str = "cog", progress=None,
                      tol: CalibrationTolerances = CalibrationTolerances(),
                      accuracy: CalibrationAccuracy | None = None) -> CalibrationResult:
-    """Calibrate from a frame folder of plate frames (INTERFACE.md).
+    """Calibrate from a frame folder of plate frames (docs/reference/interface.md).
 
     Frames without a stripe or saturated are skipped with a warning
     (``CalibrationResult.skipped``); frames that show one plate edge only are

@@ -1,6 +1,6 @@
 """Regression datasets: open, filter and read them, verify their files, score stripe detectors.
 
-A dataset folder (``scheimpflug dataset make``, INTERFACE.md "Datasets")::
+A dataset folder (``scheimpflug dataset make``, docs/reference/interface.md "Datasets")::
 
     DIR/dataset.json          spec, generator versions, counts, bytes, failures
     DIR/index.parquet         one row per frame (columns below)
@@ -528,7 +528,7 @@ class VerifyReport:
         return not (self.missing or self.corrupt or self.extra or self.duplicates)
 
     def to_json(self, limit: int = 20) -> dict:
-        """The JSON of ``dataset verify --json`` (INTERFACE.md: frames, missing, corrupt, extra).
+        """The JSON of ``dataset verify --json`` (docs/reference/interface.md: frames, missing, corrupt, extra).
 
         Parameters
         ----------
@@ -1011,7 +1011,7 @@ class ScoreReport:
     def to_json(self) -> dict:
         """The JSON of ``dataset score --json``.
 
-        INTERFACE.md fields (``detector``, ``n_rows``, ``bias_px``, ``rms_px``, ``p99_px``,
+        docs/reference/interface.md fields (``detector``, ``n_rows``, ``bias_px``, ``rms_px``, ``p99_px``,
         ``outlier_rate``, ``missed_rate``) plus ``false_rate``, ``frames`` and the breakdowns.
 
         Returns

@@ -7,7 +7,7 @@ pixel to a stage coordinate and a height on the light sheet (paper Eqs. 11–12)
     h(u, v) = C · (v − v_h) / (u − u_h)    [mm]
 
 and the rotary stage's angle θ of the frame turns the sheet point back into
-the part's own frame (INTERFACE.md stage conventions):
+the part's own frame (docs/reference/interface.md stage conventions):
 
     p_part = R_z(−θ) · (s − axis_mm, 0, h) = ((s − a) cos θ, −(s − a) sin θ, h)
 

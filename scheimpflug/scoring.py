@@ -16,7 +16,7 @@ how far the model strays; the symmetric Hausdorff distance is the larger of
 the two maxima over the samples, the symmetric mean the average of the two
 means.
 
-Statistics follow INTERFACE.md: ``n_points``, ``rms_mm``, ``mean_abs_mm``,
+Statistics follow docs/reference/interface.md: ``n_points``, ``rms_mm``, ``mean_abs_mm``,
 ``p95_mm``, ``max_mm`` (all on the distance magnitude), plus the signed mean
 and standard deviation when the sign is known, and a per-body breakdown when
 the faces carry an object id (or the mesh has several connected bodies).
@@ -537,7 +537,7 @@ def point_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -
 
 
 def distance_stats(distance_mm: np.ndarray, signed: bool) -> dict:
-    """Summary statistics of point-to-mesh distances (INTERFACE.md evaluate fields).
+    """Summary statistics of point-to-mesh distances (docs/reference/interface.md evaluate fields).
 
     Parameters
     ----------

@@ -96,7 +96,7 @@ class SensitivityIndex:
     sigma: float | None = None
 
     def to_json(self) -> dict:
-        """JSON-ready dict (None stays null; INTERFACE.md fields ``key``, ``first_order``, ``total``).
+        """JSON-ready dict (None stays null; docs/reference/interface.md fields ``key``, ``first_order``, ``total``).
 
         Returns
         -------

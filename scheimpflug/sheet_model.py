@@ -291,7 +291,7 @@ class GeneralCalibration:
         return None if self.paper is None else self.paper.constants()
 
     def to_json_dict(self) -> dict[str, Any]:
-        """The calibration JSON: INTERFACE.md calibrate fields (of the paper estimate) and the model.
+        """The calibration JSON: docs/reference/interface.md calibrate fields (of the paper estimate) and the model.
 
         Returns
         -------
@@ -400,7 +400,7 @@ def ideal_camera(calibration: Calibration, focal_length_mm: float = DEFAULT_FOCA
     """The ideal Scheimpflug rig behind paper-form constants, as a camera and a sheet homography.
 
     The constants fix ``C = f / sin β`` and ``F² = −f² / (p cos φ sin β)``
-    (DESIGN.md §3); with the focal length ``f`` and the pixel pitch ``p`` (the
+    (docs/explanation/design-notes.md §3); with the focal length ``f`` and the pixel pitch ``p`` (the
     two things a homography cannot tell) they give the tilt β, the sheet
     angle φ and the Scheimpflug distance ``d = f/tan β + f tan φ``, and with
     ``(u_h, v_h)`` the sensor's place: the rig of :mod:`scheimpflug.model.camera`

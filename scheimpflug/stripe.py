@@ -2,7 +2,7 @@
 
 In a Scheimpflug light-sheet frame the stripe runs roughly along the rows'
 normal: every row ``v`` holds at most one directly lit surface point, seen at a
-column ``u`` that encodes its distance along the sheet (DESIGN.md §3).  This
+column ``u`` that encodes its distance along the sheet (docs/explanation/design-notes.md §3).  This
 module finds that column in every row of a frame, vectorised over the frame in
 a numba kernel that runs the rows in parallel.
 

@@ -45,7 +45,7 @@ __all__ = [
     "tilt_matrix",
 ]
 
-#: OpenCV camera frame from the rig frame (DESIGN.md §2): X = −y_rig, Y = −z_rig, Z = x_rig.
+#: OpenCV camera frame from the rig frame (docs/explanation/design-notes.md §2): X = −y_rig, Y = −z_rig, Z = x_rig.
 CAMERA_FROM_RIG = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 
 

@@ -19,9 +19,9 @@ knurled-metal ``roughconductor`` GGX, Al        α = 0.5 — the knurl's facets 
 cardboard     Lambertian ``diffuse``            albedo 0.35 — brown kraft board in the blue
                                                 (≈ 0.3–0.4 at 450 nm, ≈ 0.5 in the red)
 tape          Lambertian ``diffuse``            albedo 0.55 — a roll of light paper tape
-paper,        Lambertian ``diffuse``            the translucent medium's own total diffuse
-white-plastic,                                  reflectance (table below)
-marble
+paper         Lambertian ``diffuse``            the translucent medium's own total diffuse
+                                                reflectance (table below); the same for
+                                                ``white-plastic`` and ``marble``
 ============= ================================ ============================================
 
 All opaque BSDFs are wrapped in ``twosided`` so that a mesh with an

@@ -94,6 +94,7 @@ from scheimpflug.model.rig import Rig
 from .lens import LensConnection, floats
 from .lightsheet import light_sheet, speckle_grain_um, speckle_pattern, visible_fan_interval
 from .materials import SPECKLE_CONTRAST, channel_for_wavelength, is_translucent
+from .render_limits import check_laser_samples
 from .scene import SimScene
 from .transport import LightTransport, TransportResult
 from .variant import is_jit_variant
@@ -273,7 +274,8 @@ class Renderer:
     Raises
     ------
     RenderError
-        If the scene's Mitsuba variant is not a JIT (llvm_*/cuda_*) variant.
+        If the scene's Mitsuba variant is not a JIT (llvm_*/cuda_*) variant, or the laser
+        samples of a frame would not fit the memory budget (:mod:`sim.render_limits`).
     """
 
     def __init__(self, rig: Rig, sim_scene: SimScene, settings: RenderSettings | None = None,
@@ -288,6 +290,8 @@ class Renderer:
         self.rig, self.scene = rig, sim_scene
         self.settings = settings or RenderSettings()
         self.pose = pose or sensor_pose(rig)
+        check_laser_samples(self.settings.samples_per_row, self.pose.rows, rig.twin.bounces,
+                            "RenderSettings.samples_per_row")      # before Dr.Jit allocates for minutes
         self.sheet = light_sheet(rig)
         self.shape = (self.pose.rows, self.pose.columns)
         lens = rig.lens

@@ -2,7 +2,7 @@
 
 A :class:`Scenario` is an :class:`~scenes.part.Assembly` (in its part frame)
 plus one :class:`FrameSpec` per frame (the assembly's pose, the stage reading
-and the frame's noise seed).  Three scenarios (INTERFACE.md):
+and the frame's noise seed).  Three scenarios (docs/reference/interface.md):
 
 ``calibration``
     The calibration plate (:func:`scenes.generators.plate`, height

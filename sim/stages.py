@@ -1,6 +1,6 @@
 """Stages: where the translation-stage plate and the rotary-stage part sit (4×4, float64).
 
-Frames (INTERFACE.md "Stage conventions"):
+Frames (docs/reference/interface.md "Stage conventions"):
 
 * **rig frame** — origin at the lens centre, +x optical axis, +z up.
 * **stage frame** — origin on the rotary axis at the height of the optical

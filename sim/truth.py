@@ -28,9 +28,9 @@ its 3-D point and object id (0 = nothing).
 
 **Truth file** ``truth/NNNNN.npz`` (numpy ``savez_compressed``), keys:
 
-======================  =====================  ==============================================
+======================= ======================  =============================================
 key                     shape, dtype            meaning
-======================  =====================  ==============================================
+======================= ======================  =============================================
 ``stripe_u``            (rows,) float64         exact stripe-centre column per row [px]; NaN = none
 ``stripe_point_mm``     (rows, 3) float64       its 3-D point in the reference frame [mm]; NaN = none
 ``stripe_object_id``    (rows,) int16           object id of that point (0 = none)
@@ -45,7 +45,7 @@ key                     shape, dtype            meaning
 ``secondary_fraction``  (rows,) float32         all secondary light / the row's laser light [-]
 ``subsurface_fraction`` (rows,) float32         light that entered the first lit surface and
                                                 left it elsewhere / the row's laser light [-]
-======================  =====================  ==============================================
+======================= ======================  =============================================
 
 **Secondary light** (:func:`secondary_truth`) is the one part of the truth that
 comes from the renderer, not from geometry: the expected (noise- and

@@ -3,7 +3,7 @@
 Mitsuba 3.9 / Dr.Jit 1.5 JIT-compile their ``llvm_*`` variants with a shared
 libLLVM that must be version 17 or newer; with Debian's default LLVM 14–16 the
 process can die inside LLVM ("Cannot select … fminimum") or the backend stays
-inactive (DESIGN.md §6).  :func:`select_variant` therefore looks for the
+inactive (docs/explanation/design-notes.md §6).  :func:`select_variant` therefore looks for the
 library *before* Dr.Jit does, points Dr.Jit at a good one through
 ``DRJIT_LIBLLVM_PATH`` (only possible before ``drjit`` is imported), and falls
 back to ``scalar_rgb`` with a warning when none is found.

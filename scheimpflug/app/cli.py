@@ -1,4 +1,4 @@
-"""The ``scheimpflug`` command line (INTERFACE.md).
+"""The ``scheimpflug`` command line (docs/reference/interface.md).
 
 Each subcommand lives in ``scheimpflug/app/commands/<name>.py`` and provides
 ``add_parser(subparsers)``, which registers its options and sets ``func``.

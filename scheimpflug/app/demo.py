@@ -19,7 +19,7 @@ once with all of them, on a binned plan with few frames
 the paper's figures.
 
 Everything the report says is measured in this run; the paper's numbers come
-from the seed paper (DESIGN.md §3–4) and are labelled as such.
+from the seed paper (docs/explanation/design-notes.md §3–4) and are labelled as such.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from scheimpflug.model.rig import ERROR_MODELS, TWIN_EFFECTS, Rig, rig_to_toml, 
 
 __all__ = ["DemoPlan", "PAPER", "as_built_plan_for", "budget_plan_for", "plan_for", "run_demo"]
 
-# The seed paper's numbers (Sections 3–4, DESIGN.md §3–4).
+# The seed paper's numbers (Sections 3–4, docs/explanation/design-notes.md §3–4).
 PAPER = {
     "hinge_px": [3196.0, 771.0], "F2_px_mm": -1.446e6, "F2_sigma_px_mm": 581.0, "d0_mm": -466.0,
     "C_mm": 145.91, "C_sigma_mm": 0.2014, "endpoint_fit_r2": [0.9998, 0.9998],

@@ -65,12 +65,23 @@ def _header(result, title: str) -> list[str]:
     lines = [f"# {title}: {spec.name}", "", spec.description or "", "",
              f"- rig: {spec.rig_source}; calibration model: {spec.model}; metric: {spec.metric}",
              f"- artefacts: {kinds}; {'quick' if a.quick else 'full'} plan; {a.material}; binning {a.binning}",
-             f"- draws: {s['draws']} of {s['planned']} complete; seed {spec.seed}; noise {spec.noise}",
+             f"- draws: {s['draws']} of {s['planned']} complete, {_measured(s)}; seed {spec.seed}; "
+             f"noise {spec.noise}",
              f"- wall time of the last run {s['wall_s']:.0f} s; CPU time of all draws {s['cpu_s_draws']:.0f} s", ""]
     if s.get("failures"):
         lines += ["**Failed draws** (rerun the command to try them again):", ""]
         lines += [f"- draw {f['draw']}: {f['error']}" for f in s["failures"]] + [""]
     return lines
+
+
+def _measured(s: dict) -> str:
+    """How many complete draws measured the metric, and which did not (the summary's counts)."""
+    from sim.study.analysis import describe_missing
+
+    total = s.get("designs", s["draws"])
+    missing = s.get("metric_missing") or []
+    noun = "designs" if s["kind"] == "sweep" else "draws"
+    return describe_missing(s["metric"], missing, total, noun) or f"all {total} measured the {s['metric']}"
 
 
 # ------------------------------------------------------------------ sweep
@@ -138,8 +149,8 @@ def _tolerance(result, out: Path) -> list[str]:
                          out / "sensitivity.png")
         lines += ["![sensitivity indices](sensitivity.png)", ""]
     lines += _distribution_table(s, an)
-    if result.records:
-        names = [n for n in _DIST_OUTPUTS if n in s["outputs"] and s["outputs"][n]["distribution"].get("n")]
+    names = [n for n in _DIST_OUTPUTS if n in s.get("outputs", {}) and s["outputs"][n]["distribution"].get("n")]
+    if result.records and names:            # no draw measured anything: no histogram to draw
         plot_distributions(result.records, an, names, {n: s["outputs"][n]["label"] for n in names},
                            out / "distributions.png", signed=_SIGNED)
         lines += ["![distributions over the draws, with the first-order normal](distributions.png)", ""]
@@ -183,9 +194,15 @@ def _distribution_table(s, an) -> list[str]:
         scale, unit = (1e3, "µm") if o["unit"] == "mm" else (1.0, o["unit"])
         v = lambda x, scale=scale: _f(None if x is None else x * scale)  # noqa: E731
         first = an["std_linear"].get(name) if an else None
-        rows.append([o["label"], v(d.get("mean")), v(d.get("std")), v(first) if name in _SIGNED else "(not linear)",
+        sigma = v(d.get("std")) if d.get("std") is not None else f"– ({d['n']} distinct draw(s))"
+        odd = d.get("missing") or d.get("measured", d["n"]) != d["n"]
+        count = f" ({d['n']} distinct of {d['measured']} measured; missing in {len(d.get('missing') or [])})"
+        rows.append([o["label"] + (count if odd else ""),
+                     v(d.get("mean")), sigma, v(first) if name in _SIGNED else "(not linear)",
                      v(d.get("p5")), v(d.get("p95")), unit])
     return ["## Distributions over the draws", ""] + _table(head, rows) + [
+        "", "Each distinct rig counts once (draws with the same deviations and seed are one measurement); "
+            "a σ needs at least 3 distinct draws that measured the output.",
         "", "Calibration errors are the calibrated paper-form constants minus the design's closed forms "
             "(full-size sensor). PF, F and the field error are ranges or norms: their first order is not "
             "meaningful at a perfect rig.", ""]

@@ -1,4 +1,4 @@
-"""Frame folders: ``manifest.json`` + ``frames/*.png`` (INTERFACE.md), read and validated.
+"""Frame folders: ``manifest.json`` + ``frames/*.png`` (docs/reference/interface.md), read and validated.
 
 A frame folder is what ``scheimpflug render`` writes and what a real camera
 rig provides.  The pipeline reads only the manifest and the frames, so real
@@ -358,7 +358,7 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     Parameters
     ----------
     path : str or Path
-        The folder holding ``manifest.json`` and ``frames/`` (INTERFACE.md).
+        The folder holding ``manifest.json`` and ``frames/`` (docs/reference/interface.md).
 
     Returns
     -------

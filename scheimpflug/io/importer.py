@@ -1,7 +1,7 @@
 """Real frames without a manifest: PNG or TIFF files + stage positions → a frame folder.
 
 ``scheimpflug import FRAMES... (--positions CSV | --positions-from-names PATTERN) --out DIR``
-builds the frame folder of INTERFACE.md (``manifest.json`` + ``frames/NNNNN.png``)
+builds the frame folder of docs/reference/interface.md (``manifest.json`` + ``frames/NNNNN.png``)
 from a camera's files, so that ``calibrate``, ``axis`` and ``reconstruct`` read
 real frames the same way as the twin's.
 

@@ -1,6 +1,6 @@
 """The instrument as OpenCV users hold it: camera matrix, distortion with τx, τy, laser plane.
 
-``scheimpflug calibrate DIR --opencv FILE.json`` (INTERFACE.md "OpenCV
+``scheimpflug calibrate DIR --opencv FILE.json`` (docs/reference/interface.md "OpenCV
 export") writes::
 
     {"camera_matrix": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],

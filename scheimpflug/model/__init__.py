@@ -2,7 +2,7 @@
 
 Everything the digital twin (:mod:`sim`) needs to know about the instrument
 lives here: :mod:`.rig` (frozen dataclasses, rig files, presets),
-:mod:`.hinge` (closed forms of DESIGN.md §3, paper Eqs. 5, 11–12),
+:mod:`.hinge` (closed forms of docs/explanation/design-notes.md §3, paper Eqs. 5, 11–12),
 :mod:`.camera` (exact thin-lens projection onto a tilted, misaligned,
 distorting sensor), :mod:`.design` (forward and inverse design) and
 :mod:`.binning` (binned read-out with the same geometry).  Pure numpy; no I/O

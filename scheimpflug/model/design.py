@@ -1,7 +1,7 @@
 """Design calculations: what a rig sees, how finely, and which tilt to set.
 
 Forward: :func:`design_report` gives the tilt, hinge, calibration constants,
-depth and height ranges and resolutions of a rig (DESIGN.md §3).  Inverse:
+depth and height ranges and resolutions of a rig (docs/explanation/design-notes.md §3).  Inverse:
 :func:`inverse_design` finds, for a lens and a sensor, the sheet-angle /
 baseline pairs, tilts and sensor placements that cover a wanted working range.
 Pure functions; the command line lives in :mod:`scheimpflug.app.commands.design`.
@@ -73,7 +73,7 @@ def coverage(hinge_u_px: float, hinge_v_px: float, F2_px_mm: float, C_mm: float,
 
 
 def design_report(rig: Rig) -> dict:
-    """The design figures of a rig as a JSON-ready dict (INTERFACE.md fields and more).
+    """The design figures of a rig as a JSON-ready dict (docs/reference/interface.md fields and more).
 
     Distances D are measured along the sheet from the object hinge [mm].
     The distance range is D at the centres of the first and last columns; the

@@ -1,7 +1,7 @@
 """Hinge-rule geometry of an ideal Scheimpflug light-sheet rig (closed forms).
 
 All functions are pure, vectorised over numpy arrays and float64.  Frames and
-symbols follow DESIGN.md §2–3: the rig frame has its origin at the lens centre,
+symbols follow docs/explanation/design-notes.md §2–3: the rig frame has its origin at the lens centre,
 +x along the optical axis toward the object, +z up.  The laser sheet is the
 vertical plane ``y = d − x·tan φ``; ``D`` is the distance along the sheet from
 the object hinge H (positive in the propagation direction) and ``h`` the height
@@ -10,7 +10,7 @@ above the meridian plane.
 References
 ----------
 Paper Eqs. 1–2 (Newton), 5 (tilt), 6 (hinge line ∥ sensor), 8 (height ratio),
-11–12 (calibration forms): ``../shared/seed/scheimpflug-lidar-calibration-paper.md``.
+11–12 (calibration forms): the seed paper (docs/citing.md).
 """
 
 from __future__ import annotations

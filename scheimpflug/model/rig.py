@@ -1,12 +1,12 @@
 """The rig: lens, laser sheet, sensor, stages and environment as frozen dataclasses.
 
 The rig is the single description of an instrument, real or simulated.  It is
-read from the TOML rig file of INTERFACE.md (one table per dataclass below) or
+read from the TOML rig file of docs/reference/interface.md (one table per dataclass below) or
 taken from a built-in preset (``paper``).  Every key has a unit in its name
 where doubt is possible; derived quantities (tilt, hinge points, F², C) are
 computed in :mod:`scheimpflug.model.hinge`, never stored here.
 
-Rig frame (DESIGN.md §2): origin at the lens centre, +x along the optical axis
+Rig frame (docs/explanation/design-notes.md §2): origin at the lens centre, +x along the optical axis
 toward the object, +z up, +y = z × x; lengths in mm, angles in degrees at
 interfaces.
 """
@@ -249,7 +249,7 @@ class Sensor:
 
 @dataclass(frozen=True)
 class Stage:
-    """Translation and rotary stages (INTERFACE.md stage conventions; the ``[stage]`` table).
+    """Translation and rotary stages (docs/reference/interface.md stage conventions; the ``[stage]`` table).
 
     The five position keys (:data:`DERIVED_STAGE_KEYS`) may be left out of a
     rig file (None here): a :class:`Rig` then derives them from its working
@@ -1062,7 +1062,7 @@ def load_rig(path: str | Path) -> Rig:
     Parameters
     ----------
     path : str or Path
-        The rig file (INTERFACE.md).
+        The rig file (docs/reference/interface.md).
 
     Returns
     -------
@@ -1120,7 +1120,7 @@ def load_preset(name: str) -> Rig:
     Parameters
     ----------
     name : str
-        One of :data:`PRESETS` (``paper``: DESIGN.md §2 with f/5.6;
+        One of :data:`PRESETS` (``paper``: docs/explanation/design-notes.md §2 with f/5.6;
         ``paper-as-built``: the same with its error models on).
 
     Returns

@@ -131,7 +131,7 @@ def analyse_tolerance(spec: StudySpec, records: list[dict], analytic: dict | Non
     dict
         ``draws`` (complete), ``draws_measured``, ``outputs`` (per output: ``label``, ``unit``,
         ``distribution``, ``slopes``, ``indices``, ``note``), ``sensitivity`` (the metric's
-        indices, most important first: INTERFACE.md), ``ranking`` (sentences), ``limits``
+        indices, most important first: docs/reference/interface.md), ``ranking`` (sentences), ``limits``
         (per key), ``comparison`` (per output and key: Monte Carlo slope against the analytic
         Jacobian; Monte Carlo σ against the first-order σ).
     """

@@ -52,8 +52,8 @@ MAGNITUDE_MULTIPLES = (0.5, 1.0, 2.0)
 
 
 def _evaluate(twin: GeometricTwin, tables: dict, nominal_b, binning: int) -> dict:
-    rig = rig_from_dict(tables)
-    try:
+    try:            # a point outside the rig's range (f − 2σ < 0 …) is a point not measured, not the end
+        rig = rig_from_dict(tables)
         res = twin.evaluate(rig)
     except (ScheimpflugError, ValueError):
         return dict.fromkeys(OUTPUTS)

@@ -42,7 +42,7 @@ from ..jobfolder import JobKind, open_job, remove_temporaries, run_with_retries
 from ..writer import generator_info
 from .analysis import analyse_sweep, analyse_tolerance, table_rows
 from .draw import DRAW_FILE, PROGRESS_UNITS, draw_folder, run_draw
-from .spec import DrawPlan, StudySpec, plan_draws
+from .spec import DrawPlan, StudySpec, check_constraints, plan_draws
 
 __all__ = ["ANALYTIC_FILE", "META_FILE", "STUDY_FORMAT", "SUMMARY_FILE", "TABLE_FILE", "StudyResult", "run_study"]
 
@@ -171,6 +171,7 @@ def run_study(spec: StudySpec, out, *, workers: int = 1, scheduler: str | None =
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     out = Path(out)
+    check_constraints(spec, near_mm, far_mm, max_error_mm if max_error_mm is not None else spec.max_error_mm)
     plans = plan_draws(spec)
     identity = _identity(spec)
     with open_job(out, STUDY_JOB, identity, warn):     # checked, created, locked: sim.jobfolder

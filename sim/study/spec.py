@@ -85,7 +85,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scheimpflug.errors import RigError, ScheimpflugError, StudyError
+from scheimpflug.errors import RenderError, RigError, ScheimpflugError, StudyError
 from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.design import inverse_design
 from scheimpflug.model.plan import calibration_plan
@@ -96,7 +96,9 @@ from ..dataset.spec import sample_seed
 
 __all__ = [
     "ARTEFACT_KINDS",
+    "MAX_DRAWS",
     "METRICS",
+    "METRIC_NEEDS",
     "ArtefactSettings",
     "DrawPlan",
     "Placement",
@@ -104,6 +106,7 @@ __all__ = [
     "SweepAxis",
     "Tolerance",
     "calibration_options",
+    "check_constraints",
     "load_study_spec",
     "parse_study_spec",
     "plan_draws",
@@ -122,6 +125,19 @@ _STUDY_KEYS = {"seed", "draws", "method", "sampling", "designs", "model", "metri
 _ARTEFACT_KEYS = {"kinds", "binning", "positions", "frames", "material", "spp", "exclude_fraction", "part",
                   "part_step_deg"}
 _SOLVE = ("tan_phi", "scheimpflug_distance_mm")
+#: Most draws (tolerance study) or designs (sweep) one study may plan: a rendered draw takes tens of
+#: seconds to minutes (10 000 of them: days of CPU), planning one design ≈ 7 ms [-].
+MAX_DRAWS = 10_000
+#: Most frames per sphere crossing / plane scan (the guideline's full plan uses 21) [-].
+MAX_FRAMES_PER_SCAN = 1000
+#: Most frames of the user part's turn (``round(360 / part_step_deg)``; ``render``'s --yes threshold) [-].
+MAX_PART_FRAMES = 10_000
+#: What measures each metric: an artefact kind of the plan, or the user part (``artefacts.part``).
+METRIC_NEEDS = {"SD_mm": "ball_bar", "PF_mm": "sphere", "PS_mm": "sphere", "F_mm": "plane", "part_rms_mm": "part"}
+_NEEDS_TEXT = {"ball_bar": ("the ball bar", 'add "ball-bar" to artefacts.kinds'),
+               "sphere": ("the sphere", 'add "sphere" to artefacts.kinds'),
+               "plane": ("the plane", 'add "plane" to artefacts.kinds'),
+               "part": ("a user part", "set artefacts.part (and at least one artefact kind)")}
 
 
 def _fail(where: str, msg: str) -> StudyError:
@@ -495,15 +511,99 @@ def parse_study_spec(raw: dict, kind: str, folder: str | os.PathLike = ".", wher
     st = raw.get("study", {})
     _known(where, "[study]", st, _STUDY_KEYS)
     folder = Path(folder)
+    _check_overrides(where, raw, kind)
     tables, source = _parse_rig(where, folder, raw.get("rig", {}))
     common = _parse_study_table(where, st, kind)
     artefacts = _parse_artefacts(where, raw.get("artefacts", {}), folder)
+    try:
+        binned_rig(rig_from_dict(tables), artefacts.binning)
+    except (RigError, ValueError) as exc:
+        raise _fail(where, f"artefacts.binning = {artefacts.binning}: {exc}") from None
+    _check_metric(where, common["metric"], "metric" in st, common["max_error_mm"], artefacts, kind)
     spec = StudySpec(raw=json.loads(json.dumps(raw)), folder=folder, kind=kind,
                      name=str(st.get("name", default_name)), description=str(st.get("description", "")),
                      rig_tables=tables, rig_source=source, artefacts=artefacts, **common)
     if kind == "tolerance":
         return _with_tolerances(where, spec, raw["tolerance"])
     return _with_sweep(where, spec, raw["sweep"], raw.get("placement"))
+
+
+def _check_overrides(where: str, raw: dict, kind: str) -> None:
+    """A key that ``[rig.set]`` fixes and a sweep also sets (swept, or solved by the placement) is refused.
+
+    In a tolerance study a ``[rig.set]`` value is the nominal the tolerance is drawn around: both together
+    are meaningful and kept.
+    """
+    given = raw.get("rig", {}).get("set", {})
+    if kind != "sweep" or not isinstance(given, dict):
+        return
+    swept = raw.get("sweep") or {}
+    for key in swept:
+        if key in given:
+            raise _fail(where, f"{key!r} is given in [rig.set] and in [sweep]: the sweep would override "
+                               "[rig.set]; give it in one of them")
+    placement = raw.get("placement")
+    if isinstance(placement, dict):
+        solve = placement.get("solve", "tan_phi")
+        for key in (f"laser.{solve}", "sensor.hinge_column"):
+            if key in given:
+                raise _fail(where, f"{key!r} is given in [rig.set] but [placement] solves it for every design "
+                                   "(it would be overridden): remove it from [rig.set]")
+
+
+def _kinds_text(a: ArtefactSettings) -> str:
+    names = {v: k for k, v in ARTEFACT_KINDS.items()}
+    return "[" + ", ".join(f'"{names[k]}"' for k in a.kinds) + "]"
+
+
+def _measurable(a: ArtefactSettings) -> list[str]:
+    return [m for m, need in METRIC_NEEDS.items() if (need in a.kinds) or (need == "part" and a.part and a.kinds)]
+
+
+def _check_metric(where: str, metric: str, explicit: bool, max_error_mm, a: ArtefactSettings, kind: str) -> None:
+    """The artefacts measure the metric (and so every limit on it): checked before anything is planned."""
+    if a.part and not a.kinds:
+        raise _fail(where, "artefacts.part: the part is scanned with each draw's calibration, which needs at "
+                           "least one artefact kind; artefacts.kinds = [] scans nothing")
+    if not a.kinds:             # a tolerance study refuses it (_with_tolerances); a sweep: closed forms only
+        if kind == "sweep" and (explicit or max_error_mm is not None):
+            what = f"study.metric = {metric!r}:" if explicit else f"study.max_error_mm limits the {metric}:"
+            raise _fail(where, f"{what} artefacts.kinds = [] measures nothing (closed forms only, ranked by "
+                               "the distance resolution); add the artefact it needs or remove it")
+        return
+    need = METRIC_NEEDS[metric]
+    if need in a.kinds or (need == "part" and a.part):
+        return
+    thing, fix = _NEEDS_TEXT[need]
+    other = ", ".join(_measurable(a)) or "none"
+    default = "" if explicit else ", the default"
+    raise _fail(where, f"study.metric = {metric!r} ({METRICS[metric]}{default}) needs {thing}, which "
+                       f"artefacts.kinds = {_kinds_text(a)} does not scan: {fix}, or choose a metric they "
+                       f"measure ({other})")
+
+
+def check_constraints(spec: StudySpec, near_mm: float | None = None, far_mm: float | None = None,
+                      max_error_mm: float | None = None) -> None:
+    """Refuse a constraint whose figure the study cannot measure, before anything runs.
+
+    ``near_mm`` and ``far_mm`` are closed forms of every design (always known); ``max_error_mm``
+    limits the metric, which a sweep without artefacts does not measure.
+
+    Parameters
+    ----------
+    spec : StudySpec
+        The study.
+    near_mm, far_mm, max_error_mm : float, optional
+        The constraints of ``study sweep`` [mm].
+
+    Raises
+    ------
+    StudyError
+        ``max_error_mm`` given for a sweep without artefacts.
+    """
+    if max_error_mm is not None and not spec.artefacts.kinds:
+        raise StudyError(f"--max-error-mm {max_error_mm:g} limits the {spec.metric}, which artefacts.kinds = [] "
+                         "does not measure (closed forms only): add the artefact it needs to the spec")
 
 
 def _known(where: str, table: str, data: dict, known: set) -> None:
@@ -524,14 +624,23 @@ def _integer(where: str, key: str, value, minimum: int) -> int:
     return value
 
 
+def _at_most(where: str, key: str, value: int, limit: int, noun: str, hint: str = "split the study") -> int:
+    if value > limit:
+        raise _fail(where, f"{key} = {value:,}: more than the limit of {limit:,} {noun} "
+                           f"(sized before anything is planned; {hint})")
+    return value
+
+
 def _parse_study_table(where: str, st: dict, kind: str) -> dict:
     seed = _integer(where, "study.seed", st.get("seed", 0), 0)
     if kind == "tolerance":
         if "draws" not in st:
             raise _fail(where, "study.draws is required (the Monte Carlo draws allowed)")
-        draws = _integer(where, "study.draws", st["draws"], 1)
+        draws = _at_most(where, "study.draws", _integer(where, "study.draws", st["draws"], 1), MAX_DRAWS,
+                         "draws per study")
     else:
-        draws = _integer(where, "study.designs", st.get("designs", 1), 1)
+        draws = _at_most(where, "study.designs", _integer(where, "study.designs", st.get("designs", 1), 1),
+                         MAX_DRAWS, "designs per study")
     for key, only in (("method", "tolerance"), ("draws", "tolerance"), ("sampling", "sweep"),
                       ("designs", "sweep")):
         if key in st and kind != only:
@@ -627,6 +736,9 @@ def _parse_part(where: str, table: dict, folder: Path) -> tuple[str | None, floa
     part, step = table.get("part"), table.get("part_step_deg", 6.0)
     if not (_num(step) and 0 < step <= 90):
         raise _fail(where, f"artefacts.part_step_deg = {step!r}: must be in (0, 90]")
+    if round(360.0 / step) > MAX_PART_FRAMES:
+        raise _fail(where, f"artefacts.part_step_deg = {step!r}: {round(360.0 / step):,} frames per turn, more "
+                           f"than the limit of {MAX_PART_FRAMES:,} (a step >= {360.0 / MAX_PART_FRAMES:g}°)")
     if part is None:
         return None, float(step)
     if not isinstance(part, str) or not part:
@@ -659,7 +771,8 @@ def _parse_artefacts(where: str, table: dict, folder: Path) -> ArtefactSettings:
         kinds=tuple(ARTEFACT_KINDS[k] for k in order),
         binning=_integer(where, "artefacts.binning", table.get("binning", 1), 1),
         quick=positions == "quick",
-        frames=None if frames is None else _integer(where, "artefacts.frames", frames, 3),
+        frames=None if frames is None else _at_most(where, "artefacts.frames", _integer(
+            where, "artefacts.frames", frames, 3), MAX_FRAMES_PER_SCAN, "frames per scan", "the guideline uses 21"),
         material=_choice(where, "artefacts.material", table.get("material", "cardboard"), _MATERIALS),
         spp=None if spp is None else _integer(where, "artefacts.spp", spp, 1),
         exclude_fraction=float(excl), **dict(zip(("part", "part_step_deg"), _parse_part(where, table, folder))))
@@ -771,6 +884,7 @@ def _parse_axis(where: str, key: str, value, base) -> SweepAxis:
     if isinstance(value, list):
         if not value or not all(_num(v) for v in value):
             raise _fail(where, f"{name} = {value!r}: a list of values must hold at least one finite number")
+        _at_most(where, f"{name}: the number of values", len(value), MAX_DRAWS, "designs per study")
         if integer and not all(float(v).is_integer() for v in value):
             raise _fail(where, f"{name} = {value!r}: an integer key needs integer values")
         vals = tuple(int(v) if integer else float(v) for v in value)
@@ -782,7 +896,8 @@ def _parse_axis(where: str, key: str, value, base) -> SweepAxis:
         if not rng[0] < rng[1]:
             raise _fail(where, f"{name}: the range {rng!r} is {'empty' if rng[0] == rng[1] else 'reversed'} "
                                "(need lo < hi; a list fixes values)")
-        steps = _integer(where, f"{name}.steps", value.get("steps", 3), 2)
+        steps = _at_most(where, f"{name}.steps", _integer(where, f"{name}.steps", value.get("steps", 3), 2),
+                         MAX_DRAWS, "designs per study")
         vals = np.linspace(float(rng[0]), float(rng[1]), steps)
         vals = tuple(int(round(v)) for v in vals) if integer else tuple(float(v) for v in vals)
         return SweepAxis(key, vals, (float(rng[0]), float(rng[1])), integer)
@@ -817,7 +932,20 @@ def _derived_per_design(spec: StudySpec, swept) -> dict:
     return out
 
 
+def _grid_size(where: str, table: dict) -> None:
+    """The number of grid designs from the steps alone (before any value is made): refused above the limit."""
+    sizes = [len(v) if isinstance(v, list) else v.get("steps", 3) for v in table.values()
+             if isinstance(v, list) or (isinstance(v, dict) and isinstance(v.get("steps", 3), int))]
+    total = math.prod(sizes)
+    if len(sizes) > 1 and total > MAX_DRAWS:
+        raise _fail(where, f"sweep: a grid of {' × '.join(f'{n:,}' for n in sizes)} = {total:,} designs, more "
+                           f"than the limit of {MAX_DRAWS:,} designs per study: fewer steps, or "
+                           "sampling = \"lhs\" with study.designs")
+
+
 def _with_sweep(where: str, spec: StudySpec, table: dict, placement) -> StudySpec:
+    if spec.sampling == "grid":
+        _grid_size(where, table)
     spec = _replace(spec, rig_tables=_derived_per_design(spec, table))
     axes = []
     for key, value in table.items():
@@ -881,12 +1009,24 @@ def _sweep_plans(spec: StudySpec, where: str) -> list[DrawPlan]:
             rig_from_dict(tables)
             if spec.placement is not None:
                 tables, solved, status = _placed(spec, tables)
-            binned_rig(rig_from_dict(tables), spec.artefacts.binning)
+            rig_b = binned_rig(rig_from_dict(tables), spec.artefacts.binning)
         except (RigError, ValueError) as exc:
             raise _fail(where, f"design {k} ({_describe_values(values)}) is not a possible rig: {exc}") from None
+        _check_spp(where, spec.artefacts, rig_b)
         plans.append(DrawPlan(k, _seed(spec, k), tables, tables, {**values, **solved}, {}, (), status,
                               spec.artefacts, spec.model, spec.keep_frames))
     return plans
+
+
+def _check_spp(where: str, a: ArtefactSettings, rig_b) -> None:
+    """``artefacts.spp`` within the laser pass's memory budget for this (binned) sensor (:mod:`sim.render_limits`)."""
+    from ..render_limits import check_laser_samples
+
+    if a.spp is not None:
+        try:
+            check_laser_samples(a.spp, rig_b.sensor.rows, rig_b.twin.bounces, "artefacts.spp")
+        except RenderError as exc:
+            raise _fail(where, str(exc)) from None
 
 
 def _seed(spec: StudySpec, k: int) -> int:
@@ -897,7 +1037,9 @@ def _tolerance_plans(spec: StudySpec, where: str) -> list[DrawPlan]:
     q = unit_sample(spec.method, len(spec.tolerances), spec.draws, spec.seed)
     nominal = spec.rig_tables
     known = _all_keys(nominal)
-    cal = calibration_options(binned_rig(rig_from_dict(nominal), spec.artefacts.binning))
+    nominal_b = binned_rig(rig_from_dict(nominal), spec.artefacts.binning)
+    _check_spp(where, spec.artefacts, nominal_b)       # rows and bounces are integers: never toleranced
+    cal = calibration_options(nominal_b)
     plans = []
     for k, row in enumerate(q):
         tables, values, dev = nominal, {}, {}

@@ -35,7 +35,7 @@ __all__ = ["PLOT_FORMATS", "add_force_option", "add_rig_options", "check_output"
 def add_rig_options(parser: argparse.ArgumentParser) -> None:
     """``--rig FILE.toml`` or ``--preset NAME`` (default: the paper rig)."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--rig", metavar="RIG.toml", help="rig file (TOML, see INTERFACE.md)")
+    group.add_argument("--rig", metavar="RIG.toml", help="rig file (TOML; keys in docs/reference/rig-keys.md)")
     group.add_argument("--preset", choices=PRESETS, help="built-in rig (default: paper)")
 
 

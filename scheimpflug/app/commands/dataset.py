@@ -30,8 +30,8 @@ def add_parser(sub):
 
     m = dsub.add_parser("make", help="make (or resume) a dataset from a spec",
                         description="Render every sample of SPEC.toml into DIR (resumable).")
-    m.add_argument("spec", metavar="SPEC.toml")
-    m.add_argument("--out", required=True, metavar="DIR")
+    m.add_argument("spec", metavar="SPEC.toml", help="the dataset spec (TOML: samples, rig, scenario, variations)")
+    m.add_argument("--out", required=True, metavar="DIR", help="dataset folder (created; a rerun resumes)")
     g = m.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=1, metavar="N",
                    help="1 = in this process (default); N >= 2 = a local Dask cluster of N processes")
@@ -49,15 +49,15 @@ def add_parser(sub):
                         description="Report missing, corrupt and extra files and frames listed twice in "
                                     "the index (the same file, or the same content under two names); "
                                     "exit 1 if any.")
-    v.add_argument("dir", metavar="DIR")
-    v.add_argument("--json", action="store_true")
+    v.add_argument("dir", metavar="DIR", help="the dataset folder")
+    v.add_argument("--json", action="store_true", help="print the counts as one JSON object")
     v.add_argument("--quiet", action="store_true", help="no progress bar")
     v.set_defaults(func=_verify)
 
     s = dsub.add_parser("score", help="score a stripe detector against the per-row truth",
                         description="Bias, RMS, p99, outlier/missed/false rates of a detector, with "
                                     "breakdowns; compared with a baseline for CI.")
-    s.add_argument("dir", metavar="DIR")
+    s.add_argument("dir", metavar="DIR", help="the dataset folder")
     s.add_argument("--detector", required=True, metavar="NAME|MODULE:FUNCTION",
                    help="cog, gaussian3, blais-rioux, edge, or your own MODULE:FUNCTION / FILE.py:FUNCTION")
     s.add_argument("--baseline", metavar="NAME|MODULE:FUNCTION", help="detector to compare with")
@@ -70,13 +70,14 @@ def add_parser(sub):
                    help="allowed increase of the missed, outlier and false-detection rates over the "
                         "baseline's, as a fraction of the rows (default 0: any increase regresses)")
     g = s.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=1, metavar="N")
-    g.add_argument("--scheduler", metavar="ADDRESS")
+    g.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="1 = in this process (default); N >= 2 = a local Dask cluster of N processes")
+    g.add_argument("--scheduler", metavar="ADDRESS", help="attach to a running Dask scheduler")
     s.add_argument("--where", action="append", default=[], metavar="COLUMN=VALUE",
                    help="score only the frames whose index rows match (repeatable), e.g. "
                         "materials=cardboard or scenario=rotary")
     s.add_argument("--plot", metavar="FILE.png", help="error vs distance and vs angle of incidence")
-    s.add_argument("--json", action="store_true")
+    s.add_argument("--json", action="store_true", help="print the scores as one JSON object")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=_score)
     return p

@@ -45,7 +45,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "design",
         help="design report of a rig (tilt, hinge, ranges, resolution) or an inverse design",
         description="Print the hinge-rule design of a rig: sensor tilt, hinge, calibration constants, "
-                    "depth and height ranges, resolutions (DESIGN.md §3, paper Eqs. 5, 11, 12). "
+                    "depth and height ranges, resolutions (docs/explanation/design-notes.md §3, paper Eqs. 5, 11, 12). "
                     "With --near-mm/--far-mm, find instead the sheet angle or baseline, tilt and sensor "
                     "placement that cover a wanted working range with the rig's lens and sensor.",
     )

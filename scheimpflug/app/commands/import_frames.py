@@ -1,4 +1,4 @@
-"""`scheimpflug import FRAMES... --out DIR`: real PNG/TIFF frames + positions → a frame folder."""
+"""`scheimpflug import FRAMES… --out DIR`: real PNG/TIFF frames + positions → a frame folder."""
 
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ def add_parser(sub):
     p = sub.add_parser("reconstruct", help="rotary scan → point cloud in the part frame (PLY)",
                        description="Extract the stripe of every frame of a rotary scan, map it "
                                    "to the light sheet with the calibration (paper Eqs. 11–12) and "
-                                   "rotate it into the part frame (INTERFACE.md stage conventions). "
+                                   "rotate it into the part frame (docs/reference/interface.md stage conventions). "
                                    "Writes a binary PLY coloured by height with per-point angle, "
                                    "row, intensity and frame; with --model also a watertight mesh of "
                                    "the part and its volume, area and sections.")

@@ -1,6 +1,6 @@
 """`scheimpflug render SCENARIO --out DIR`: the digital twin writes a frame folder.
 
-Scenarios (INTERFACE.md): ``calibration`` (plate on the translation stage),
+Scenarios (docs/reference/interface.md): ``calibration`` (plate on the translation stage),
 ``blocker`` (thin plate on the rotary axis), ``rotary`` (a part on the rotary
 stage).  The folder layout, the truth files and the restart rules are
 documented in :mod:`sim.writer` and :mod:`sim.truth`.

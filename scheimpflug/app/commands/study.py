@@ -21,7 +21,8 @@ __all__ = ["add_parser"]
 
 
 def _common(p) -> None:
-    p.add_argument("spec", metavar="SPEC.toml")
+    p.add_argument("spec", metavar="SPEC.toml",
+                   help="the study spec (TOML: [study], [rig], [sweep] or [tolerance], [artefacts])")
     p.add_argument("--out", required=True, metavar="DIR", help="study folder (created; a rerun resumes)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, default=1, metavar="N",
