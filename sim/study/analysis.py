@@ -14,6 +14,22 @@ use the analytic response of each key (a quadratic through its finite-difference
 points; moments over the tolerance's distribution by quadrature): they describe
 the geometry and leave out the extraction noise, which the Monte Carlo shows.
 
+Measured draws.  A draw that could not measure (``not-measured``: a plate or an
+artefact out of view), or that measured but gave no value of an output, is
+counted per output (``missing``: which draws, and why) and left out of that
+output's statistics, never silently.  Draws with the same deviations and the same
+render seed are the same rig measured twice (Saltelli's scheme repeats rows for
+one tolerance): they count once.  The rules (:data:`MIN_DISTINCT_DRAWS`):
+
+* a σ needs at least 3 distinct draws that measured the output (else None, with
+  the reason); Monte Carlo slopes need one more distinct draw than keys + 1;
+* the Monte Carlo ranking (Sobol / Morris indices, or a single tolerance's
+  100 % with common noise) needs *every* draw to measure the metric (the
+  estimators use the whole design; the draws that fail are not a random subset)
+  and at least 3 distinct draws, and a metric that varies; otherwise the ranking
+  says so, and ranks by the analytic first-order shares when the analytic
+  propagation is available, or not at all.
+
 Sweep
 -----
 The table of designs (closed forms and measured errors), the designs that
@@ -40,12 +56,15 @@ from scheimpflug.sensitivity import (
 from .outputs import OUTPUTS, output_label, unit_of
 from .spec import METRICS, StudySpec
 
-__all__ = ["Z95", "analyse_sweep", "analyse_tolerance", "best_designs", "table_rows", "tolerance_limit"]
+__all__ = ["MIN_DISTINCT_DRAWS", "Z95", "analyse_sweep", "analyse_tolerance", "best_designs", "describe_missing",
+           "metric_missing", "table_rows", "tolerance_limit"]
 
 #: Two-sided 95 % quantile of the normal distribution: the "95 % of builds" bound is |mean| + Z95·σ [-].
 Z95 = 1.959963984540054
 _QUADRATURE = 401       # quantile points of a tolerance's distribution in the limits' moments [-]
 _RANGE_SLACK_MM = 1e-3  # a design placed to cover near…far exactly covers it (rounding) [mm]
+#: Fewest distinct draws (rigs) measuring an output that give its σ, and a Monte Carlo ranking [-].
+MIN_DISTINCT_DRAWS = 3
 
 
 def _value(x) -> float:
@@ -84,18 +103,36 @@ def table_rows(spec: StudySpec, records: list[dict]) -> list[dict]:
     return rows
 
 
-def _stats(y: np.ndarray) -> dict:
-    y = y[np.isfinite(y)]
-    if y.size == 0:
-        return {"n": 0}
-    p = np.percentile(y, [5, 50, 95])
-    return {"n": int(y.size), "mean": float(y.mean()), "std": float(y.std(ddof=1)) if y.size > 1 else 0.0,
-            "min": float(y.min()), "p5": float(p[0]), "median": float(p[1]), "p95": float(p[2]),
-            "max": float(y.max())}
+def _first_of_each_rig(records: list[dict]) -> np.ndarray:
+    """True for the first draw of each distinct (deviations, seed): a repeated rig counts once."""
+    seen, first = set(), []
+    for r in records:
+        key = (tuple(sorted((k, float(v)) for k, v in r["deviations"].items())), r["seed"])
+        first.append(key not in seen)
+        seen.add(key)
+    return np.array(first, dtype=bool)
 
 
-def _slopes(x: np.ndarray, y: np.ndarray, keys: list[str]) -> dict:
-    ok = np.isfinite(y)
+def _stats(y: np.ndarray, first: np.ndarray, draws: list[int]) -> dict:
+    measured = np.isfinite(y)
+    use = measured & first
+    missing = [int(d) for d, ok in zip(draws, measured) if not ok]
+    base = {"n": int(use.sum()), "measured": int(measured.sum()), "missing": missing}
+    if not use.any():
+        return base
+    v = y[use]
+    p = np.percentile(v, [5, 50, 95])
+    out = {**base, "mean": float(v.mean()), "std": float(v.std(ddof=1)) if v.size >= MIN_DISTINCT_DRAWS else None,
+           "min": float(v.min()), "p5": float(p[0]), "median": float(p[1]), "p95": float(p[2]),
+           "max": float(v.max())}
+    if out["std"] is None:
+        out["std_note"] = (f"no σ: {v.size} distinct draw(s) measured it ({int(measured.sum())} with repeats), "
+                           f"a σ needs at least {MIN_DISTINCT_DRAWS}")
+    return out
+
+
+def _slopes(x: np.ndarray, y: np.ndarray, keys: list[str], first: np.ndarray) -> dict:
+    ok = np.isfinite(y) & first
     if ok.sum() <= len(keys) + 1:
         return dict.fromkeys(keys)
     a = np.column_stack([np.ones(ok.sum()), x[ok]])
@@ -103,12 +140,20 @@ def _slopes(x: np.ndarray, y: np.ndarray, keys: list[str]) -> dict:
     return {k: float(c) for k, c in zip(keys, coef[1:])}
 
 
-def _indices(spec: StudySpec, q: np.ndarray, y: np.ndarray):
+def _indices(spec: StudySpec, q: np.ndarray, y: np.ndarray, first: np.ndarray):
+    """The Monte Carlo indices of one output and a note; None and the reason under the rules (module docstring)."""
+    bad = ~np.isfinite(y)
+    if bad.any():
+        return None, (f"{int(bad.sum())} of {y.size} draw(s) without this output: no Monte Carlo {spec.method} "
+                      "indices (they need every draw)")
+    distinct = np.unique(y[first]).size
+    if int(first.sum()) < MIN_DISTINCT_DRAWS:
+        return None, f"{int(first.sum())} distinct draw(s): no Monte Carlo indices (they need {MIN_DISTINCT_DRAWS})"
+    if distinct < 2:
+        return None, "the output takes one value over every draw: nothing to rank"
     if len(spec.keys) == 1 and spec.noise == "common" and spec.method == "sobol":
         # one tolerance, one noise seed: everything that varies between draws is that key's
         return [SensitivityIndex(spec.keys[0], 1.0, 1.0, 0.0, 0.0)], "a single tolerance with common noise: S1 = ST = 1"
-    if not np.all(np.isfinite(y)):
-        return None, f"{int((~np.isfinite(y)).sum())} draw(s) without this output: no {spec.method} indices"
     if spec.method == "sobol":
         return sobol_indices(spec.keys, y, spec.seed), ""
     return morris_indices(spec.keys, q, y, spec.seed), ""
@@ -139,20 +184,80 @@ def analyse_tolerance(spec: StudySpec, records: list[dict], analytic: dict | Non
     keys = spec.keys
     x = np.array([[r["deviations"][k] for k in keys] for r in recs], dtype=np.float64).reshape(len(recs), -1)
     q = np.array([r["unit"] for r in recs], dtype=np.float64).reshape(len(recs), -1)
+    first = _first_of_each_rig(recs)
+    draws = [r["draw"] for r in recs]
     outputs = {}
     for name in OUTPUTS:
         y = np.array([_value((r["outputs"] or {}).get(name)) for r in recs])
-        idx, note = _indices(spec, q, y)
-        outputs[name] = {"label": output_label(name), "unit": unit_of(name), "distribution": _stats(y),
-                         "slopes": _slopes(x, y, keys), "note": note,
+        idx, note = _indices(spec, q, y, first)
+        outputs[name] = {"label": output_label(name), "unit": unit_of(name), "distribution": _stats(y, first, draws),
+                         "slopes": _slopes(x, y, keys, first), "note": note,
                          "indices": None if idx is None else [s.to_json() for s in rank_indices(idx)]}
     metric = outputs[spec.metric]
     limits = {t.key: tolerance_limit(spec, analytic, t.key) for t in spec.tolerances} \
         if analytic and spec.max_error_mm else {}
+    missing = metric_missing(spec.metric, recs)
     return {"draws": len(recs), "draws_measured": int(sum(r["status"] == "ok" for r in recs)),
-            "outputs": outputs, "sensitivity": metric["indices"] or [], "limits": limits,
-            "ranking": _ranking(spec, metric, analytic, limits, len(recs)),
+            "draws_distinct": int(first.sum()), "metric_measured": len(recs) - len(missing),
+            "metric_missing": missing, "outputs": outputs, "sensitivity": metric["indices"] or [], "limits": limits,
+            "ranking": _ranking(spec, metric, analytic, limits, len(recs), missing),
             "comparison": _comparison(outputs, analytic)}
+
+
+def metric_missing(metric: str, records: list[dict]) -> list[dict]:
+    """The draws that did not give the metric, and why.
+
+    Parameters
+    ----------
+    metric : str
+        Output name (``SD_mm`` …).
+    records : list of dict
+        The draws' records (:func:`sim.study.draw.run_draw`).
+
+    Returns
+    -------
+    list of dict
+        ``draw``, ``status``, ``reason`` (the draw's own, or that it measured without this output), in
+        draw order.
+    """
+    out = []
+    for r in sorted(records, key=lambda r: r["draw"]):
+        if math.isfinite(_value((r["outputs"] or {}).get(metric))):
+            continue
+        reason = r["reason"] or (f"measured, but without a {metric}" if r["status"] == "ok" else r["status"])
+        out.append({"draw": int(r["draw"]), "status": r["status"], "reason": reason})
+    return out
+
+
+def describe_missing(metric: str, missing: list[dict], total: int, noun: str = "draws") -> str:
+    """One sentence: how many draws measured the metric, which did not and the commonest reason.
+
+    Parameters
+    ----------
+    metric : str
+        Output name.
+    missing : list of dict
+        :func:`metric_missing`.
+    total : int
+        Draws (designs) complete [-].
+    noun : str
+        ``draws`` or ``designs``.
+
+    Returns
+    -------
+    str
+        E.g. ``"2 of 6 draws measured the SD_mm; not draws 0, 3, 4, 5 (4 × only 0 usable …)"``;
+        "" when none is missing.
+    """
+    if not missing:
+        return ""
+    which = ", ".join(str(m["draw"]) for m in missing[:12]) + (", …" if len(missing) > 12 else "")
+    reasons: dict[str, int] = {}
+    for m in missing:
+        reasons[m["reason"]] = reasons.get(m["reason"], 0) + 1
+    top, count = max(reasons.items(), key=lambda kv: kv[1])
+    why = f"{count} × {top}" + (f"; {len(reasons) - 1} other reason(s)" if len(reasons) > 1 else "")
+    return f"{total - len(missing)} of {total} {noun} measured the {metric}; not {noun} {which} ({why})"
 
 
 def _comparison(outputs: dict, analytic: dict | None) -> dict:
@@ -174,7 +279,8 @@ def _comparison(outputs: dict, analytic: dict | None) -> dict:
 def _share(spec: StudySpec, entry: dict, analytic: dict | None, n: int) -> tuple[float | None, str]:
     if entry.get("first_order") is not None:
         conf = entry.get("first_order_conf") or 0.0
-        how = f"Sobol first-order index, {n} draws"
+        how = f"Sobol first-order index, {n} draws" if len(spec.keys) > 1 or spec.noise != "common" else \
+            f"the only tolerance, with common noise, {n} draws"
         if conf > 0.1:
             how += f"; ±{100 * conf:.0f} % at 95 %: more draws would settle it"
         return entry["first_order"], how
@@ -183,14 +289,24 @@ def _share(spec: StudySpec, entry: dict, analytic: dict | None, n: int) -> tuple
     return None, ""
 
 
-def _ranking(spec: StudySpec, metric: dict, analytic: dict | None, limits: dict, n: int) -> list[str]:
+def _ranking(spec: StudySpec, metric: dict, analytic: dict | None, limits: dict, n: int,
+             missing: list[dict]) -> list[str]:
     tol = {t.key: t for t in spec.tolerances}
     order = metric["indices"] or []
-    if not order and analytic:
-        order = sorted(({"key": k, "first_order": None} for k in spec.keys),
-                       key=lambda e: -(analytic["shares"][spec.metric].get(e["key"]) or 0.0))
     label = METRICS[spec.metric]
     lines = []
+    if not order:
+        why = describe_missing(spec.metric, missing, n) or metric["note"]
+        shares = (analytic or {}).get("shares", {}).get(spec.metric, {})
+        if any(shares.get(k) is not None for k in spec.keys):
+            lines.append(f"no Monte Carlo ranking of the {label}: {why}; ranked by the analytic first-order "
+                         "shares (geometry only) instead")
+            order = sorted(({"key": k, "first_order": None} for k in spec.keys),
+                           key=lambda e: -(shares.get(e["key"]) or 0.0))
+        else:
+            instead = "the analytic propagation is not available" if not analytic else \
+                "the analytic propagation gives no first-order share either (the design does not measure at ±1 σ)"
+            return [f"not ranked: {why}; {instead}"]
     for entry in order:
         key, t = entry["key"], tol[entry["key"]]
         share, how = _share(spec, entry, analytic, n)
@@ -333,6 +449,16 @@ def best_designs(rows: list[dict], metric: str, near_mm: float | None = None, fa
     return [{c: r[c] for c in cols if c in r} for r in out]
 
 
+def _rows_missing(metric: str, rows: list[dict]) -> list[dict]:
+    out = []
+    for r in rows:
+        if r["status"] == "ok" and math.isfinite(r.get(metric, math.nan)):
+            continue
+        reason = r["reason"] or (f"measured, but without a {metric}" if r["status"] == "ok" else r["status"])
+        out.append({"draw": int(r["draw"]), "status": r["status"], "reason": reason})
+    return out
+
+
 def analyse_sweep(spec: StudySpec, rows: list[dict], near_mm: float | None = None, far_mm: float | None = None,
                   max_error_mm: float | None = None) -> dict:
     """Counts, the best designs under the constraints and the Pareto front of a sweep (module docstring).
@@ -349,7 +475,9 @@ def analyse_sweep(spec: StudySpec, rows: list[dict], near_mm: float | None = Non
     Returns
     -------
     dict
-        ``designs``, ``measured``, ``not_measured`` (draw, reason), ``constraints``, ``best``
+        ``designs``, ``measured`` (designs with the metric), ``not_measured`` (draw, reason: the designs
+        that could not measure), ``metric_missing`` (every design without the metric, measured or not,
+        with the reason; empty for a sweep of closed forms only), ``constraints``, ``best``
         (:func:`best_designs`), ``pareto`` (draws on the front of depth range against |metric|,
         by increasing error).
     """
@@ -360,6 +488,7 @@ def analyse_sweep(spec: StudySpec, rows: list[dict], near_mm: float | None = Non
     return {"designs": len(rows), "measured": int(np.isfinite(err).sum()),
             "not_measured": [{"draw": r["draw"], "status": r["status"], "reason": r["reason"]}
                              for r in rows if r["status"] != "ok"],
+            "metric_missing": _rows_missing(metric, rows) if spec.artefacts.kinds else [],
             "constraints": {"near_mm": near_mm, "far_mm": far_mm, "max_error_mm": max_error_mm, "metric": metric},
             "best": best_designs(rows, metric, near_mm, far_mm, max_error_mm),
             "pareto": [int(rows[i]["draw"]) for i in front]}
