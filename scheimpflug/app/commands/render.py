@@ -54,9 +54,10 @@ def add_parser(sub):
     add_rig_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output frame folder")
     p.add_argument("--seed", type=integer(0, 2**31 - 1), default=0, help="run seed (default 0)")
-    p.add_argument("--spp", type=integer(1, 10**6), default=None,
+    p.add_argument("--spp", type=integer(1, 2**31 - 1), default=None,
                    help="laser samples per sensor row of the light tracer "
-                        "(RenderSettings.samples_per_row; default: the renderer's)")
+                        "(RenderSettings.samples_per_row; default: the renderer's 32); at most 8 GB of "
+                        "laser samples per frame: spp x rows <= 3.8e8 with 1 bounce, 3.8e7 with more")
     p.add_argument("--bounces", type=integer(1, 64), default=None, metavar="N",
                    help="light-path depth of the laser: 1 = first surface only, N > 1 follows "
                         "inter-reflections (default: the rig's [twin] bounces: 1 in paper, 3 in paper-as-built)")
@@ -167,6 +168,14 @@ def _rig(args):
         raise ScheimpflugError(f"--binning {args.binning}: {exc}") from None
 
 
+def _check_spp(spp: int | None, rig) -> None:
+    """Refuse an ``--spp`` whose laser samples per frame would not fit in memory (:mod:`sim.render_limits`)."""
+    from sim.render_limits import check_laser_samples
+
+    if spp is not None:
+        check_laser_samples(spp, rig.sensor.rows, rig.twin.bounces, "--spp")
+
+
 def _check_out(path: str) -> None:
     """Fail before any rendering when ``--out`` cannot be a writable folder."""
     from sim.jobfolder import check_writable
@@ -183,6 +192,7 @@ def _check_job(args, rig, opts: dict) -> int:
     import shutil
     from pathlib import Path
 
+    from sim.render_limits import laser_memory_bytes
     from sim.scenarios import frame_count
     from sim.workers import auto_workers
     from sim.writer import estimate_job
@@ -194,8 +204,9 @@ def _check_job(args, rig, opts: dict) -> int:
         one = estimate_job(rig, frames, opts["truth_pixels_every"]).memory_bytes
         workers = auto_workers(rig, frames, worker_bytes=one, ram_bytes=ram)
     job = estimate_job(rig, frames, opts["truth_pixels_every"], workers)
-    if job.memory_bytes > ram:
-        raise RenderError(f"this job needs about {job.memory_bytes / 1e9:.3g} GB of memory "
+    laser = laser_memory_bytes(args.spp or 32, rig.sensor.rows, rig.twin.bounces) * max(workers, 1)
+    if job.memory_bytes + laser > ram:
+        raise RenderError(f"this job needs about {(job.memory_bytes + laser) / 1e9:.3g} GB of memory "
                           f"({job.describe()}), this machine has {ram / 1e9:.3g} GB: use --binning")
     probe = Path(args.out)
     while not probe.exists() and probe != probe.parent:
@@ -225,6 +236,7 @@ def _run(args) -> int:
     if args.spp is not None and args.spp < 1:
         raise ScheimpflugError(f"--spp {args.spp}: must be >= 1")
     rig = _rig(args)
+    _check_spp(args.spp, rig)
     workers = _check_job(args, rig, opts)
     _check_out(args.out)
 

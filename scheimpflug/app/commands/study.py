@@ -87,11 +87,15 @@ def _check_constraints(args) -> None:
 
 
 def _sweep(args) -> int:
+    from sim.study.analysis import describe_missing
+
     _check_constraints(args)
     result, report = _run(args, "sweep", near_mm=args.near_mm, far_mm=args.far_mm, max_error_mm=args.max_error_mm)
     s = result.summary
     metric = s["metric"]
-    text = [f"{s['designs']} designs, {s['measured']} measured; report: {report}"]
+    text = [f"{s['designs']} designs, {s['measured']} measured the {metric}; report: {report}"]
+    if s.get("metric_missing"):
+        text.append(describe_missing(metric, s["metric_missing"], s["designs"], "designs"))
     if s["best"]:
         text.append(f"best designs (|{metric}| ascending, constraints {s['constraints']}):")
         for b in s["best"][:5]:
@@ -104,20 +108,27 @@ def _sweep(args) -> int:
     print("\n".join(text), file=sys.stderr if args.json else sys.stdout)
     if args.json:
         print_json({"kind": "sweep", "out": str(args.out), "report": str(report),
-                    **{k: s[k] for k in ("designs", "measured", "best", "pareto", "not_measured", "constraints",
-                                         "failures", "metric")}})
+                    **{k: s[k] for k in ("designs", "measured", "best", "pareto", "not_measured", "metric_missing",
+                                         "constraints", "failures", "metric")}})
     return 1 if s["failures"] else 0
 
 
 def _tolerance(args) -> int:
+    from sim.study.analysis import describe_missing
+
     result, report = _run(args, "tolerance")
     s = result.summary
-    print("\n".join([f"{s['draws']} draws; report: {report}", *s.get("ranking", [])]),
+    missing = describe_missing(s["metric"], s.get("metric_missing") or [], s["draws"])
+    head = f"{s['draws']} of {s['planned']} draws complete, " + (
+        missing or f"all measured the {s['metric']}") + f"; report: {report}"
+    print("\n".join([head, *s.get("ranking", [])]),
           file=sys.stderr if args.json else sys.stdout)
     if args.json:
         an = s.get("analytic") or {}
         analytic = {k: v for k, v in an.items() if k != "responses"}
         print_json({"kind": "tolerance", "out": str(args.out), "report": str(report), "draws": s["draws"],
+                    "planned": s["planned"], "draws_measured": s.get("draws_measured", 0),
+                    "metric_measured": s.get("metric_measured", 0), "metric_missing": s.get("metric_missing", []),
                     "sensitivity": s.get("sensitivity", []), "ranking": s.get("ranking", []),
                     "limits": s.get("limits", {}), "metric": s["metric"],
                     "outputs": {k: v["distribution"] for k, v in s.get("outputs", {}).items()},
