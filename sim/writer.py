@@ -1,4 +1,4 @@
-"""The frame folder of INTERFACE.md: render a scenario frame by frame, resumable.
+"""The frame folder of docs/reference/interface.md: render a scenario frame by frame, resumable.
 
 Layout::
 

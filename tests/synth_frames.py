@@ -1,11 +1,11 @@
-"""Synthetic Scheimpflug frames from the closed forms of DESIGN.md §3 (test helper).
+"""Synthetic Scheimpflug frames from the closed forms of docs/explanation/design-notes.md §3 (test helper).
 
 Independent of the geometry core and of the digital twin: a stripe is a
 pixel-integrated Gaussian across columns, a plate edge a pixel-integrated,
 Gaussian-blurred step along rows; photo-electrons get Poisson shot noise and
 Gaussian read noise, then are quantised to 12 bit in a uint16 array.
 
-Paper-rig nominal numbers (DESIGN.md §3): f = 55 mm, d = 150 mm,
+Paper-rig nominal numbers (docs/explanation/design-notes.md §3): f = 55 mm, d = 150 mm,
 tan φ = 0.2075, p = 5.86 µm → tan β = f / (d − f tan φ), F² = −f² / (p cos φ sin β),
 C = f / sin β; u_h = 3196, v_h = 771, d0 = −466 mm.
 """

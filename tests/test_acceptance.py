@@ -57,7 +57,7 @@ def test_plane_with_known_flatness(rng):
 
 
 def test_measuring_volume_of_the_paper_rig():
-    """Closed forms (DESIGN.md §3): D 447.2 … 721.5 mm, axis at 645.45 mm → R = 76.05 mm."""
+    """Closed forms (docs/explanation/design-notes.md §3): D 447.2 … 721.5 mm, axis at 645.45 mm → R = 76.05 mm."""
     from scheimpflug.model.rig import load_preset
     from sim.acceptance import measuring_volume
 

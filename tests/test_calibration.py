@@ -26,7 +26,7 @@ from scheimpflug.calibration import (
 )
 from scheimpflug.errors import CalibrationError
 
-# the paper's own numbers (Section 3; DESIGN.md §3)
+# the paper's own numbers (Section 3; docs/explanation/design-notes.md §3)
 PAPER = {"u_h": 3196.0, "v_h": 771.0, "F2": -1.446e6, "C": 145.91, "d0": -466.0}
 
 

@@ -3,7 +3,7 @@
 References are independent of the renderer: the étendue integral by Gauss quadrature, the
 configuration factor of a rectangle (Howell C-11), the thin-lens circle of confusion of
 scheimpflug.model.camera (rim rays), and Mitsuba's ``thinlens`` sensor with its ``path``
-integrator and ``checkerboard`` texture.  Poses are built here from the INTERFACE.md
+integrator and ``checkerboard`` texture.  Poses are built here from the docs/reference/interface.md
 conventions.
 """
 

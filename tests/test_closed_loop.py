@@ -7,7 +7,7 @@ numbers; the cylinder's smooth part reconstructs within 0.05 mm RMS of the
 mesh and its fitted diameter within 0.05 mm of 100 mm.  The cylinder is scanned
 at 10° steps here (36 frames) to keep the suite short; every profile is a
 full-resolution frame, so the per-point accuracy is the one of the 0.5° scan.
-The truth values come from the rig's closed forms (DESIGN.md §3), not from
+The truth values come from the rig's closed forms (docs/explanation/design-notes.md §3), not from
 the pipeline.
 """
 

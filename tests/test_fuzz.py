@@ -1,7 +1,7 @@
 """Property-based fuzzing of the command line (issue 12): never a traceback, never a silent NaN.
 
 Every property runs the real ``scheimpflug`` entry point (:func:`scheimpflug.app.cli.main`) in
-process on generated input and asserts the contract of INTERFACE.md: exit status 0 with finite
+process on generated input and asserts the contract of docs/reference/interface.md: exit status 0 with finite
 numbers where numbers are promised, or exit status 2 with exactly one error line on stderr.  An
 unexpected exception ends in the CLI's last-resort handler (exit status 70, "internal error …
 please report"), which these tests count as a failure.

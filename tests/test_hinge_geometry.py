@@ -1,4 +1,4 @@
-"""Hinge-rule geometry against closed forms (DESIGN.md §3, paper Eqs. 1, 5, 6, 8, 11–14).
+"""Hinge-rule geometry against closed forms (docs/explanation/design-notes.md §3, paper Eqs. 1, 5, 6, 8, 11–14).
 
 The expected values are computed here from the textbook formulas (Gaussian
 lens equation, Newton's form), independently of scheimpflug.model.hinge/camera.
@@ -167,7 +167,7 @@ def test_sheet_parallel_to_axis_phi_zero():
     assert math.isclose(g.F2_px_mm, -55.0**2 / (5.86e-3 * math.sin(math.atan(55 / 150))), rel_tol=1e-14)
 
 
-# Nominal column of DESIGN.md §3 (value, significant figures given there)
+# Nominal column of docs/explanation/design-notes.md §3 (value, significant figures given there)
 NOMINAL = {
     "tilt_deg": (21.646, 5), "tan_beta": (0.39686, 5), "F2_px_mm": (-1.4292e6, 5), "C_mm": (149.10, 5),
     "depth_range_mm": (274.3, 4), "distance_resolution_center_mm": (0.213, 3),

@@ -8,7 +8,7 @@ import pytest
 from scheimpflug.model.hinge import stage_from_pixel as sheet_from_pixel
 from scheimpflug.reconstruct import PointCloud, part_from_sheet, points_from_pixels, reconstruct_profiles
 
-# paper-rig nominal constants (DESIGN.md §3), independent of the code under test
+# paper-rig nominal constants (docs/explanation/design-notes.md §3), independent of the code under test
 CAL = types.SimpleNamespace(hinge_u_px=3196.0, hinge_v_px=771.0, F2_px_mm=-1.4292e6,
                             d0_mm=-466.0, C_mm=149.10)
 AXIS_MM = 179.45

@@ -1,6 +1,6 @@
 """Renderer core (sim.render / sim.scene / sim.lightsheet): checks against closed forms.
 
-Poses are built here from the INTERFACE.md conventions (not taken from sim.stages) so the
+Poses are built here from the docs/reference/interface.md conventions (not taken from sim.stages) so the
 renderer is checked against an independent statement of where the plate is.
 """
 
@@ -30,7 +30,7 @@ def plate_mesh(height_mm=89.0, width_mm=200.0, thickness_mm=5.0, z0_mm=0.0):
 
 
 def rig_from_plate(rig, distance_mm, table_z_mm=None):
-    """[e_p, n, e_z | H + D·e_p + z_table·e_z] (INTERFACE.md translation stage)."""
+    """[e_p, n, e_z | H + D·e_p + z_table·e_z] (docs/reference/interface.md translation stage)."""
     g = hinge_geometry(rig)
     z = rig.stage.calibration_table_z_mm if table_z_mm is None else table_z_mm
     m = np.eye(4)

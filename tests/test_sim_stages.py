@@ -1,4 +1,4 @@
-"""Stage transforms against the INTERFACE.md conventions (known truth)."""
+"""Stage transforms against the docs/reference/interface.md conventions (known truth)."""
 
 import math
 

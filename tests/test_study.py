@@ -164,7 +164,7 @@ def test_tolerance_draws_are_seeded_and_magnitudes_are_folded(tmp_path):
 
 
 def test_tan_phi_sweep_reproduces_the_closed_forms(tmp_path):
-    """Ranges and resolutions of each design from DESIGN.md §3, computed here independently."""
+    """Ranges and resolutions of each design from docs/explanation/design-notes.md §3, computed here independently."""
     from sim.study import load_study_spec, run_study
 
     (tmp_path / "s.toml").write_text('[rig]\npreset = "paper"\n[sweep]\n"laser.tan_phi" = [0.1, 0.2075, 0.3]\n'
