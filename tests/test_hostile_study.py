@@ -162,6 +162,22 @@ def test_a_metric_that_never_varies_is_not_ranked_as_100_percent(tmp_path):
     assert s["sensitivity"] == [] and "takes one value over every draw" in s["ranking"][0]
 
 
+def test_a_study_where_no_draw_measured_still_writes_its_report(tmp_path):
+    """Every draw not measured: the report says so (it was an internal error in the histograms)."""
+    from scheimpflug.app.study_report import write_study_report
+    from sim.study import StudyResult
+    from sim.study.analysis import analyse_tolerance, table_rows
+
+    spec = _spec(tmp_path, TOLERANCE, "tolerance")
+    recs = _records([None] * 6)
+    summary = {"kind": "tolerance", "name": spec.name, "planned": 6, "failures": [], "metric": "SD_mm",
+               "wall_s": 1.0, "cpu_s_draws": 6.0, "analytic": None, **analyse_tolerance(spec, recs, None)}
+    res = StudyResult(tmp_path, spec, recs, table_rows(spec, recs), summary)
+    text = write_study_report(res, tmp_path).read_text()
+    assert "6 of 6 complete, 0 of 6 draws measured the SD_mm; not draws 0, 1, 2, 3, 4, 5" in text
+    assert "not ranked" in text and not (tmp_path / "distributions.png").exists()
+
+
 def test_a_sweep_names_the_designs_without_its_metric(tmp_path):
     from sim.study.analysis import analyse_sweep
 
