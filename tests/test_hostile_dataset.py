@@ -264,6 +264,17 @@ def test_a_zero_rotary_step_is_one_error(tmp_path):
         load_spec(tmp_path / "s.toml")
 
 
+def test_an_spp_beyond_the_memory_budget_is_refused_at_the_spec(tmp_path):
+    """Before: accepted at the spec; each sample's renderer then failed (one warning per sample and try)."""
+    from sim.dataset import load_spec
+
+    (tmp_path / "s.toml").write_text(SPEC + "spp = 100000000\n")
+    with pytest.raises(DatasetError, match=r"scenario.spp = 100000000: .* at most scenario.spp = "):
+        load_spec(tmp_path / "s.toml")
+    (tmp_path / "ok.toml").write_text(SPEC + "spp = 64\n")
+    assert load_spec(tmp_path / "ok.toml").scenario["spp"] == 64
+
+
 # ------------------------------------------------------------------ failures in the detector and on Dask
 
 

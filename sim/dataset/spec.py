@@ -67,6 +67,7 @@ from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig, read_toml, rig_from_dict, rig_to_dict
 
 from ..materials import MaterialSettings
+from ..render_limits import check_laser_samples
 
 __all__ = [
     "DatasetSpec",
@@ -347,7 +348,25 @@ def parse_spec(raw: dict, folder: str | os.PathLike = ".", where: str = "spec",
                        scenario=scenario, materials=materials,
                        variation={"rig": rig_var, "scenario": scen_var, "materials": mat_var})
     _check_parts(spec, where)
+    _check_spp(spec, where)
     return spec
+
+
+def _check_spp(spec: DatasetSpec, where: str) -> None:
+    """The largest laser sample count the spec can draw fits the renderer's memory (before any sample)."""
+    def extreme(key, pick):
+        values = [spec.scenario[key]] if key in spec.scenario else []
+        if key in spec.variation["scenario"]:
+            values += [v for v in _possible_values(spec.variation["scenario"][key]) if isinstance(v, (int, float))]
+        return pick(values) if values else None
+
+    spp, binning = extreme("spp", max), extreme("binning", min) or 1
+    if spp is None:
+        return
+    rows = max(1, int(spec.rig["sensor"]["rows"]) // int(binning))
+    bounces = int(spec.rig.get("twin", {}).get("bounces", 1))
+    check_laser_samples(int(spp), rows, bounces, name="scenario.spp",
+                        error=lambda msg: _fail(where, msg))
 
 
 def _check_parts(spec: DatasetSpec, where: str) -> None:
