@@ -37,10 +37,12 @@ is light-traced by :mod:`sim.render`).  Per frame and pixel, ``spp`` samples:
    ``electrons_per_watt``).  The sensor model (:mod:`sim.sensor`) then adds its
    noise as for any frame.
 
-Sampling: the samples of a pixel are the first ``spp`` points of an
-8-dimensional Kronecker (R₈) sequence (pixel square, aperture disc, flood-light
-square, BSDF), shifted by a random offset per pixel (Cranley–Patterson
-rotation, from a PCG32 stream seeded by the frame seed and the pixel index);
+Sampling: each of a pixel's four sample pairs (pixel square, aperture disc,
+flood-light square, BSDF) runs through the ``spp`` points of the R₂ lattice
+{frac(i·α + s)} (Roberts' plastic-number sequence), with a random shift s
+(Cranley–Patterson rotation) and a random index permutation per pixel and pair
+(from a PCG32 stream seeded by the frame seed and the pixel index), so that
+every pair is stratified over its square and the pairs are combined at random;
 deeper vertices draw from PCG32.  One sample per pixel is traced per kernel
 launch (``spp`` launches of one compiled kernel: the seed, the pass index, the
 scene transform and the light levels are opaque values), accumulated in
@@ -75,8 +77,10 @@ __all__ = [
     "DEFAULT_SPP",
     "CameraPass",
     "CameraSettings",
+    "camera_pass_of",
     "kronecker_constants",
     "sensor_window",
+    "uses_camera_pass",
 ]
 
 #: Samples per pixel where a camera pass is needed and the rig asks for none ([twin] camera_spp = 0).
@@ -84,7 +88,9 @@ DEFAULT_SPP = 16
 
 PLANCK_J_S = 6.62607015e-34
 LIGHT_SPEED_M_S = 299792458.0
-_DIMS = 8
+_DIMS = 2
+_PRIMES = (3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97, 101,
+           103, 107, 109, 113, 127, 131, 137, 139, 149, 151, 157, 163, 167, 173, 179, 181, 191, 193, 197, 199)
 
 
 def kronecker_constants(dims: int = _DIMS) -> np.ndarray:
@@ -92,8 +98,8 @@ def kronecker_constants(dims: int = _DIMS) -> np.ndarray:
 
     Parameters
     ----------
-    dims : int, default 8
-        Dimension d [-]; φ_d is the real root > 1 of x^(d+1) = x + 1.
+    dims : int, default 2
+        Dimension d [-]; φ_d is the real root > 1 of x^(d+1) = x + 1 (d = 2: the plastic number).
 
     Returns
     -------
@@ -105,6 +111,46 @@ def kronecker_constants(dims: int = _DIMS) -> np.ndarray:
         phi = (1.0 + phi) ** (1.0 / (dims + 1))
     alpha = np.array([(phi ** -(j + 1)) % 1.0 for j in range(dims)])
     return np.round(alpha * 2**32).astype(np.uint64) & 0xFFFFFFFF
+
+
+def uses_camera_pass(rig: Rig) -> bool:
+    """Whether a rig's frames take their non-laser light from the camera pass.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    bool
+        True when ``[twin] camera_spp`` > 0 or the rig has a flood light
+        (``[environment] flood_irradiance_w_m2`` > 0); else the coarse ambient pass of
+        :mod:`sim.render` lights the frames, as it always did.
+    """
+    return rig.twin.camera_spp > 0 or rig.environment.flood_irradiance_w_m2 > 0
+
+
+def camera_pass_of(rig: Rig, sim_scene, pixel_filter: str = "tent") -> CameraPass:
+    """The camera pass a rig's frames use (:func:`uses_camera_pass`).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument: ``[twin] camera_spp`` (0 = :data:`DEFAULT_SPP`) and ``bounces``.
+    sim_scene : SimScene
+        The scene.
+    pixel_filter : {"tent", "box"}
+        The pixel response, the laser pass's (:class:`sim.render.RenderSettings`).
+
+    Returns
+    -------
+    CameraPass
+        The pass.
+    """
+    settings = CameraSettings(spp=rig.twin.camera_spp or DEFAULT_SPP, bounces=rig.twin.bounces,
+                              pixel_filter=pixel_filter)
+    return CameraPass(rig, sim_scene, settings)
 
 
 def sensor_window(pose: SensorPose, u0: int, v0: int, columns: int, rows: int, scale: int = 1) -> SensorPose:
@@ -232,7 +278,9 @@ class CameraPass:
         self.channel = channel_for_wavelength(rig.laser.wavelength_nm)
         self.flood = flood_light(rig) if isinstance(flood, str) and flood == "rig" else flood
         self.env_radiance_w_m2_sr = rig.environment.ambient_irradiance_w_m2 / math.pi
-        self._alpha = [int(a) for a in kronecker_constants()]
+        self._alpha = [int(a) for a in kronecker_constants(2)]      # the R₂ lattice of every sample pair
+        self._primes_list = [p for p in _PRIMES if self.settings.spp % p][:32]
+        self._primes = mi.UInt32(self._primes_list)
         self.timings = {"trace": 0.0, "readout": 0.0}
 
     # ------------------------------------------------------------ public
@@ -303,14 +351,24 @@ class CameraPass:
         return acc
 
     def _samples(self, key_dr, k):
-        """The pixel's 8 sample coordinates of pass k (shifted R₈ lattice) and a PCG32 for the rest."""
-        mi = self._mi
+        """The pixel's 8 sample coordinates of pass k (module docstring) and a PCG32 for the rest.
+
+        Four pairs (pixel, aperture, flood light, BSDF), each the point σ(k) of the R₂ lattice
+        {frac(i·α + s)}, i < spp, with its own random shift s and index permutation
+        σ(k) = (a·k + b) mod spp (a a prime not dividing spp) per pixel: after the last pass
+        every pair holds each lattice point once, and the pairs are paired at random.
+        """
+        mi, dr = self._mi, self._dr
         n = self.shape[0] * self.shape[1]
-        shift_rng = mi.PCG32(n, key_dr, mi.UInt64(0x2545F4914F6CDD1D))
+        spp = self.settings.spp
+        per_pixel = mi.PCG32(n, key_dr, mi.UInt64(0x2545F4914F6CDD1D))
         u = []
-        for a in self._alpha:
-            s = shift_rng.next_uint32()
-            u.append(mi.Float((s + k * a) >> 8) * (1.0 / (1 << 24)))
+        for _ in range(4):
+            a = dr.gather(mi.UInt32, self._primes, per_pixel.next_uint32() % len(self._primes_list))
+            index = (a * k + per_pixel.next_uint32() % spp) % spp
+            for alpha in self._alpha:
+                shift = per_pixel.next_uint32()
+                u.append(mi.Float((shift + index * alpha) >> 8) * (1.0 / (1 << 24)))
         rng = mi.PCG32(n, key_dr ^ mi.UInt64(0xA0761D6478BD642F), mi.UInt64(k) * 0x9E3779B97F4A7C15 + 1)
         return u, rng
 

@@ -700,6 +700,8 @@ class Renderer:
         if self.transport.has_media:
             si = self.transport._outside_frame(si, ray_s.d, si.is_valid())
         f_cos = si.bsdf().eval(ctx, si, si.to_local(wo), ok)[self.channel]
+        if self.scene.textures:     # a printed pattern: its albedo map (sim.textures)
+            f_cos = f_cos * self.scene.albedo_dr(si)
         ok &= ~self.scene.scene.ray_test(si.spawn_ray_to(to_scene @ a), ok)
         value = dr.select(ok, flux * f_cos * geo, 0.0)
         contrast = None
@@ -767,6 +769,8 @@ class Renderer:
             smp = [mi.sample_tea_float32(s, i + 3 * k + c) for c in range(3)]
             _, weight = bsdf.sample(ctx, si, smp[0], mi.Point2f(smp[1], smp[2]), valid)
             albedo += dr.select(valid, weight[self.channel], 0.0)
+        if self.scene.textures:
+            albedo = albedo * self.scene.albedo_dr(si)
         radiance = albedo * (e_amb / (math.pi * k_n))  # [W/(m²·sr)]
         coarse = (np.asarray(radiance, np.float64) * self._amb_e_per_radiance).astype(np.float32)
         nr, nc = self._amb_grid

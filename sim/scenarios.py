@@ -84,13 +84,14 @@ __all__ = [
     "calibration_scenario",
     "frame_count",
     "frame_draws",
+    "frame_errors",
     "frame_seed",
     "load_assembly",
     "reuse_assemblies",
     "rotary_scenario",
 ]
 
-SCENARIOS = ("blocker", "calibration", "rotary")
+SCENARIOS = ("blocker", "calibration", "rotary", "target")
 
 
 def frame_seed(seed: int, index: int) -> int:
@@ -176,6 +177,15 @@ class FrameSpec:
     actual : dict or None, default None
         JSON-ready realised values of the rig's error models in this frame
         (the manifest's ``actual`` entry); None for an ideal rig.
+    light : {"flood", "laser", "both"} or None, default None
+        The frame's lighting (scenario ``target``, :mod:`sim.target`); None = a scan's
+        frame (the laser, the rig's environment and flood light).
+    pose_index : int or None, default None
+        Index of the pattern pose the frame shows (scenario ``target``).
+    exposure_ms : float or None, default None
+        The frame's commanded exposure [ms]; None = the rig's ``sensor.exposure_ms``.
+    flood_scale : float, default 1.0
+        The flood light's level in this frame over the rig's [-].
     """
 
     index: int
@@ -187,6 +197,10 @@ class FrameSpec:
     rig_from_laser: np.ndarray | None = None
     exposure_factor: float = 1.0
     actual: dict | None = None
+    light: str | None = None
+    pose_index: int | None = None
+    exposure_ms: float | None = None
+    flood_scale: float = 1.0
 
     def stage_entry(self) -> dict:
         """The manifest's stage entry of this frame.
@@ -195,11 +209,18 @@ class FrameSpec:
         -------
         dict
             ``{"stage_mm": s}`` [mm] when the frame has a translation-stage
-            coordinate, else ``{"angle_deg": θ}`` [deg].
+            coordinate, ``{"angle_deg": θ}`` [deg] when it has a rotary-stage
+            angle, else ``{}`` (a hand-held target pose); plus ``pose`` and ``light``
+            for a target frame.
         """
+        out = {}
         if self.stage_mm is not None:
-            return {"stage_mm": float(self.stage_mm)}
-        return {"angle_deg": float(self.angle_deg)}
+            out = {"stage_mm": float(self.stage_mm)}
+        elif self.angle_deg is not None:
+            out = {"angle_deg": float(self.angle_deg)}
+        if self.light is not None:
+            out.update(pose=int(self.pose_index), light=self.light)
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,6 +245,12 @@ class Scenario:
         Human-readable warnings (e.g. frames predicted to hold no stripe).
     expected_empty : frozenset of int, default frozenset()
         Indices of the frames predicted to hold no stripe (already warned about).
+    frame_truth : callable or None, default None
+        ``frame_truth(rig, scenario, frame, caster, arrays) -> arrays``: the scenario's
+        own truth added to a frame's (:func:`sim.target.pattern_truth`,
+        :func:`sim.backgrounds.background_truth`); None = none.
+    background : tuple of scenes.Part, default ()
+        Parts fixed in the stage frame around the stages (:mod:`sim.backgrounds`).
     """
 
     name: str
@@ -234,6 +261,8 @@ class Scenario:
     truth_pixels_every: int = 1
     warnings: tuple = field(default_factory=tuple)
     expected_empty: frozenset = frozenset()
+    frame_truth: object = None
+    background: tuple = ()
 
     def wants_pixel_truth(self, index: int) -> bool:
         """Whether a frame gets per-pixel truth maps.
@@ -414,6 +443,27 @@ def _plate_mount(rig: Rig) -> np.ndarray:
         @ rotation_vector([0.0, np.radians(st.plate_tilt_deg), 0.0])
 
 
+def frame_errors(rig: Rig, seed: int, index: int) -> tuple:
+    """The realised error models of one frame (:func:`frame_draws`).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (its error models).
+    seed : int
+        Run seed (≥ 0).
+    index : int
+        Frame index (≥ 0).
+
+    Returns
+    -------
+    tuple
+        (z draws (4,), rig_from_laser (4, 4) or None, exposure factor [-], the manifest's
+        ``actual`` dict or None for an ideal rig).
+    """
+    return _frame_errors(rig, seed, index)
+
+
 def _frame_errors(rig: Rig, seed: int, index: int) -> tuple:
     """(z draws, rig_from_laser, exposure factor, actual dict or None) of one frame."""
     z = frame_draws(seed, index)
@@ -491,7 +541,9 @@ def _rotary_frame(rig: Rig, seed: int, i: int, angle: float, rig_from_st, ref_fr
 
 
 def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: float = 2.0,
-                     truth_pixels_every: int = 1) -> Scenario:
+                     truth_pixels_every: int = 1, background: str = "none",
+                     background_material: str = "cardboard", background_height_mm: float = 250.0,
+                     background_distance_mm: float | None = None) -> Scenario:
     """The blocker on the rotary stage at θ = 0, several times with different noise seeds.
 
     Parameters
@@ -506,6 +558,14 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
         Blocker thickness (> 0) [mm].
     truth_pixels_every : int, default 1
         Per-pixel truth every N-th frame (0 = never).
+    background : {"none", "walls", "box"}, default "none"
+        What stands around the table (:mod:`sim.backgrounds`).
+    background_material : str, default "cardboard"
+        Its material tag.
+    background_height_mm : float, default 250.0
+        Its height above the table [mm].
+    background_distance_mm : float, optional
+        Where it stands beyond the axis (:func:`sim.backgrounds.scan_background`) [mm].
 
     Returns
     -------
@@ -517,6 +577,8 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
     ------
     ScheimpflugError
         When ``frames`` is not an integer ≥ 1 or ``thickness_mm`` is not > 0.
+    MeshError
+        For an unknown background or material.
     """
     _positive_int("frames", frames)
     _positive("blocker_thickness_mm", thickness_mm)
@@ -524,12 +586,31 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
     specs = _rotary_frames(rig, seed, [0.0] * frames)
     params = {"frames": frames, "blocker_thickness_mm": thickness_mm, "part": "blocker",
               "blocker": assembly.parts[0].analytic}
-    return Scenario("blocker", params, assembly, specs, stage_from_part(rig, 0.0),
-                    truth_pixels_every, tuple(axis_warnings(rig)))
+    scenario = Scenario("blocker", params, assembly, specs, stage_from_part(rig, 0.0),
+                        truth_pixels_every, tuple(axis_warnings(rig)))
+    return _with_background(rig, scenario, background, background_material, background_height_mm,
+                            background_distance_mm)
+
+
+def _with_background(rig: Rig, scenario: Scenario, kind: str, material: str, height_mm: float,
+                     distance_mm: float | None = None) -> Scenario:
+    """The scenario with background parts in the stage frame (none: unchanged, bit for bit)."""
+    import dataclasses
+
+    from .backgrounds import background_truth, scan_background
+
+    parts = scan_background(rig, kind, material, height_mm, distance_mm)
+    if not parts:
+        return scenario
+    params = dict(scenario.params, background={"kind": kind, "material": material, "height_mm": height_mm,
+                                               "distance_mm": distance_mm, "parts": [p.analytic for p in parts]})
+    return dataclasses.replace(scenario, params=params, background=parts, frame_truth=background_truth)
 
 
 def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: float = 0.5,
-                    frames: int | None = None, truth_pixels_every: int = 30) -> Scenario:
+                    frames: int | None = None, truth_pixels_every: int = 30, background: str = "none",
+                    background_material: str = "cardboard", background_height_mm: float = 250.0,
+                    background_distance_mm: float | None = None) -> Scenario:
     """A part on the rotary stage at θ_i = i·step_deg over one turn.
 
     Parameters
@@ -546,6 +627,14 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
         Render only the first ``frames`` (≥ 1) of the turn.
     truth_pixels_every : int, default 30
         Per-pixel truth every N-th frame (0 = never).
+    background : {"none", "walls", "box"}, default "none"
+        What stands around the table (:mod:`sim.backgrounds`).
+    background_material : str, default "cardboard"
+        Its material tag.
+    background_height_mm : float, default 250.0
+        Its height above the table [mm].
+    background_distance_mm : float, optional
+        Where it stands beyond the axis (:func:`sim.backgrounds.scan_background`) [mm].
 
     Returns
     -------
@@ -558,7 +647,7 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     ScheimpflugError
         When ``step_deg`` is not > 0 or ``frames`` is not an integer ≥ 1.
     MeshError
-        For an unknown part or a bad mesh or scene file.
+        For an unknown part or a bad mesh or scene file, or an unknown background or material.
     """
     _positive("step_deg", step_deg)
     n_turn = max(1, int(round(360.0 / step_deg)))
@@ -570,8 +659,10 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     params = {"part": part, "step_deg": step_deg, "frames": n_turn,
               "parts": [{"name": p.name, "object_id": p.object_id, "material": p.material,
                          "analytic": p.analytic} for p in assembly.parts]}
-    return Scenario("rotary", params, assembly, specs, stage_from_part(rig, 0.0),
-                    truth_pixels_every, tuple(axis_warnings(rig)))
+    scenario = Scenario("rotary", params, assembly, specs, stage_from_part(rig, 0.0),
+                        truth_pixels_every, tuple(axis_warnings(rig)))
+    return _with_background(rig, scenario, background, background_material, background_height_mm,
+                            background_distance_mm)
 
 
 def frame_count(name: str, **options) -> int:
@@ -603,6 +694,10 @@ def frame_count(name: str, **options) -> int:
 
     table = {"blocker": blocker_scenario, "calibration": calibration_scenario,
              "rotary": rotary_scenario}
+    if name == "target":
+        from .target import target_frame_count
+
+        return target_frame_count(**{k: v for k, v in options.items() if v is not None})
     if name not in table:
         raise ScheimpflugError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
     opts = {k: p.default for k, p in inspect.signature(table[name]).parameters.items()}
@@ -622,14 +717,15 @@ def build_scenario(name: str, rig: Rig, seed: int = 0, **options) -> Scenario:
     Parameters
     ----------
     name : str
-        One of :data:`SCENARIOS`: ``blocker``, ``calibration``, ``rotary``.
+        One of :data:`SCENARIOS`: ``blocker``, ``calibration``, ``rotary``, ``target``.
     rig : Rig
         The rig.
     seed : int, default 0
         Run seed.
     **options
         Keyword arguments of :func:`blocker_scenario`,
-        :func:`calibration_scenario` or :func:`rotary_scenario`.
+        :func:`calibration_scenario`, :func:`rotary_scenario` or
+        :func:`sim.target.target_scenario`.
 
     Returns
     -------
@@ -642,8 +738,10 @@ def build_scenario(name: str, rig: Rig, seed: int = 0, **options) -> Scenario:
         For an unknown scenario name (the message lists :data:`SCENARIOS`), or
         an invalid option value (see the builders).
     """
+    from .target import target_scenario  # it builds on this module
+
     table = {"blocker": blocker_scenario, "calibration": calibration_scenario,
-             "rotary": rotary_scenario}
+             "rotary": rotary_scenario, "target": target_scenario}
     if name not in table:
         raise ScheimpflugError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")
     return table[name](rig, seed=seed, **options)

@@ -316,6 +316,9 @@ class SimScene:
         """
         mats = _as_transforms(rig_from_part, len(self.specs))
         rigid = all(np.array_equal(m, mats[0]) for m in mats[1:])
+        if not rigid and not self._vertices_in_part_frame and all(
+                np.array_equal(a, b) for a, b in zip(mats, self.rig_from_part)):
+            return                      # the vertex buffers hold this pose already: no upload, no rebuild
         if rigid:
             if not self._vertices_in_part_frame:
                 self._upload([np.eye(4)] * len(self.specs))

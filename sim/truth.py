@@ -91,6 +91,7 @@ __all__ = [
     "StripeTruth",
     "TruthTolerances",
     "laser_origin_mm",
+    "opencv_camera",
     "pixel_directions",
     "pixel_truth",
     "SECONDARY_PEAKS",
@@ -648,6 +649,51 @@ def pixel_truth(rig: Rig, caster: RayCaster, ref_from_rig, directions=None,
 # ------------------------------------------------------------------ closed-form rig truth
 
 
+def opencv_camera(rig: Rig):
+    """The rig's camera as OpenCV's tilted pinhole model (``CALIB_TILTED_MODEL``), exactly.
+
+    The thin lens images every point along its (distorted) chief ray through the lens
+    centre onto the tilted sensor plane: a central projection with radial distortion of
+    the field angle's tangent, which is OpenCV's model with ``fx = fy``, no skew and the
+    tilt (τx, τy) of :func:`scheimpflug.tilted_camera.camera_from_sensor_pose` (the
+    sensor's misalignments included).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    camera : scheimpflug.tilted_camera.TiltedCamera
+        Focal length [px], principal point [px], τx, τy [rad], k1, k2 [-].
+    camera_from_rig : (4, 4) float64
+        The OpenCV camera frame (origin at the lens centre, Z along the optical axis,
+        X along the columns, Y along the rows) from the rig frame [mm].
+    """
+    from scheimpflug.tilted_camera import TiltedCamera, camera_from_sensor_pose
+
+    pose = sensor_pose(rig)
+    c = lens_centre_mm(rig)
+    cam, rot = camera_from_sensor_pose(pose.origin_mm - c, pose.u_dir, pose.v_dir, pose.pitch_mm)
+    cam = TiltedCamera(cam.focal_px, cam.principal_px, cam.tau_x_rad, cam.tau_y_rad, rig.lens.k1, rig.lens.k2)
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = rot, -rot @ c
+    return cam, m
+
+
+def _opencv_truth(rig: Rig) -> dict:
+    import math
+
+    cam, camera_from_rig = opencv_camera(rig)
+    return {"camera_matrix": cam.camera_matrix.tolist(), "dist_coeffs": cam.dist_coeffs.tolist(),
+            "image_size": [rig.sensor.columns, rig.sensor.rows],
+            "tau_deg": [math.degrees(cam.tau_x_rad), math.degrees(cam.tau_y_rad)],
+            "camera_from_rig": camera_from_rig.tolist(),
+            "model": "OpenCV pinhole with CALIB_TILTED_MODEL (14 terms: k1, k2, p1, p2, k3, k4, k5, k6, "
+                     "s1..s4, tau_x, tau_y); camera_from_rig maps rig-frame mm to its camera frame"}
+
+
 def rig_truth(rig: Rig) -> dict:
     """Closed-form constants of a rig, JSON-ready.
 
@@ -665,7 +711,10 @@ def rig_truth(rig: Rig) -> dict:
         ``tan_beta`` [-], and ``ideal`` (bool): True when the rig has no sensor
         misalignment (roll, tilt error, offsets), no lens distortion (k1, k2),
         no stage axis tilt or runout and no error model on
-        (:func:`scheimpflug.model.rig.active_error_models`).
+        (:func:`scheimpflug.model.rig.active_error_models`); ``opencv``: the camera
+        as OpenCV's tilted model (:func:`opencv_camera`) — ``camera_matrix`` [px],
+        ``dist_coeffs`` (14, τx and τy in radians), ``image_size``, ``tau_deg``,
+        ``camera_from_rig`` (4 × 4, mm), misalignments and distortion included.
 
     Notes
     -----
@@ -681,7 +730,7 @@ def rig_truth(rig: Rig) -> dict:
                          ("roll_deg", "tilt_error_deg", "offset_u_px", "offset_v_px",
                           "offset_normal_um")) and rig.lens.k1 == 0 and rig.lens.k2 == 0
             and rig.stage.axis_tilt_deg == 0 and rig.stage.runout_um == 0
-            and not active_error_models(rig)}
+            and not active_error_models(rig), "opencv": _opencv_truth(rig)}
 
 
 # ------------------------------------------------------------------ casters

@@ -73,10 +73,11 @@ from scheimpflug.io.atomic import atomic_path, write_json_atomic
 from scheimpflug.io.folder import LEDGER_NAME, LOCK_NAME, FileLedger
 from scheimpflug.model.rig import Rig, is_realistic, rig_to_dict
 
+from .camera_pass import camera_pass_of, uses_camera_pass
 from .jobfolder import JobKind, check_identity, create_folder, open_job, remove_temporaries
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
-from .stages import invert
+from .stages import invert, rig_from_stage
 from .truth import RayCaster, pixel_directions, pixel_truth, rig_truth, secondary_truth, stripe_truth
 
 __all__ = [
@@ -106,6 +107,12 @@ FORMAT = "scheimpflug-frames/1"
 #: level 3 ≈ 124 ms / 1.15 MB, level 0 ≈ 32 ms / 4.7 MB (benchmarks/bench_scan.py prints
 #: the comparison).  Noise-dominated frames gain little from filters or higher levels.
 PNG_COMPRESSION = 1
+#: the manifest's description of a target frame's pattern truth (sim.target)
+TARGET_TRUTH = ("truth/NNNNN.npz also holds pattern_corners_px (n, 2) f64 [px] (chief ray; NaN = off the "
+                "sensor, facing away or hidden), pattern_corner_ids (n, 2) i64 (column, row), pattern_centroid_px "
+                "(n, 2) f64 [px] (light centroid of the corner's blur spot), pattern_blur_px (n,) f64 [px], "
+                "rig_from_pattern and camera_from_pattern (4, 4) f64 [mm] (camera: truth/rig_truth.json opencv); "
+                "flood frames have no stripe. See sim/target.py.")
 _IDENTITY_KEYS = ("format", "rig", "scenario", "scenario_params", "seed", "render", "frames")
 #: the frame folder as a job (:mod:`sim.jobfolder`): its manifest is its identity
 FRAME_FOLDER = JobKind(
@@ -186,6 +193,9 @@ class MitsubaTwin:
         Render settings; ``spp`` overrides its samples.
     materials : sim.materials.MaterialSettings, optional
         Albedos and roughnesses of the material tags (default: MaterialSettings()).
+    background : tuple of scenes.Part, default ()
+        Parts fixed in the stage frame (a scan's walls, :mod:`sim.backgrounds`), posed by
+        ``rig_from_stage`` in every frame.
 
     Attributes
     ----------
@@ -209,7 +219,7 @@ class MitsubaTwin:
     """
 
     def __init__(self, rig: Rig, assembly, spp: int | None = None, settings=None,
-                 materials=None) -> None:
+                 materials=None, background=()) -> None:
         import dataclasses
 
         from .render import Renderer, RenderSettings
@@ -227,8 +237,14 @@ class MitsubaTwin:
         self.spp_field = next(n for n in _SPP_FIELDS if n in field_names)
         if spp is not None:
             settings = dataclasses.replace(settings, **{self.spp_field: int(spp)})
-        self.scene = SimScene(assembly.parts, materials=materials, subsurface=rig.twin.subsurface)
+        self.scene = SimScene([*assembly.parts, *background], materials=materials, subsurface=rig.twin.subsurface)
+        self._moving, self._static = len(assembly.parts), len(background)
+        self._rig_from_stage = rig_from_stage(rig) if background else None
         self.materials = materials
+        self.camera = None      # the camera pass (sim.camera_pass) replaces the coarse ambient pass
+        if uses_camera_pass(rig):
+            settings = dataclasses.replace(settings, ambient=False)
+            self.camera = camera_pass_of(rig, self.scene, settings.pixel_filter)
         self.renderer = Renderer(rig, self.scene, settings)
         self.settings = settings
         self.variant = self.scene.variant
@@ -251,6 +267,8 @@ class MitsubaTwin:
                "variant": self.variant, "settings": dataclasses.asdict(self.settings)}
         if self.materials is not None:
             out["materials"] = dataclasses.asdict(self.materials)
+        if self.camera is not None:
+            out["camera_pass"] = dataclasses.asdict(self.camera.settings)
         return out
 
     def render(self, frame: FrameSpec) -> np.ndarray:
@@ -266,7 +284,29 @@ class MitsubaTwin:
         (rows, columns) float32
             Expected electrons per pixel [e⁻] (:meth:`Renderer.render_light`).
         """
-        light = self.renderer.render_light(frame.rig_from_part, frame.seed, frame.rig_from_laser)
+        if self.camera is not None:
+            return self._render_with_camera(frame)
+        light = self.renderer.render_light(self._poses(frame), frame.seed, frame.rig_from_laser)
+        self._posed = frame.index
+        self._light = (frame.index, light)
+        return light.image
+
+    def _poses(self, frame: FrameSpec):
+        """The scene's pose for a frame: the part's, or one per part with the background's fixed one."""
+        if not self._static:
+            return frame.rig_from_part
+        return np.stack([frame.rig_from_part] * self._moving + [self._rig_from_stage] * self._static)
+
+    def _render_with_camera(self, frame: FrameSpec) -> np.ndarray:
+        """The camera pass's image (flood light, environment) plus the laser's unless the frame is flood-lit only."""
+        from .render import FrameLight
+
+        flood = self.camera.render(self._poses(frame), frame.seed, flood_scale=frame.flood_scale,
+                                   exposure_ms=frame.exposure_ms)
+        light = FrameLight(flood) if frame.light == "flood" else \
+            self.renderer.render_light(self._poses(frame), frame.seed, frame.rig_from_laser)
+        if frame.light != "flood":
+            light.image = light.image + flood
         self._posed = frame.index
         self._light = (frame.index, light)
         return light.image
@@ -305,7 +345,7 @@ class MitsubaTwin:
         from .truth import SceneCaster
 
         if self._posed != frame.index:
-            self.scene.set_pose(frame.rig_from_part)
+            self.scene.set_pose(self._poses(frame))
             self._posed = frame.index
         return SceneCaster(self.scene)
 
@@ -682,7 +722,8 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
         per frame.
     """
     frames = [{"file": f"frames/{f.index:05d}.png", "truth": f"truth/{f.index:05d}.npz",
-               **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms, "seed": f.seed,
+               **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms if getattr(f, "exposure_ms", None) is None
+               else float(f.exposure_ms), "seed": f.seed,
                "pixel_truth": scenario.wants_pixel_truth(f.index),
                **({"actual": f.actual} if getattr(f, "actual", None) else {})}
               for f in scenario.frames]
@@ -704,7 +745,8 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
                          "the renderer's light split); frames with pixel_truth also point_mm "
                          "(rows, columns, 3) f32 [mm] and object_id (rows, columns) u16. "
                          "NaN / 0 = none. See sim/truth.py.",
-            "reference_frame": ("stage frame with the part at angle 0" if scenario.name != "calibration"
+            **({"pattern": TARGET_TRUTH} if scenario.name == "target" else {}),
+            "reference_frame": ("stage frame with the part at angle 0" if scenario.name not in ("calibration", "target")
                                 else "stage frame (the plate moves in it)"),
             "stripe_rule": "sheet mid-plane ∩ mesh, visible from the lens centre and lit by the "
                            "laser, crossing each row centre; primary = smallest u; stripe_count = "
@@ -805,6 +847,10 @@ def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
                    {k: v for k, v in (("prnu_gain", gain), ("dark_e", dark)) if v is not None})
     if not (out / "truth" / "mesh.ply").exists():
         scenario.assembly.transformed(scenario.mesh_ref_from_part).to_ply(out / "truth" / "mesh.ply")
+    if getattr(scenario, "background", ()) and not (out / "truth" / "background.ply").exists():
+        from scenes import Assembly
+
+        Assembly("background", scenario.background).to_ply(out / "truth" / "background.ply")   # stage frame
     if scenario.name == "calibration":
         for f in scenario.frames:
             p = out / "truth" / f"mesh_{f.index:05d}.ply"
@@ -829,6 +875,8 @@ def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None) -> dict:
         arrays["point_mm"], arrays["object_id"] = pixel_truth(rig, caster, ref_from_rig,
                                                               mesh["directions"])
         stats.seconds["truth_pixels"] += time.perf_counter() - t1
+    if getattr(scenario, "frame_truth", None) is not None:     # the scenario's own truth (sim.target)
+        arrays = scenario.frame_truth(rig, scenario, frame, caster, arrays)
     return arrays
 
 
@@ -1046,9 +1094,11 @@ def _finish_frame(out, model, frame, electrons, image, arrays, stats, ledger=Non
 
 
 def describe_frame(frame: FrameSpec) -> str:
-    """'stage 120 mm' or 'angle 35°': a frame's commanded position, for messages."""
+    """'stage 120 mm', 'angle 35°' or 'pose 3, laser': a frame's commanded position, for messages."""
     if frame.stage_mm is not None:
         return f"stage {frame.stage_mm:g} mm"
+    if getattr(frame, "light", None) is not None:
+        return f"pose {frame.pose_index}, {frame.light}"
     return f"angle {frame.angle_deg:g}°"
 
 
@@ -1147,7 +1197,8 @@ def build_run(rig: Rig, scenario_name: str, seed: int, spp: int | None, options:
     with warnings.catch_warnings(record=True) as caught:     # part loading warns (MeshWarning)
         warnings.simplefilter("always")
         scenario = build_scenario(scenario_name, rig, seed=seed, **options)
-        twin = (twin_factory or MitsubaTwin)(rig, scenario.assembly, spp=spp)
+        twin = (twin_factory or MitsubaTwin)(rig, scenario.assembly, spp=spp,
+                                             **({"background": scenario.background} if scenario.background else {}))
     describe = twin.describe() if hasattr(twin, "describe") else None
     manifest = build_manifest(rig, scenario, seed, getattr(twin, "spp", 1), getattr(twin, "variant", "unknown"),
                               generator_info(), describe)

@@ -86,8 +86,8 @@ def test_as_built_column_and_budget_by_source(quick_demo):
     assert {"translation stage", "rotary stage", "calibration plate", "laser", "lens",
             "sensor", "surface speckle", "inter-reflections", "subsurface"} <= set(b["sources"])
     # the as-built column renders issue 10's light; the ideal twin does not
-    assert ab["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface"}
-    assert ideal["twin"] == {"bounces": 1, "subsurface": False, "speckle_model": "surface"}
+    assert ab["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface", "camera_spp": 0}
+    assert ideal["twin"] == {"bounces": 1, "subsurface": False, "speckle_model": "surface", "camera_spp": 0}
     # on the quick plan's metal plate and blocker, neither extra bounces nor subsurface light
     # change the stripes: those runs give the ideal run's σ(C) — to a tolerance, not bit for bit: the
     # runs render through different kernels, whose floats differ in the last bits between CPUs

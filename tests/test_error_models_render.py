@@ -229,7 +229,7 @@ def test_render_cli_with_the_as_built_preset(variant, tmp_path, scenario, option
     man = json.loads((tmp_path / "manifest.json").read_text())
     assert man["rig"]["laser"]["line_bow_mrad"] == 0.5 and man["complete"]
     # issue 10's light is on too: 3 bounces, subsurface, surface speckle
-    assert man["rig"]["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface"}
+    assert man["rig"]["twin"] == {"bounces": 3, "subsurface": True, "speckle_model": "surface", "camera_spp": 0}
     from sim.writer import read_png
 
     lit = 0

@@ -26,6 +26,7 @@ from __future__ import annotations
 import sys
 
 from scheimpflug.app.commands._common import add_rig_options, integer, number, print_json, rig_from_args
+from scheimpflug.app.commands._target import TARGET_OPTIONS, add_target_options, camera_rig, target_options
 from scheimpflug.errors import RenderError, ScheimpflugError
 
 __all__ = ["CONFIRM_BYTES", "CONFIRM_FRAMES", "add_parser"]
@@ -35,13 +36,17 @@ CONFIRM_FRAMES = 10_000
 CONFIRM_BYTES = 20e9
 """A render expected to write more than this [B] needs ``--yes``."""
 
-_SCENARIOS = ("blocker", "calibration", "rotary")
+_SCENARIOS = ("blocker", "calibration", "rotary", "target")
+_BACKGROUND = ("background", "background_material", "background_height_mm", "background_distance_mm")
 # option → scenarios it applies to
 _APPLIES = {
     "steps": ("calibration",), "step_mm": ("calibration",), "start_mm": ("calibration",),
-    "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary",),
+    "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary", "target"),
     "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"),
     "blocker_thickness_mm": ("blocker",),
+    **{k: ("target",) for k in TARGET_OPTIONS},
+    **{k: ("blocker", "rotary") for k in ("background", "background_material", "background_height_mm",
+                                          "background_distance_mm")},
 }
 
 
@@ -50,7 +55,7 @@ def add_parser(sub):
         "render", help="render a scenario with the digital twin into a frame folder",
         description="Render frames and exact ground truth of a scenario into DIR "
                     "(manifest.json, frames/, truth/). An interrupted run restarts where it stopped.")
-    p.add_argument("scenario", metavar="SCENARIO", help="calibration | blocker | rotary")
+    p.add_argument("scenario", metavar="SCENARIO", help="calibration | blocker | rotary | target")
     add_rig_options(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output frame folder")
     p.add_argument("--seed", type=integer(0, 2**31 - 1), default=0, help="run seed (default 0)")
@@ -67,7 +72,7 @@ def add_parser(sub):
                    help="k × k binned sensor, same geometry (quick mode; default 1)")
     p.add_argument("--truth-pixels", default=None, metavar="every|N|none",
                    help="per-pixel truth maps: every frame, every N-th, or none "
-                        "(default: every frame for calibration/blocker, every 30th for rotary)")
+                        "(default: every frame for calibration/blocker, every 30th for rotary, none for target)")
     g = p.add_argument_group("calibration")
     g.add_argument("--steps", type=integer(1, 10**9),
                    help="number of plate positions (default: the rig's plan, 27)")
@@ -88,6 +93,7 @@ def add_parser(sub):
                                                             "rotary: render only the first N")
     g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
                    help="blocker thickness [mm] (default 2)")
+    add_target_options(p)
     p.add_argument("--workers", type=_workers, default="auto", metavar="N|auto",
                    help="worker processes rendering frames at once, each with cores/N threads; the "
                         "files are the same bit for bit (default auto: one per core when the twin is "
@@ -119,7 +125,7 @@ def _workers(text: str):
 
 def _truth_every(value: str | None, scenario: str) -> int:
     if value is None:
-        return 30 if scenario == "rotary" else 1
+        return {"rotary": 30, "target": 0}.get(scenario, 1)
     if value == "every":
         return 1
     if value == "none":
@@ -140,8 +146,11 @@ def _scenario_options(args) -> dict:
             raise ScheimpflugError(f"{flag} applies to the {' and '.join(scen)} scenario"
                                    f"{'s' if len(scen) > 1 else ''} only, not {args.scenario!r}")
     names = {"calibration": ("steps", "step_mm", "start_mm", "plate_height_mm"),
-             "blocker": ("frames",), "rotary": ("part", "step_deg", "frames")}[args.scenario]
+             "blocker": ("frames", *_BACKGROUND), "rotary": ("part", "step_deg", "frames", *_BACKGROUND),
+             "target": ()}[args.scenario]
     opts = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+    if args.scenario == "target":
+        opts.update(target_options(args))
     if args.scenario == "blocker" and args.blocker_thickness_mm is not None:
         opts["thickness_mm"] = args.blocker_thickness_mm
     opts["truth_pixels_every"] = _truth_every(args.truth_pixels, args.scenario)
@@ -151,7 +160,7 @@ def _scenario_options(args) -> dict:
 def _rig(args):
     from scheimpflug.model.binning import binned_rig
 
-    rig = rig_from_args(args)
+    rig = camera_rig(args, rig_from_args(args), args.scenario)
     if args.bounces is not None:
         if args.bounces < 1:
             raise ScheimpflugError(f"--bounces {args.bounces}: must be an integer >= 1")

@@ -1,0 +1,118 @@
+"""What stands around a scan: walls behind the rotary table, or a housing.
+
+``--background walls|box|none`` of a scan scenario (``render rotary``, ``render blocker``).
+The parts are fixed in the **stage frame** (:mod:`sim.stages`: origin on the rotary axis
+at the meridian height, +x along the laser's propagation, +z up, the sheet is the plane
+y = 0); the turntable's part turns in front of them.  Dimensions scale with the reach of
+the rig's view beyond the axis, ``far_mm`` (the distance along +x from the axis to the
+far end of the measuring range), so that the walls stand where the camera still sees
+them — as a scanner's back walls do (``sim.backgrounds.scan_background``: the view's far
+end beyond the axis, at most 150 mm, or the distance given):
+
+``walls`` (FabScan-like)
+    two vertical boards meeting behind the table in a corner on the +x axis at
+    ``0.9·far_mm``, each turned 45° from the sheet (a V opening toward the laser and
+    the camera), from the table up to ``height_mm``; the laser crosses both, so each
+    frame shows two fixed straight segments beside the part's profile.
+``box``
+    a housing open toward the laser: a back wall across the +x side at ``0.9·far_mm``,
+    two side walls parallel to the sheet at y = ±``0.9·far_mm``, a floor (the table's
+    plane, its centre cut out by nothing: the part stands on it) and a ceiling at
+    ``height_mm``.
+
+Each board is ``BOARD_MM`` thick; the material is a tag of :data:`scenes.MATERIALS`
+(default ``cardboard``: a plain wooden or card board, matte).  Object ids start at
+``FIRST_ID`` (101) so they never clash with a part's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from scheimpflug.errors import MeshError
+
+from .part import MATERIALS, Part
+from .revolve import box_mesh
+
+__all__ = ["BACKGROUNDS", "BOARD_MM", "FIRST_ID", "background_parts"]
+
+BACKGROUNDS = ("none", "walls", "box")
+#: thickness of a background board [mm]
+BOARD_MM = 10.0
+#: object id of the first background part
+FIRST_ID = 101
+
+
+def _board(name: str, centre, size, yaw_deg: float, material: str, object_id: int) -> Part:
+    """A box of ``size`` (length along its x, thickness, height) centred at ``centre``, turned about z."""
+    lo, hi = -0.5 * np.asarray(size, float), 0.5 * np.asarray(size, float)
+    mesh = box_mesh(lo, hi)
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    m[:3, 3] = centre
+    mesh.apply_transform(m)
+    return Part(name, mesh, material, {"kind": "board", "size_mm": list(map(float, size)), "yaw_deg": yaw_deg,
+                                       "centre_mm": list(map(float, centre)), "mesh_from_part": np.eye(4).tolist()},
+                object_id)
+
+
+def background_parts(kind: str, far_mm: float, table_z_mm: float, height_mm: float = 250.0,
+                     material: str = "cardboard") -> tuple[Part, ...]:
+    """The background parts of a scan, in the stage frame (module docstring).
+
+    Parameters
+    ----------
+    kind : {"none", "walls", "box"}
+        What stands around the table.
+    far_mm : float
+        Where the boards stand: the walls' corner / the box's back wall at ``0.9·far_mm``
+        beyond the rotary axis along +x [mm] (> 0).
+    table_z_mm : float
+        Height of the table top in the stage frame [mm].
+    height_mm : float, default 250.0
+        Height of the walls above the table [mm].
+    material : str, default "cardboard"
+        Material tag of the boards.
+
+    Returns
+    -------
+    tuple of Part
+        Empty for ``"none"``.
+
+    Raises
+    ------
+    MeshError
+        For an unknown kind or material, or a size that is not > 0.
+    """
+    if kind not in BACKGROUNDS:
+        raise MeshError(f"--background {kind!r}: unknown (known: {', '.join(BACKGROUNDS)})")
+    if material not in MATERIALS:
+        raise MeshError(f"--background-material {material!r}: unknown (known: {', '.join(MATERIALS)})")
+    if not (math.isfinite(far_mm) and far_mm > 0 and math.isfinite(height_mm) and height_mm > 0):
+        raise MeshError(f"background: the view's reach {far_mm!r} mm and the wall height {height_mm!r} mm "
+                        "must be > 0")
+    if kind == "none":
+        return ()
+    r = 0.9 * far_mm
+    zc = table_z_mm + 0.5 * height_mm
+    t = BOARD_MM
+    if kind == "walls":
+        length, a = 2.0 * r, math.sqrt(0.5)
+        parts = []
+        for i, sign in enumerate((1.0, -1.0)):
+            d = np.array([-a, sign * a, 0.0])             # from the corner toward the front
+            n = np.array([-a, -sign * a, 0.0])            # the face's normal, toward the axis
+            centre = np.array([r, 0.0, zc]) + 0.5 * length * d - 0.5 * t * n
+            parts.append(_board(f"wall{i + 1}", centre, (length, t, height_mm), math.degrees(math.atan2(d[1], d[0])),
+                                material, FIRST_ID + i))
+        return tuple(parts)
+    span = 2.0 * r
+    return (_board("back", (r + 0.5 * t, 0.0, zc), (t, span, height_mm), 0.0, material, FIRST_ID),
+            _board("side1", (0.0, r + 0.5 * t, zc), (span, t, height_mm), 0.0, material, FIRST_ID + 1),
+            _board("side2", (0.0, -r - 0.5 * t, zc), (span, t, height_mm), 0.0, material, FIRST_ID + 2),
+            _board("floor", (0.0, 0.0, table_z_mm - 0.5 * t - 0.5), (span, span, t), 0.0, material, FIRST_ID + 3),
+            _board("ceiling", (0.0, 0.0, table_z_mm + height_mm + 0.5 * t), (span, span, t), 0.0, material,
+                   FIRST_ID + 4))

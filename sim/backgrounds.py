@@ -1,0 +1,121 @@
+"""A scan's background (:mod:`scenes.backgrounds`) in the twin: placed, posed and in the truth.
+
+The background boards stand still in the stage frame while the rotary table turns the
+part: the twin poses them with ``rig_from_stage`` every frame (per-part poses of
+:meth:`sim.scene.SimScene.set_pose`; Mitsuba then rebuilds its BVH per frame, measured in
+``benchmarks/RESULTS.md``).  The laser lights them as any part, the camera pass lights
+them with the flood light and the environment, and their stripe is in the frame's truth:
+:func:`background_truth` cuts them by the sheet like the part and keeps, per row, the
+crossing with the smallest u as the primary (the stripe rule of :mod:`sim.truth`),
+``stripe_count`` counting both.  ``truth/background.ply`` holds them in the stage frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.rig import Rig
+
+from .stages import axis_distance_mm, rig_from_stage
+
+__all__ = ["MAX_DISTANCE_MM", "background_truth", "scan_background"]
+
+
+#: farthest default distance of the background beyond the axis [mm] (a scanner's housing is that small)
+MAX_DISTANCE_MM = 150.0
+
+
+def scan_background(rig: Rig, kind: str, material: str = "cardboard", height_mm: float = 250.0,
+                    distance_mm: float | None = None) -> tuple:
+    """The background parts of a scan of ``rig``, in the stage frame.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (its view's far end beyond the axis, the rotary table's height).
+    kind : {"none", "walls", "box"}
+        :func:`scenes.backgrounds.background_parts`.
+    material : str, default "cardboard"
+        Material tag of the boards.
+    height_mm : float, default 250.0
+        Wall height above the table [mm].
+    distance_mm : float, optional
+        Reach beyond the axis that places the boards [mm] (:func:`scenes.backgrounds.background_parts`);
+        default the view's far end beyond the axis, at most :data:`MAX_DISTANCE_MM`.
+
+    Returns
+    -------
+    tuple of scenes.Part
+        The boards (empty for ``"none"``).
+
+    Raises
+    ------
+    MeshError
+        For an unknown kind or material, or a rig whose view ends before its axis.
+    """
+    from scenes.backgrounds import background_parts
+
+    if distance_mm is None:
+        g = hinge_geometry(rig)
+        d_far = float(max(g.distance_from_column([-0.5, rig.sensor.columns - 0.5])))
+        distance_mm = min(d_far - axis_distance_mm(rig), MAX_DISTANCE_MM / 0.9)
+    return background_parts(kind, distance_mm, rig.stage.rotary_table_z_mm, height_mm, material)
+
+
+def _merge(a: dict, b: dict) -> dict:
+    """Per row the primary crossing of two stripe truths (smallest u), counts added."""
+    ua, ub = a["stripe_u"], b["stripe_u"]
+    take_b = np.isfinite(ub) & ~(ua <= ub)
+    out = dict(a)
+    out["stripe_u"] = np.where(take_b, ub, ua)
+    out["stripe_point_mm"] = np.where(take_b[:, None], b["stripe_point_mm"], a["stripe_point_mm"])
+    out["stripe_object_id"] = np.where(take_b, b["stripe_object_id"], a["stripe_object_id"]).astype(
+        a["stripe_object_id"].dtype)
+    out["stripe_count"] = np.minimum(a["stripe_count"].astype(np.int64) + b["stripe_count"], 255).astype(
+        a["stripe_count"].dtype)
+    return out
+
+
+def background_truth(rig: Rig, scenario, frame, caster, arrays: dict) -> dict:
+    """The frame's stripe truth with the background's crossings merged in (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+    scenario : Scenario
+        A scan scenario with ``background`` parts (stage frame).
+    frame : FrameSpec
+        The frame (its laser pose).
+    caster : RayCaster
+        Queries on the whole scene posed for the frame (part and background).
+    arrays : dict
+        The frame's truth arrays (the part's stripe); not changed.
+
+    Returns
+    -------
+    dict
+        The arrays with the merged stripe.
+    """
+    from .truth import stripe_truth
+
+    mesh = _background_mesh(scenario)
+    bg = stripe_truth(rig, mesh[0], mesh[1], mesh[2], rig_from_stage(rig), np.eye(4), caster,
+                      rig_from_laser=frame.rig_from_laser).arrays()
+    return _merge(arrays, bg)
+
+
+def _background_mesh(scenario) -> tuple:
+    cache = getattr(scenario, "_background_mesh_cache", None)
+    if cache is None:
+        parts = scenario.background
+        verts, faces, ids, offset = [], [], [], 0
+        for p in parts:
+            verts.append(np.asarray(p.mesh.vertices, dtype=np.float64))
+            faces.append(np.asarray(p.mesh.faces, dtype=np.int64) + offset)
+            ids.append(np.full(len(p.mesh.faces), p.object_id, dtype=np.int32))
+            offset += len(p.mesh.vertices)
+        cache = (np.concatenate(verts), np.concatenate(faces), np.concatenate(ids))
+        object.__setattr__(scenario, "_background_mesh_cache", cache)
+    return cache
