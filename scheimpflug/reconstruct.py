@@ -29,13 +29,22 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.model.hinge import stage_from_pixel
-from scheimpflug.stripe import extract_stripes, saturated_fraction
+from scheimpflug.point_quality import stripe_widths_px
+from scheimpflug.stripe import (
+    DEFAULT_WINDOW_PX,
+    extract_stripes,
+    measured_stripe_sigma_px,
+    saturated_fraction,
+    stripe_window_px,
+)
 
 __all__ = [
     "ISOLATION_PX",
+    "FolderStripes",
     "PointCloud",
     "SheetCalibration",
     "extract_folder",
+    "extract_folder_stripes",
     "isolated_rows",
     "part_from_sheet",
     "points_from_pixels",
@@ -113,6 +122,16 @@ class PointCloud:
         Index of the frame the point came from, in the scan's frame order
         (−1 or None when unknown).  With ``row`` it places every point on
         the scan's grid (frame × row), which :mod:`scheimpflug.meshing` meshes.
+    stripe_width_px, snr : (n,) ndarray float or None
+        The point's measured quality (:mod:`scheimpflug.point_quality`): the
+        stripe's RMS width in its row [px] and the peak's signal-to-noise
+        ratio [-]; NaN or None when unknown.
+    incidence_laser_deg, incidence_camera_deg : (n,) ndarray float or None
+        Angles between the estimated surface normal and the laser ray / the
+        camera's line of sight [deg] (NaN or None: unknown).
+    sweep_edge : (n,) ndarray bool or None
+        The same row is empty in an adjacent frame of the scan: the sheet
+        enters or leaves the surface there (None: unknown).
 
     Raises
     ------
@@ -125,18 +144,44 @@ class PointCloud:
     row: np.ndarray
     intensity: np.ndarray
     frame: np.ndarray | None = None
+    stripe_width_px: np.ndarray | None = None
+    snr: np.ndarray | None = None
+    incidence_laser_deg: np.ndarray | None = None
+    incidence_camera_deg: np.ndarray | None = None
+    sweep_edge: np.ndarray | None = None
+
+    _PER_POINT = ("angle_deg", "row", "intensity", "frame", "stripe_width_px", "snr",
+                  "incidence_laser_deg", "incidence_camera_deg", "sweep_edge")
 
     def __post_init__(self) -> None:
         n = np.asarray(self.xyz_mm).shape[0]
         if np.asarray(self.xyz_mm).shape != (n, 3):
             raise ValueError(f"xyz_mm must be (n, 3), got {np.asarray(self.xyz_mm).shape}")
-        names = ("angle_deg", "row", "intensity") + (("frame",) if self.frame is not None else ())
-        for name in names:
-            if np.asarray(getattr(self, name)).shape != (n,):
+        for name in self._PER_POINT:
+            if getattr(self, name) is not None and np.asarray(getattr(self, name)).shape != (n,):
                 raise ValueError(f"{name} must have shape ({n},), got {np.asarray(getattr(self, name)).shape}")
 
     def __len__(self) -> int:
         return int(self.xyz_mm.shape[0])
+
+    def select(self, keep) -> PointCloud:
+        """The points where ``keep`` holds, with all their per-point fields.
+
+        Parameters
+        ----------
+        keep : (n,) array_like bool or int
+            Mask or indices of the points kept.
+
+        Returns
+        -------
+        PointCloud
+            The subset (fields that are None stay None).
+        """
+        def pick(a):
+            return None if a is None else np.asarray(a)[keep]
+
+        return PointCloud(xyz_mm=np.asarray(self.xyz_mm)[keep],
+                          **{name: pick(getattr(self, name)) for name in self._PER_POINT})
 
 
 def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
@@ -195,7 +240,9 @@ def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float) -> np.ndarr
 
 def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
                          angles_deg: Iterable[float], calibration,
-                         axis_mm: float, intensity: Sequence[np.ndarray] | None = None) -> PointCloud:
+                         axis_mm: float, intensity: Sequence[np.ndarray] | None = None,
+                         snr: Sequence[np.ndarray] | None = None,
+                         stripe_width_px: Sequence[np.ndarray] | None = None) -> PointCloud:
     """Point cloud of a rotary scan from per-frame stripe samples.
 
     Parameters
@@ -212,6 +259,9 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
         Stage coordinate of the rotary axis [mm].
     intensity : sequence of (n_i,) float, optional
         Per-sample intensity [DN] (default NaN).
+    snr, stripe_width_px : sequence of (n_i,) float, optional
+        Per-sample peak SNR [-] and stripe RMS width [px] (:class:`FolderStripes`;
+        default: the cloud has none).
 
     Returns
     -------
@@ -223,8 +273,9 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     Raises
     ------
     ValueError
-        If ``rows``, ``u``, ``angles_deg`` (and ``intensity``) do not have one
-        entry per frame, or a frame's ``rows`` and ``u`` differ in size.
+        If ``rows``, ``u``, ``angles_deg`` (and ``intensity``, ``snr``,
+        ``stripe_width_px``) do not have one entry per frame, or a frame's
+        ``rows`` and ``u`` differ in size.
     """
     angles = np.asarray(list(angles_deg), dtype=np.float64)
     if not (len(rows) == len(u) == len(angles)) or (intensity is not None and len(intensity) != len(u)):
@@ -244,8 +295,14 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     ff = np.repeat(np.arange(len(angles), dtype=np.int64), sizes)
     xyz = points_from_pixels(uu, vv, aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
+    extra = {}
+    for name, per_frame in (("snr", snr), ("stripe_width_px", stripe_width_px)):
+        if per_frame is not None:
+            if len(per_frame) != len(u) or any(np.asarray(x).size != k for x, k in zip(per_frame, sizes)):
+                raise ValueError(f"{name} needs one value per stripe sample of every frame")
+            extra[name] = cat(per_frame)[ok]
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
-                      intensity=ii[ok], frame=ff[ok])
+                      intensity=ii[ok], frame=ff[ok], **extra)
 
 
 ISOLATION_PX = 2.0  # a row's stripe needs a neighbour row's within this many columns [px]
@@ -280,6 +337,99 @@ def isolated_rows(rows: np.ndarray, u: np.ndarray, max_gap_px: float = ISOLATION
         near = (rows[j] == rows + step) & (np.abs(u[j] - u) <= max_gap_px)
         lone &= ~near
     return lone
+
+
+@dataclass(frozen=True)
+class FolderStripes:
+    """The stripe samples of every frame of a folder, with their measured quality.
+
+    Parameters
+    ----------
+    rows : list of (n_i,) ndarray int64
+        Rows of each frame's samples [px], in manifest order.
+    u : list of (n_i,) ndarray float64
+        Stripe columns [px].
+    peak : list of (n_i,) ndarray float64
+        Peak height above the local background [DN].
+    snr : list of (n_i,) ndarray float64
+        Peak signal-to-noise ratio, the detector's score [-].
+    stripe_width_px : list of (n_i,) ndarray float64
+        RMS width of the stripe in each row [px] (:func:`scheimpflug.point_quality.stripe_widths_px`).
+    stats : dict
+        Counters of :func:`extract_folder`.
+    """
+
+    rows: list
+    u: list
+    peak: list
+    snr: list
+    stripe_width_px: list
+    stats: dict
+
+
+def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
+                           keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                           multi_peak: str = "nearest", window_px: int | str = "auto",
+                           drop_isolated: bool = False) -> FolderStripes:
+    """Stripe samples of every frame of a frame folder, with each row's SNR and stripe width.
+
+    Parameters
+    ----------
+    folder : scheimpflug.io.frames.FrameFolder
+        The frames (an opened folder, not a path).
+    method : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+    min_snr : float, default 6.0
+        Detection threshold [-].
+    keep_saturated : bool, default False
+        Keep rows whose stripe is saturated (dropped by default).
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
+    multi_peak : str
+        Rule for rows with several peaks (:data:`scheimpflug.stripe.MULTI_PEAK_RULES`).
+    window_px : int or "auto", default "auto"
+        Detector window (:func:`extract_folder`).
+    drop_isolated : bool, default False
+        Drop lone rows (:func:`extract_folder`).
+
+    Returns
+    -------
+    FolderStripes
+        Per-frame arrays and counters.
+
+    Raises
+    ------
+    FrameError
+        If a frame is missing or invalid.
+    ValueError
+        For an unknown ``method`` or a bad ``min_snr``.
+    """
+    def one(rec, frame):
+        sat = folder.saturation_dn(frame)
+        prof = extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
+                               saturation_dn=sat, window_px=window_px)
+        win = window_px if isinstance(window_px, int) else \
+            stripe_window_px(measured_stripe_sigma_px(frame, prof, DEFAULT_WINDOW_PX))
+        return prof, stripe_widths_px(frame, prof.rows, prof.u, prof.background, min(win, 28)), \
+            saturated_fraction(frame, sat) > 0.5
+
+    out = FolderStripes([], [], [], [], [], {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0,
+                                            "saturated_frames": 0})
+    stats = out.stats
+    for prof, width, blown in folder.map_frames(one):
+        keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
+        lone = isolated_rows(prof.rows, prof.u)
+        stats["isolated_rows"] += int(lone.sum())
+        if drop_isolated:
+            keep &= ~lone
+        stats["saturated_rows"] += int(prof.saturated.sum())
+        stats["blank_frames"] += int(len(prof) == 0)
+        stats["saturated_frames"] += int(blown)
+        for field_, values in zip((out.rows, out.u, out.peak, out.snr, out.stripe_width_px),
+                                  (prof.rows, prof.u, prof.peak, prof.score, width)):
+            field_.append(values[keep])
+        report(progress, len(out.rows), len(folder))
+    return out
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
@@ -330,25 +480,7 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
     ValueError
         For an unknown ``method`` or a bad ``min_snr``.
     """
-    def one(rec, frame):
-        sat = folder.saturation_dn(frame)
-        return extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
-                               saturation_dn=sat, window_px=window_px), \
-            saturated_fraction(frame, sat) > 0.5
-
-    rows, us, peaks = [], [], []
-    stats = {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0, "saturated_frames": 0}
-    for prof, blown in folder.map_frames(one):
-        keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
-        lone = isolated_rows(prof.rows, prof.u)
-        stats["isolated_rows"] += int(lone.sum())
-        if drop_isolated:
-            keep &= ~lone
-        stats["saturated_rows"] += int(prof.saturated.sum())
-        stats["blank_frames"] += int(len(prof) == 0)
-        stats["saturated_frames"] += int(blown)
-        rows.append(prof.rows[keep])
-        us.append(prof.u[keep])
-        peaks.append(prof.peak[keep])
-        report(progress, len(rows), len(folder))
-    return rows, us, peaks, stats
+    res = extract_folder_stripes(folder, method, min_snr=min_snr, keep_saturated=keep_saturated,
+                                 progress=progress, multi_peak=multi_peak, window_px=window_px,
+                                 drop_isolated=drop_isolated)
+    return res.rows, res.u, res.peak, res.stats

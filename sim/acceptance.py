@@ -30,10 +30,18 @@ Segmentation uses the nominal pose (this is the twin): sphere points within
 0.2·R of the sphere is left out), plane points within 1 mm of the nominal face
 and 2 mm inside its edges.  ``quick=True`` keeps 2 sphere positions, 1 ball
 bar and 1 plane with fewer frames (tests); the full plan is the guideline's.
+
+Point quality: every point carries its measured quality (stripe width, SNR,
+laser and camera incidence, sweep edge; :mod:`scheimpflug.point_quality`,
+from the frames and the calibration only), and the headline figures are those
+of the points that pass the filter (default
+:data:`scheimpflug.point_quality.DEFAULT_FILTER`, as ``reconstruct`` writes
+them); the figures of every point are reported beside them as ``unfiltered``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from collections.abc import Callable
@@ -46,11 +54,22 @@ from scheimpflug import acceptance as vdi
 from scheimpflug.axis import locate_axis
 from scheimpflug.budget import sheet_shift_mm
 from scheimpflug.callbacks import ProgressCallback, report
+from scheimpflug.errors import CalibrationError
 from scheimpflug.io.frames import open_frame_folder
 from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
-from scheimpflug.reconstruct import extract_folder, reconstruct_profiles
+from scheimpflug.point_quality import (
+    DEFAULT_FILTER,
+    QualityFilter,
+    SheetGeometry,
+    assess_points,
+    filter_counts,
+    quality_mask,
+    sheet_geometry,
+    sweep_edges,
+)
+from scheimpflug.reconstruct import extract_folder_stripes, reconstruct_profiles
 from scheimpflug.sheet_model import calibrate_sheet_folder
 
 from .scenarios import Scenario, _rotary_frames
@@ -64,6 +83,7 @@ __all__ = [
     "ArtefactPosition",
     "acceptance_plan",
     "calibration_constants",
+    "measured_cloud",
     "measuring_volume",
     "position_scenario",
     "run_acceptance",
@@ -391,15 +411,65 @@ def score_position(rig: Rig, position: ArtefactPosition, cloud, exclude_fraction
     return {"name": position.name, "kind": position.kind, **_evaluate(position, pts, exclude_fraction)}, pts
 
 
+def measured_cloud(ff, cal, axis_mm: float, geometry: SheetGeometry):
+    """The cloud of a rotary scan folder with every point's measured quality (frames and calibration only).
+
+    Parameters
+    ----------
+    ff : scheimpflug.io.frames.FrameFolder
+        The scan.
+    cal : SheetModel
+        The calibration.
+    axis_mm : float
+        Stage coordinate of the rotary axis [mm].
+    geometry : scheimpflug.point_quality.SheetGeometry or None
+        Laser origin and camera centre (:func:`scheimpflug.point_quality.sheet_geometry`);
+        None: the incidences stay unknown (NaN), the sweep edges are still measured.
+
+    Returns
+    -------
+    cloud : scheimpflug.reconstruct.PointCloud
+        Every point, with its width, SNR, incidences and sweep edge.
+    stripes : scheimpflug.reconstruct.FolderStripes
+        The stripe samples it was made of.
+    """
+    st = extract_folder_stripes(ff, "cog")
+    cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in ff.frames], cal, axis_mm,
+                                 intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px)
+    if geometry is None:
+        return dataclasses.replace(cloud, sweep_edge=sweep_edges(cloud.frame, cloud.row, len(ff))), st
+    return assess_points(cloud, geometry, axis_mm, len(ff)), st
+
+
+def _geometry(calibration, rig_b: Rig, warn) -> SheetGeometry | None:
+    """The sheet geometry of the point quality, or None (and a warning) when the calibration has none."""
+    try:
+        return sheet_geometry(calibration, rig_b.lens.focal_length_mm, rig_b.sensor.pixel_pitch_um,
+                              rig_b.laser.origin_x_mm)
+    except (CalibrationError, ValueError) as exc:
+        warn(f"point quality: incidence angles not measured ({exc})")
+        return None
+
+
+def _figures(res: dict) -> dict:
+    return {k: res[k] for k in ("PF_mm", "PS_mm", "SD_mm", "F_mm", "n_points") if k in res}
+
+
 def _scan(rig, position, out: Path, cal, axis_mm, seed, spp, warn, exclude_fraction, truth_constants,
-          material):
+          material, geometry, quality):
     _render(rig, position_scenario(rig, position, seed, material), out, seed, spp, warn)
     ff = open_frame_folder(out)
-    rows, us, peaks, _ = extract_folder(ff, "cog")
-    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in ff.frames], cal, axis_mm, intensity=peaks)
-    res, pts = score_position(rig, position, cloud, exclude_fraction)
+    cloud, st = measured_cloud(ff, cal, axis_mm, geometry)
+    raw, raw_pts = score_position(rig, position, cloud, exclude_fraction)
+    if quality is None:
+        res, pts = raw, raw_pts
+    else:
+        res, pts = score_position(rig, position, cloud.select(quality_mask(cloud, quality)), exclude_fraction)
+        res["quality_filter"] = filter_counts(cloud, quality)
+    res["unfiltered"] = _figures(raw) if raw.get("kind") != "ball_bar" else {
+        "SD_mm": raw["SD_mm"], "n_points": raw["sphere_a"]["n_points"] + raw["sphere_b"]["n_points"]}
     res["n_frames"] = len(ff)
-    return res, pts, _extraction_errors(ff, rows, us, truth_constants)
+    return res, pts, _extraction_errors(ff, st.rows, st.u, truth_constants)
 
 
 def _calibrate(rig, out: Path, model: str, seed, spp, warn, calibration_options):
@@ -441,6 +511,7 @@ def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quic
                    frames: int | None = None, seed: int = 0, spp: int | None = None,
                    exclude_fraction: float = vdi.EXCLUDE_FRACTION, kinds=None, material: str = _MATERIAL,
                    plan_rig: Rig | None = None, calibration_options: dict | None = None,
+                   quality: QualityFilter | None = DEFAULT_FILTER,
                    progress: ProgressCallback | None = None,
                    warn: Callable[[str], None] | None = None) -> dict:
     """Render, reconstruct and evaluate the whole acceptance test (module docstring).
@@ -475,6 +546,9 @@ def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quic
     calibration_options : dict, optional
         Options of the calibration scenario (``steps``, ``step_mm``, ``start_mm``,
         ``plate_height_mm``); default the scenario's.
+    quality : QualityFilter or None
+        The point-quality filter applied before the evaluation (default
+        :data:`scheimpflug.point_quality.DEFAULT_FILTER`); None evaluates every point.
     progress : ProgressCallback, optional
         ``progress(done, total)`` per scan.
     warn : callable, optional
@@ -483,8 +557,11 @@ def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quic
     Returns
     -------
     dict
-        ``PF_mm``, ``PS_mm``, ``SD_mm``, ``F_mm``, ``L0_mm`` (the table), ``positions`` (per-position
-        detail), ``volume``, ``calibration`` (model, selection), ``axis_mm``, ``extraction_range_mm``
+        ``PF_mm``, ``PS_mm``, ``SD_mm``, ``F_mm``, ``L0_mm`` (the table, the headline: with the
+        quality filter), ``unfiltered`` (the same table of every point, PF, PS, SD, F),
+        ``quality_filter`` (its thresholds, or None), ``positions`` (per-position
+        detail, each with its ``unfiltered`` figures and the filter's ``quality_filter`` counts),
+        ``volume``, ``calibration`` (model, selection), ``axis_mm``, ``extraction_range_mm``
         and ``extraction_rms_mm`` (the stripe-extraction error mapped to the sheet against the exact
         stripe centres: its range, with the same exclusion as PF and F, and its RMS),
         ``exclude_fraction``, ``points`` (per position, for plots; not JSON) and ``sheet_model``
@@ -497,21 +574,26 @@ def run_acceptance(rig: Rig, out, *, model: str = "auto", binning: int = 1, quic
     vol, plan = acceptance_plan(binned_rig(plan_rig or rig, binning), quick, frames, kinds)
     report(progress, 0, len(plan) + 1)
     cal_res, axis_mm = _calibrate(rig_b, out, model, seed, spp, warn, calibration_options)
+    geometry = _geometry(cal_res.chosen, rig_b, warn)
     g = hinge_geometry(rig_b)
     truth = {"hinge_u_px": g.hinge_column, "hinge_v_px": g.axis_row, "F2_px_mm": g.F2_px_mm, "C_mm": g.C_mm}
     rows, points, errs = {"sphere": [], "ball_bar": [], "plane": []}, {}, []
     for k, pos in enumerate(plan):
         report(progress, k + 1, len(plan) + 1)
         res, pts, e = _scan(rig_b, pos, out / pos.name, cal_res.chosen, axis_mm, seed, spp, warn,
-                            exclude_fraction, truth, material)
+                            exclude_fraction, truth, material, geometry, quality)
         rows[pos.kind].append(res)
         points[pos.name] = pts
         errs.append(e)
     report(progress, len(plan) + 1, len(plan) + 1)
     e = np.concatenate(errs) if errs else np.zeros(0)
     table = vdi.summarize(rows["sphere"], rows["ball_bar"], rows["plane"], vol["L0_mm"])
+    raw = vdi.summarize(*[[r["unfiltered"] for r in rows[k]] for k in ("sphere", "ball_bar", "plane")],
+                        vol["L0_mm"])
     chosen = "general" if cal_res.chosen is cal_res.general else "paper"
-    return {**table, "volume": vol, "positions": rows, "axis_mm": float(axis_mm), "binning": binning,
+    return {**table, "unfiltered": {k: raw[k] for k in ("PF_mm", "PS_mm", "SD_mm", "F_mm")},
+            "quality_filter": None if quality is None else quality.to_json_dict(), "volume": vol,
+            "positions": rows, "axis_mm": float(axis_mm), "binning": binning,
             "calibration": {"model": chosen, "selection": cal_res.selection.to_json_dict(),
                             "constants": calibration_constants(cal_res.paper.best)},
             "extraction_range_mm": _range_excluding(e, exclude_fraction) if e.size else None,

@@ -8,11 +8,18 @@ Point clouds are binary little-endian PLY with one ``vertex`` element::
     property int row                  sensor row [px]
     property float intensity          stripe peak above background [DN]
     property int frame                frame index in the scan (−1: unknown)
+    property float stripe_width_px    RMS width of the stripe in the point's row [px]
+    property float snr                stripe peak over the background noise [-]
+    property float incidence_laser_deg   angle between surface normal and laser ray [deg]
+    property float incidence_camera_deg  angle between surface normal and line of sight [deg]
+    property uchar sweep_edge         1: the sheet enters or leaves the surface here, 0: not, 255: unknown
 
-which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and whose
-extra properties those tools keep as scalar fields.  The reader accepts any
-PLY whose vertex element has x, y, z (ascii or binary, either byte order);
-missing extras come back as NaN / −1.
+(the point quality, :mod:`scheimpflug.point_quality`; NaN where a quality is
+unknown) which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and
+whose extra properties those tools keep as scalar fields; a reader that does
+not know the quality properties skips them by name, as PLY allows.  The reader
+accepts any PLY whose vertex element has x, y, z (ascii or binary, either byte
+order); missing extras come back as NaN / −1, missing quality fields as None.
 
 Meshes (the twin's ``truth/mesh.ply``: double vertices and an ``object_id``
 per face; a surface model's ``fill`` and ``body`` per face,
@@ -50,7 +57,10 @@ __all__ = [
 
 _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
                          ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4"),
-                         ("frame", "<i4")])
+                         ("frame", "<i4"), ("stripe_width_px", "<f4"), ("snr", "<f4"),
+                         ("incidence_laser_deg", "<f4"), ("incidence_camera_deg", "<f4"), ("sweep_edge", "u1")])
+_QUALITY_FLOATS = ("stripe_width_px", "snr", "incidence_laser_deg", "incidence_camera_deg")
+_EDGE_UNKNOWN = 255
 _PLY_NAME = {"f4": "float", "u1": "uchar", "i4": "int"}
 
 
@@ -95,7 +105,8 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
         Destination ``.ply``; written to a temporary name, then renamed.
     cloud : PointCloud
         Points in the part frame [mm] with angle, row, intensity and frame
-        index (stored as float32 / int32; frame −1 when unknown).
+        index (stored as float32 / int32; frame −1 when unknown), and the
+        point quality (float32, NaN when unknown; ``sweep_edge`` uchar, 255 unknown).
     comment : str, optional
         Extra header comment (one line: whitespace runs are collapsed, and
         non-ASCII characters escaped as Python's ``backslashreplace`` does, a
@@ -114,6 +125,9 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     data["red"], data["green"], data["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     data["angle_deg"], data["row"], data["intensity"] = cloud.angle_deg, cloud.row, cloud.intensity
     data["frame"] = cloud.frame if cloud.frame is not None else -1
+    for name in _QUALITY_FLOATS:
+        data[name] = getattr(cloud, name) if getattr(cloud, name) is not None else np.nan
+    data["sweep_edge"] = _EDGE_UNKNOWN if cloud.sweep_edge is None else np.asarray(cloud.sweep_edge, bool)
     lines = ["ply", "format binary_little_endian 1.0",
              "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
     lines += [f"comment {_ascii(comment)}"] if comment else []
@@ -282,7 +296,8 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
     PointCloud
         Points (n, 3) float64 [mm] (part frame for the clouds this toolkit
         writes); ``angle_deg`` and ``intensity`` NaN and ``row`` and
-        ``frame`` −1 where the file lacks them.
+        ``frame`` −1 where the file lacks them; each quality field None
+        where the file lacks it (``sweep_edge`` also when every value is 255, unknown).
 
     Raises
     ------
@@ -303,9 +318,13 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
         return data[name].astype(np.float64) if name in data else np.full(n, fill)
 
     xyz = np.column_stack([get("x", 0), get("y", 0), get("z", 0)])
+    quality = {name: data[name].astype(np.float64) for name in _QUALITY_FLOATS if name in data}
+    edge = data.get("sweep_edge")
+    if edge is not None and np.any(edge != _EDGE_UNKNOWN):
+        quality["sweep_edge"] = edge == 1
     return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
                       row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan),
-                      frame=get("frame", -1).astype(np.int64))
+                      frame=get("frame", -1).astype(np.int64), **quality)
 
 
 @dataclass(frozen=True)

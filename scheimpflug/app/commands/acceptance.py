@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.app.commands._quality import add_quality_options, quality_from_args
 
 __all__ = ["add_parser"]
 
@@ -17,7 +18,9 @@ def add_parser(sub):
                                    "rotary stage, reconstruct them through the pipeline (calibration "
                                    "frames, blocker, scans) and evaluate the VDI/VDE 2634-2 quality "
                                    "parameters: the table (largest over positions), per-position detail, "
-                                   "a figure and JSON.")
+                                   "a figure and JSON.  The headline figures are those of the points "
+                                   "that pass the point-quality filter (as 'reconstruct' writes them); "
+                                   "the figures of every point follow as 'unfiltered'.")
     add_rig_options(p)
     p.add_argument("--out", metavar="DIR", default="acceptance",
                    help="working folder: frame folders, acceptance.json, acceptance.png (default ./acceptance)")
@@ -32,6 +35,7 @@ def add_parser(sub):
                    help="frames per sphere crossing / plane scan (default 21; 9 with --quick)")
     p.add_argument("--no-exclusion", action="store_true",
                    help="evaluate every point (default: exclude the 0.3 %% the guideline permits)")
+    add_quality_options(p)
     p.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -51,6 +55,13 @@ def _table(r: dict) -> str:
              f"  F  (flatness error)          {um(r['F_mm'])}   max over {len(n['plane'])} plane positions",
              f"  stripe extraction error on the sheet: range {um(r['extraction_range_mm'])}, "
              f"RMS {um(r['extraction_rms_mm'])}"]
+    q, raw = r.get("quality_filter"), r.get("unfiltered") or {}
+    lines.insert(1, "  quality filter: " + (f"incidence ≤ {q['max_incidence_deg']:g}°, SNR ≥ {q['min_snr']:g}"
+                                           f"{', sweep edges dropped' if q['drop_sweep_edges'] else ''}"
+                                           if q else "off (every point)"))
+    if q:
+        lines.insert(6, f"  every point (unfiltered):    PF {um(raw.get('PF_mm'))}, PS {um(raw.get('PS_mm'))}, "
+                        f"SD {um(raw.get('SD_mm'))}, F {um(raw.get('F_mm'))}")
     for kind in ("sphere", "ball_bar", "plane"):
         for row in n[kind]:
             key = {"sphere": "PF_mm", "ball_bar": "SD_mm", "plane": "F_mm"}[kind]
@@ -63,15 +74,19 @@ def _table(r: dict) -> str:
 def _run(args) -> int:
     from scheimpflug.app.acceptance_plot import plot_acceptance
     from scheimpflug.app.progress import Progress
+    from scheimpflug.errors import ScheimpflugError
     from scheimpflug.io.atomic import write_json_atomic
     from sim.acceptance import run_acceptance
 
     rig = rig_from_args(args)
+    if args.no_quality_filter and args.min_snr is not None:
+        raise ScheimpflugError("--no-quality-filter keeps every point: it cannot be combined with --min-snr")
+    quality = quality_from_args(args)
     out = Path(args.out)
     with Progress(0, label="acceptance", quiet=args.quiet) as bar:
         res = run_acceptance(rig, out, model=args.model, binning=args.binning, quick=args.quick,
                              frames=args.frames, seed=args.seed, exclude_fraction=0.0 if args.no_exclusion
-                             else 0.003, progress=bar, warn=lambda m: None)
+                             else 0.003, quality=quality, progress=bar, warn=lambda m: None)
     plot_acceptance(res, out / "acceptance.png")
     data = {k: v for k, v in res.items() if k not in ("points", "sheet_model")}
     data = json.loads(json.dumps(data, default=float))

@@ -17,6 +17,7 @@ from scheimpflug.app.commands._common import (
     print_json,
 )
 from scheimpflug.app.commands._model import add_model_options
+from scheimpflug.app.commands._quality import add_quality_options, detection_snr, quality_from_args
 
 _METHODS = ("gaussian3", "cog", "blais-rioux", "edge", "paper")
 
@@ -27,7 +28,9 @@ def add_parser(sub):
                                    "to the light sheet with the calibration (paper Eqs. 11–12) and "
                                    "rotate it into the part frame (docs/reference/interface.md stage conventions). "
                                    "Writes a binary PLY coloured by height with per-point angle, "
-                                   "row, intensity and frame; with --model also a watertight mesh of "
+                                   "row, intensity, frame and quality (stripe width, SNR, laser and "
+                                   "camera incidence, sweep edge), keeping the points that pass the "
+                                   "quality filter; with --model also a watertight mesh of "
                                    "the part and its volume, area and sections.")
     p.add_argument("dir", metavar="DIR|CLOUD.ply",
                    help="rotary scan folder (manifest.json + frames/), or a cloud from an earlier "
@@ -48,8 +51,7 @@ def add_parser(sub):
     p.add_argument("--multi-peak", choices=("nearest", "strongest", "track"), default="nearest",
                    help="rule for rows with several peaks (inter-reflections): 'track' picks the "
                         "most continuous, narrow, bright one (default nearest)")
-    p.add_argument("--min-snr", type=number(0, 1e4, lo_open=True), default=6.0,
-                   help="detection threshold, peak over background noise [-] (default 6)")
+    add_quality_options(p)
     p.add_argument("--keep-saturated", action="store_true",
                    help="keep rows whose stripe peak is saturated (dropped by default: biased)")
     p.add_argument("--drop-isolated", action="store_true",
@@ -103,14 +105,14 @@ def _check_folder(folder, calibration) -> None:
 
 
 def _extract(folder, args):
-    """Per-frame (rows, u, intensity) of the detected stripe, and counters."""
+    """The detected stripe of every frame with its quality (FolderStripes)."""
     from scheimpflug.app.progress import Progress
-    from scheimpflug.reconstruct import extract_folder
+    from scheimpflug.reconstruct import extract_folder_stripes
 
     with Progress(0, label="extract", quiet=args.quiet) as bar:
-        return extract_folder(folder, args.method, min_snr=args.min_snr,
-                              keep_saturated=args.keep_saturated, progress=bar,
-                              multi_peak=args.multi_peak, drop_isolated=args.drop_isolated)
+        return extract_folder_stripes(folder, args.method, min_snr=detection_snr(args),
+                                      keep_saturated=args.keep_saturated, progress=bar,
+                                      multi_peak=args.multi_peak, drop_isolated=args.drop_isolated)
 
 
 def _check_args(args) -> bool:
@@ -152,13 +154,21 @@ def _from_folder(args, t0: float):
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
+    quality_from_args(args)                      # contradictory filter options: refused before any work
     calibration = load_calibration(args.calibration)
     folder = open_frame_folder(args.dir)
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration, folder)
-    rows, us, peaks, stats = _extract(folder, args)
-    cloud = reconstruct_profiles(rows, us, [r.angle_deg for r in folder.frames], calibration,
-                                 axis_mm, intensity=peaks)
+    st = _extract(folder, args)
+    stats = st.stats
+    cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in folder.frames], calibration,
+                                 axis_mm, intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px)
+    if len(cloud):
+        cloud, quality = _apply_quality(args, cloud, calibration, folder, axis_mm)
+        if len(cloud) == 0:
+            raise FrameError(f"{args.dir}: the quality filter dropped all {quality['n_points']} points "
+                             f"({_dropped_text(quality)}): see --max-incidence-deg, --min-snr, "
+                             "--no-quality-filter")
     if len(cloud) == 0:
         saturated = (f"; {stats['saturated_frames']} of them saturated (most pixels at the saturation "
                      "level): lower the exposure" if stats["saturated_frames"] else "")
@@ -166,13 +176,36 @@ def _from_folder(args, t0: float):
                          f"({stats['saturated_rows']} saturated rows dropped{saturated}): no usable frame")
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
-               **stats, "seconds": round(time.perf_counter() - t0, 3)}
+               **stats, "quality_filter": quality, "seconds": round(time.perf_counter() - t0, 3)}
+    kept = (f"; quality filter: {_dropped_text(quality)} dropped of {quality['n_points']}"
+            if quality["filter"] else "; no quality filter")
     print(f"reconstruct: {summary['n_points']} points from {summary['n_frames']} frames "
           f"({stats['blank_frames']} without stripe, {stats['saturated_rows']} saturated rows"
-          f"{' kept' if args.keep_saturated else ' dropped'}), axis {axis_mm:.3f} mm "
+          f"{' kept' if args.keep_saturated else ' dropped'}{kept}), axis {axis_mm:.3f} mm "
           f"({axis_source}), {summary['seconds']:.1f} s → {args.out}", file=sys.stderr)
     return cloud, folder, summary, lambda: write_point_cloud(
         args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
+
+
+def _apply_quality(args, cloud, calibration, folder, axis_mm: float):
+    """The cloud with its incidences and sweep edges, filtered as the options say; and the counts."""
+    from scheimpflug.app.commands._quality import measure_quality
+    from scheimpflug.point_quality import filter_counts, quality_mask
+
+    cloud, note = measure_quality(cloud, calibration, folder, axis_mm)
+    if note:
+        print(f"warning: point quality: {note}", file=sys.stderr)
+    quality = quality_from_args(args)
+    if quality is None:
+        return cloud, {"filter": None, "n_points": len(cloud), "n_kept": len(cloud)}
+    counts = filter_counts(cloud, quality)
+    return cloud.select(quality_mask(cloud, quality)), {"filter": quality.to_json_dict(), **counts}
+
+
+def _dropped_text(q: dict) -> str:
+    return (f"{q['n_points'] - q['n_kept']} ({q['low_snr']} SNR < {q['filter']['min_snr']:g}, "
+            f"{q['laser_incidence']} laser and {q['camera_incidence']} camera incidence > "
+            f"{q['filter']['max_incidence_deg']:g}°, {q['sweep_edge']} on the sweep edge)")
 
 
 def _model(args, cloud, folder, summary: dict, write_cloud) -> None:
