@@ -11,7 +11,8 @@ Scenes, each lit by the environment (1 W/m²) and the flood light (20 W/m²):
 Per scene: the median wall time of one frame at 1 sample per pixel over ``--repeat`` frames
 (after one frame of warm-up: compiling the kernel), split into the kernel launches
 (``trace``: ray generation, intersection, shading, shadow rays, accumulation) and the
-read-out to numpy (``readout``); then 16 spp.  Noise: the relative scatter of a flood-lit
+read-out to numpy (``readout``); the same without the flood light (no next-event shadow ray);
+then 16 spp.  Noise: the relative scatter of a flood-lit
 uniform white plate (pixels minus a 9 × 9 box mean) at 1, 4, 16, 64 spp.  The machine's
 load average is printed before and after (other processes share the cores).
 """
@@ -113,15 +114,17 @@ def main() -> None:
     print(f"cores {os.cpu_count()}, Dr.Jit threads {dr.thread_count()}, load average before "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     rig = load_preset("paper").replace(environment={"ambient_irradiance_w_m2": 1.0, "flood_irradiance_w_m2": 20.0})
-    print("| scene | triangles | 1 spp frame [ms] | trace [ms] | readout [ms] | 16 spp frame [ms] |")
-    print("|---|---|---|---|---|---|")
+    print("| scene | triangles | 1 spp frame [ms] | trace [ms] | readout [ms] | 1 spp, no flood light [ms] | "
+          "16 spp frame [ms] |")
+    print("|---|---|---|---|---|---|---|")
     for name, parts, pose in _scenes(rig):
         scene = SimScene(parts)
         tri = sum(len(sp.faces) for sp in scene.specs)
         one = _time(CameraPass(rig, scene, CameraSettings(spp=1)), pose, args.repeat)
+        dark = _time(CameraPass(rig, scene, CameraSettings(spp=1), flood=None), pose, args.repeat)
         many = _time(CameraPass(rig, scene, CameraSettings(spp=16)), pose, max(1, args.repeat // 2))
         print(f"| {name} | {tri:,} | {one[0] * 1e3:.0f} | {one[1] * 1e3:.0f} | {one[2] * 1e3:.0f} | "
-              f"{many[0] * 1e3:.0f} |", flush=True)
+              f"{dark[0] * 1e3:.0f} | {many[0] * 1e3:.0f} |", flush=True)
     print("noise of a flood-lit white plate (relative scatter per pixel):",
           ", ".join(f"{spp} spp {v * 100:.2f} %" for spp, v in _noise(rig, (1, 4, 16, 64))))
     print(f"load average after {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

@@ -1,7 +1,7 @@
 """The twin of a FabScan-like scanner with its back walls beside a real FabScan frame: docs/fabscan_twin_vs_real.png.
 
     .venv/bin/python benchmarks/fabscan_figure.py [--real ../shared/realdata/fabscan/scan-2_1/20210213-230603_000.jpg]
-        [--part tape] [--flood-w-m2 0.1] [--out docs/fabscan_twin_vs_real.png]
+        [--part pile] [--flood-w-m2 0.5] [--out docs/fabscan_twin_vs_real.png]
 
 The twin: the rig of ``benchmarks/fabscan_like.toml`` (a Raspberry Pi camera and a red line laser,
 assumed values), the part on the rotary table, ``--background walls`` (two boards meeting behind
@@ -10,8 +10,8 @@ environment: one frame, the laser pass plus the camera pass (4 samples per pixel
 noise, its 12-bit raw values.  The real frame: one of the FabScanPi's own frames (GPL-2.0, not in
 this project: read from ``../shared/realdata``, the red channel of an 8-bit JPEG).  The twin's frame
 is turned by 90° (its stripe runs along rows there, as the real camera is mounted), both are shown
-with one display rule (value / 99.9th percentile, square root, a 3 × 3 maximum so that one-pixel
-lines survive the down-scaling), side by side, each 640 × 480.
+with one display rule ((value − median) / (99.9th percentile − median), square root), side by side,
+each 640 × 480.
 """
 
 from __future__ import annotations
@@ -28,10 +28,11 @@ ROOT = HERE.parent
 REAL = ROOT.parent / "shared" / "realdata" / "fabscan" / "scan-2_1" / "20210213-230603_000.jpg"
 
 
-def _display(img: np.ndarray, black: float) -> np.ndarray:
-    """Value over the 99.9th percentile, square root, 8 bit; thin lines kept through the down-scaling (3 × 3 max)."""
+def _display(img: np.ndarray) -> np.ndarray:
+    """(value − median) over (99.9th percentile − median), square root, 8 bit."""
+    black = float(np.median(img))
     v = np.clip((img.astype(np.float64) - black) / max(np.percentile(img, 99.9) - black, 1.0), 0.0, 1.0)
-    return cv2.dilate((np.sqrt(v) * 255).astype(np.uint8), np.ones((3, 3), np.uint8))
+    return (np.sqrt(v) * 255).astype(np.uint8)
 
 
 def twin_frame(part: str, flood_w_m2: float, seed: int) -> np.ndarray:
@@ -47,23 +48,23 @@ def twin_frame(part: str, flood_w_m2: float, seed: int) -> np.ndarray:
                         truth_pixels_every=0)
     twin = MitsubaTwin(rig, sc.assembly, background=sc.background)
     electrons = twin.render(sc.frames[0])
-    return apply_sensor(electrons, SensorModel.from_rig(rig), frame_rng(seed, 0)), rig.sensor.dark_offset_dn
+    return apply_sensor(electrons, SensorModel.from_rig(rig), frame_rng(seed, 0))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--real", type=Path, default=REAL)
-    ap.add_argument("--part", default="tape")
-    ap.add_argument("--flood-w-m2", type=float, default=0.1)
+    ap.add_argument("--part", default="pile")
+    ap.add_argument("--flood-w-m2", type=float, default=0.5)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "fabscan_twin_vs_real.png")
     args = ap.parse_args()
     real = cv2.imread(str(args.real), cv2.IMREAD_COLOR)
     if real is None:
         raise SystemExit(f"cannot read the real frame {args.real} (../shared/realdata is not part of the project)")
-    twin, black = twin_frame(args.part, args.flood_w_m2, args.seed)
-    left = cv2.resize(_display(np.rot90(twin), black), (640, 480), interpolation=cv2.INTER_AREA)
-    right = cv2.resize(_display(real[..., 2], 0.0), (640, 480), interpolation=cv2.INTER_AREA)
+    twin = twin_frame(args.part, args.flood_w_m2, args.seed)
+    left = cv2.resize(_display(np.rot90(twin)), (640, 480), interpolation=cv2.INTER_AREA)
+    right = cv2.resize(_display(real[..., 2]), (640, 480), interpolation=cv2.INTER_AREA)
     for img, text in ((left, "twin (walls, flood light)"), (right, "real (FabScanPi, scan-2_1)")):
         cv2.putText(img, text, (12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.7, 255, 2, cv2.LINE_AA)
     side = np.concatenate([left, np.full((480, 8), 128, np.uint8), right], axis=1)

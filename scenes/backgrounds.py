@@ -10,15 +10,15 @@ them — as a scanner's back walls do (``sim.backgrounds.scan_background``: the 
 end beyond the axis, at most 150 mm, or the distance given):
 
 ``walls`` (FabScan-like)
-    two vertical boards meeting behind the table in a corner on the +x axis at
-    ``0.9·far_mm``, each turned 45° from the sheet (a V opening toward the laser and
-    the camera), from the table up to ``height_mm``; the laser crosses both, so each
-    frame shows two fixed straight segments beside the part's profile.
+    two vertical boards meeting behind the table in a corner ``0.9·far_mm`` beyond the
+    axis on the camera's line of sight through it, each at 45° to that line (a V
+    opening toward the camera), from the table up to ``height_mm``; the sheet, at an
+    angle to the line of sight, crosses each board once, so every frame shows two
+    fixed straight segments beside the part's profile.
 ``box``
-    a housing open toward the laser: a back wall across the +x side at ``0.9·far_mm``,
-    two side walls parallel to the sheet at y = ±``0.9·far_mm``, a floor (the table's
-    plane, its centre cut out by nothing: the part stands on it) and a ceiling at
-    ``height_mm``.
+    a housing open toward the camera: a back wall across the line of sight at
+    ``0.9·far_mm``, two side walls parallel to it at ±``0.9·far_mm``, a floor (the
+    table's plane: the part stands on it) and a ceiling at ``height_mm``.
 
 Each board is ``BOARD_MM`` thick; the material is a tag of :data:`scenes.MATERIALS`
 (default ``cardboard``: a plain wooden or card board, matte).  Object ids start at
@@ -47,6 +47,7 @@ FIRST_ID = 101
 
 def _board(name: str, centre, size, yaw_deg: float, material: str, object_id: int) -> Part:
     """A box of ``size`` (length along its x, thickness, height) centred at ``centre``, turned about z."""
+    centre = np.asarray(centre, dtype=float)
     lo, hi = -0.5 * np.asarray(size, float), 0.5 * np.asarray(size, float)
     mesh = box_mesh(lo, hi)
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
@@ -60,7 +61,7 @@ def _board(name: str, centre, size, yaw_deg: float, material: str, object_id: in
 
 
 def background_parts(kind: str, far_mm: float, table_z_mm: float, height_mm: float = 250.0,
-                     material: str = "cardboard") -> tuple[Part, ...]:
+                     material: str = "cardboard", view_dir=(1.0, 0.0)) -> tuple[Part, ...]:
     """The background parts of a scan, in the stage frame (module docstring).
 
     Parameters
@@ -69,13 +70,16 @@ def background_parts(kind: str, far_mm: float, table_z_mm: float, height_mm: flo
         What stands around the table.
     far_mm : float
         Where the boards stand: the walls' corner / the box's back wall at ``0.9·far_mm``
-        beyond the rotary axis along +x [mm] (> 0).
+        beyond the rotary axis [mm] (> 0).
     table_z_mm : float
         Height of the table top in the stage frame [mm].
     height_mm : float, default 250.0
         Height of the walls above the table [mm].
     material : str, default "cardboard"
         Material tag of the boards.
+    view_dir : (2,) float, default (1, 0)
+        Horizontal direction (x, y) from the camera through the axis, stage frame [-]: the
+        corner and the back wall lie on it, behind the axis as the camera sees it.
 
     Returns
     -------
@@ -96,23 +100,29 @@ def background_parts(kind: str, far_mm: float, table_z_mm: float, height_mm: flo
                         "must be > 0")
     if kind == "none":
         return ()
-    r = 0.9 * far_mm
+    w = np.array([view_dir[0], view_dir[1], 0.0], dtype=float)
+    w /= np.linalg.norm(w)
+    side = np.array([-w[1], w[0], 0.0])
+    yaw = math.degrees(math.atan2(w[1], w[0]))
+    r, t = 0.9 * far_mm, BOARD_MM
     zc = table_z_mm + 0.5 * height_mm
-    t = BOARD_MM
     if kind == "walls":
-        length, a = 2.0 * r, math.sqrt(0.5)
-        parts = []
-        for i, sign in enumerate((1.0, -1.0)):
-            d = np.array([-a, sign * a, 0.0])             # from the corner toward the front
-            n = np.array([-a, -sign * a, 0.0])            # the face's normal, toward the axis
-            centre = np.array([r, 0.0, zc]) + 0.5 * length * d - 0.5 * t * n
-            parts.append(_board(f"wall{i + 1}", centre, (length, t, height_mm), math.degrees(math.atan2(d[1], d[0])),
-                                material, FIRST_ID + i))
-        return tuple(parts)
+        return tuple(_wall(i, sign, r * w, w, side, t, height_mm, zc, material) for i, sign in enumerate((1.0, -1.0)))
     span = 2.0 * r
-    return (_board("back", (r + 0.5 * t, 0.0, zc), (t, span, height_mm), 0.0, material, FIRST_ID),
-            _board("side1", (0.0, r + 0.5 * t, zc), (span, t, height_mm), 0.0, material, FIRST_ID + 1),
-            _board("side2", (0.0, -r - 0.5 * t, zc), (span, t, height_mm), 0.0, material, FIRST_ID + 2),
-            _board("floor", (0.0, 0.0, table_z_mm - 0.5 * t - 0.5), (span, span, t), 0.0, material, FIRST_ID + 3),
-            _board("ceiling", (0.0, 0.0, table_z_mm + height_mm + 0.5 * t), (span, span, t), 0.0, material,
+    return (_board("back", (r + 0.5 * t) * w + [0, 0, zc], (t, span, height_mm), yaw, material, FIRST_ID),
+            _board("side1", (r + 0.5 * t) * side + [0, 0, zc], (span, t, height_mm), yaw, material, FIRST_ID + 1),
+            _board("side2", -(r + 0.5 * t) * side + [0, 0, zc], (span, t, height_mm), yaw, material, FIRST_ID + 2),
+            _board("floor", (0.0, 0.0, table_z_mm - 0.5 * t - 0.5), (span, span, t), yaw, material, FIRST_ID + 3),
+            _board("ceiling", (0.0, 0.0, table_z_mm + height_mm + 0.5 * t), (span, span, t), yaw, material,
                    FIRST_ID + 4))
+
+
+def _wall(i: int, sign: float, corner, w, side, t: float, height_mm: float, zc: float, material: str) -> Part:
+    """One of the two walls: from the corner toward the front at 45° to −w, its face toward the axis."""
+    a = math.sqrt(0.5)
+    d = -a * w + sign * a * side                         # along the wall, from the corner to the front
+    n = -a * w - sign * a * side                         # its face's normal, toward the axis
+    length = 2.0 * np.linalg.norm(corner)
+    centre = corner + 0.5 * length * d - 0.5 * t * n + np.array([0.0, 0.0, zc])
+    return _board(f"wall{i + 1}", centre, (length, t, height_mm), math.degrees(math.atan2(d[1], d[0])),
+                  material, FIRST_ID + i)

@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from scheimpflug.model.camera import lens_centre_mm
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
-from .stages import axis_distance_mm, rig_from_stage
+from .stages import axis_distance_mm, invert, rig_from_stage
 
 __all__ = ["MAX_DISTANCE_MM", "background_truth", "scan_background"]
 
@@ -60,7 +61,9 @@ def scan_background(rig: Rig, kind: str, material: str = "cardboard", height_mm:
         g = hinge_geometry(rig)
         d_far = float(max(g.distance_from_column([-0.5, rig.sensor.columns - 0.5])))
         distance_mm = min(d_far - axis_distance_mm(rig), MAX_DISTANCE_MM / 0.9)
-    return background_parts(kind, distance_mm, rig.stage.rotary_table_z_mm, height_mm, material)
+    lens = invert(rig_from_stage(rig)) @ np.append(lens_centre_mm(rig), 1.0)     # the camera, stage frame
+    return background_parts(kind, distance_mm, rig.stage.rotary_table_z_mm, height_mm, material,
+                            view_dir=(-lens[0], -lens[1]))
 
 
 def _merge(a: dict, b: dict) -> dict:
