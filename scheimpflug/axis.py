@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from scheimpflug.calibration import Calibration
+from scheimpflug.calibration import Calibration, applicability_problem
 from scheimpflug.errors import CalibrationError, FrameError
-from scheimpflug.io.frames import FrameFolder, open_frame_folder
+from scheimpflug.io.frames import FrameFolder, check_distinct_frames, open_frame_folder
 from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
@@ -250,13 +250,15 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
         frames put it more than 5 mm apart.
     FrameError
         If the frame size differs from the calibration's, the thickness is
-        not a number in [0, 100) mm, or the folder or a frame is invalid.
+        not a number in [0, 100) mm, a frame is listed twice
+        (:func:`scheimpflug.io.frames.check_distinct_frames`), or the folder or
+        a frame is invalid.
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     _check_size(ff, calibration)
     notes = _check_blocker_folder(ff)
     t, src = _thickness(ff, blocker_thickness_mm)
-    axes, faces, cols, all_s, skipped = [], [], [], [], []
+    axes, faces, cols, all_s, skipped, used = [], [], [], [], [], []
     for i, rec in enumerate(ff.frames):
         cos = 1.0 if rec.angle_deg is None else abs(math.cos(math.radians(rec.angle_deg)))
         if cos < _MIN_COS:
@@ -269,6 +271,7 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
             skipped.append((rec.file, str(exc)))
             continue
         face = float(np.median(s))
+        used.append(i)
         notes += _stripe_shape_notes(rec.file, u, rows, s - face)
         faces.append(face)
         cols.append(float(np.median(u)))
@@ -277,6 +280,7 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
     if not axes:
         reasons = "; ".join(f"{f}: {r}" for f, r in skipped[:3])
         raise CalibrationError(f"no usable blocker frame in {str(ff.path)!r} ({reasons})")
+    check_distinct_frames(ff, used)
     notes += _check_axis_result(ff, calibration, axes, t)
     dev = np.concatenate(all_s)
     return AxisResult(axis_mm=float(np.median(axes)), face_mm=float(np.median(faces)),
@@ -338,7 +342,7 @@ def _check_size(ff: FrameFolder, cal: Calibration) -> None:
     if cal.columns and cal.rows and (ff.columns, ff.rows) != (cal.columns, cal.rows):
         raise FrameError(f"frames in {str(ff.path)!r} are {ff.rows} × {ff.columns} but the "
                          f"calibration was made with {cal.rows} × {cal.columns} (rows × columns)")
-    problem = cal.problem(ff.columns) if hasattr(cal, "problem") else None
+    problem = applicability_problem(cal, ff)
     if problem:
         raise CalibrationError(f"the calibration cannot be applied to {str(ff.path)!r}: {problem}")
 
@@ -423,11 +427,11 @@ def cylinder_near_positions(folder: str | Path | FrameFolder, calibration: Calib
     ------
     FrameError
         If a frame has no ``angle_deg``, the frame size differs from the
-        calibration's, or the folder or a frame is invalid.
+        calibration's, a frame is listed twice, or the folder or a frame is invalid.
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
     _check_size(ff, calibration)
-    angles, near = [], []
+    angles, near, used = [], [], []
     for i, rec in enumerate(ff.frames):
         if rec.angle_deg is None:
             raise FrameError(f"cylinder scan frame {rec.file!r} has no 'angle_deg' in the manifest")
@@ -438,6 +442,8 @@ def cylinder_near_positions(folder: str | Path | FrameFolder, calibration: Calib
             continue
         angles.append(rec.angle_deg)
         near.append(float(np.median(s)))
+        used.append(i)
+    check_distinct_frames(ff, used)
     return np.array(angles), np.array(near)
 
 

@@ -84,12 +84,13 @@ from typing import Any
 
 import numpy as np
 from scipy import optimize
+from scipy.ndimage import uniform_filter1d
 
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
-from scheimpflug.io.frames import FrameFolder, open_frame_folder, scenario_number
-from scheimpflug.model.hinge import pixel_from_stage, stage_from_pixel
+from scheimpflug.io.frames import FrameFolder, check_distinct_frames, open_frame_folder, scenario_number
+from scheimpflug.model.hinge import HingeGeometry, pixel_from_stage, stage_from_pixel
 from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
@@ -99,10 +100,16 @@ __all__ = [
     "CalibrationTolerances",
     "PlateMeasurement",
     "accuracy_warnings",
+    "applicability_problem",
     "c_sigma_from_endpoint_fits",
+    "check_against_manifest",
+    "check_axis_position",
+    "check_used_frames_distinct",
     "calibrate_folder",
     "calibrate_measurements",
+    "double_stripe_rows",
     "endpoint_residual_px",
+    "frame_diagnosis",
     "measure_plate_frame",
 ]
 
@@ -145,6 +152,16 @@ class CalibrationTolerances:
     stage_order_px : float, default 0.5
         Sorted by stage position, a stripe may step back by at most this much,
         and frames at one position may differ by at most this much [px].
+    second_peak_ratio : float, default 0.5
+        A row holds two stripes when a second, separate peak (≥ 3 px away, the
+        profile dipping below 60 % of it in between) reaches this fraction of
+        the stripe's height above the background [-].
+    double_rows_fraction : float, default 0.2
+        A frame with two stripes in more than this fraction of its lit rows is
+        skipped (a reflection or a second laser line biases its centres) [-].
+    gradient_noise_ratio : float, default 20.0
+        A background that changes across the frame by more than this many times
+        its noise is a gradient (ambient light), named in messages [-].
     """
 
     min_rows: int = 20            # fewer lit rows: no plate in view [rows]
@@ -160,6 +177,9 @@ class CalibrationTolerances:
     fit_outlier_ratio: float = 10.0  # leave-one-out miss beyond this many robust σ of the others …
     fit_outlier_floor_px: float = 0.1  # … and beyond this floor: a wrong stage position [px]
     stage_order_px: float = 0.5   # a stripe stepping back (or apart at one s) by more: refused [px]
+    second_peak_ratio: float = 0.5  # a second peak this high (of the stripe's) in a row: two stripes [-]
+    double_rows_fraction: float = 0.2  # a frame with two stripes in more of its rows is skipped [-]
+    gradient_noise_ratio: float = 20.0  # background change across the frame above this × noise [-]
 
 
 _MAX_CONDITION = 1e12
@@ -220,6 +240,11 @@ class Calibration:
         Accuracy warnings (:func:`accuracy_warnings`).
     estimates : dict
         JSON dicts of both estimates (``{"paper": ..., "refined": ...}``).
+    pixel_pitch_um : float
+        Pixel pitch of the frames it was made with (the manifest's rig, binned) [µm];
+        NaN when unknown (no rig, or a file written before it was recorded).
+    stage_range_mm : tuple of float
+        Lowest and highest stage position of the frames used [mm] (NaN: unknown).
     """
 
     hinge_u_px: float
@@ -243,6 +268,8 @@ class Calibration:
     n_frames_both_edges: int = 0
     warnings: tuple[str, ...] = field(default=(), compare=False, hash=False)
     estimates: dict = field(default_factory=dict, compare=False, hash=False, repr=False)
+    pixel_pitch_um: float = math.nan
+    stage_range_mm: tuple[float, float] = (math.nan, math.nan)
 
     def stage_from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
         """Stage coordinate and height of pixel (u, v) (paper Eqs. 11–12).
@@ -321,7 +348,8 @@ class Calibration:
         """
         d = self._core_dict()
         d.update(columns=self.columns, rows=self.rows, plate_height_mm=self.plate_height_mm,
-                 warnings=list(self.warnings))
+                 pixel_pitch_um=_json_float(self.pixel_pitch_um),
+                 stage_range_mm=[_json_float(x) for x in self.stage_range_mm], warnings=list(self.warnings))
         d.update({k: v for k, v in self.estimates.items()})
         return d
 
@@ -370,7 +398,9 @@ class Calibration:
                        C_stderr_mm=_float(d, "C_stderr_mm"),
                        n_frames_both_edges=_whole(d.get("n_frames_both_edges", 0)),
                        warnings=tuple(str(w) for w in d.get("warnings", ())),
-                       estimates={k: d[k] for k in ("paper", "refined") if k in d})
+                       estimates={k: d[k] for k in ("paper", "refined") if k in d},
+                       pixel_pitch_um=_float(d, "pixel_pitch_um"),
+                       stage_range_mm=_pair(d.get("stage_range_mm")))
         except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise CalibrationError(f"calibration data lacks or garbles a field: {exc!r}") from None
 
@@ -452,6 +482,8 @@ class Calibration:
                     "points at infinity")
         if not (math.isfinite(self.plate_height_mm) and self.plate_height_mm > 0):
             return f"plate_height_mm = {self.plate_height_mm} must be > 0"
+        if not (math.isnan(self.pixel_pitch_um) or 0 < self.pixel_pitch_um < 1e4):
+            return f"pixel_pitch_um = {self.pixel_pitch_um} must be > 0 (or null: unknown)"
         return None
 
 
@@ -467,7 +499,10 @@ def _float(d, key) -> float:
         value = d[key]
     except (KeyError, IndexError, TypeError):
         return math.nan
-    return _num(value)
+    try:
+        return _num(value)
+    except TypeError as exc:
+        raise TypeError(f"{key}: {exc}") from None
 
 
 def _num(x) -> float:
@@ -477,6 +512,15 @@ def _num(x) -> float:
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise TypeError(f"{x!r:.40} is not a number")
     return float(x)
+
+
+def _pair(x) -> tuple[float, float]:
+    """A JSON [lo, hi] pair of numbers (null entries NaN); absent: (NaN, NaN)."""
+    if x is None:
+        return (math.nan, math.nan)
+    if not isinstance(x, (list, tuple)) or len(x) != 2:
+        raise ValueError(f"{x!r:.40} is not a [lo, hi] pair")
+    return (_num(x[0]), _num(x[1]))
 
 
 def _whole(x) -> int:
@@ -512,6 +556,10 @@ class PlateMeasurement:
         Columns of the inlier stripe points [px].
     file : str, default ""
         The frame's file (for messages); empty when unknown.
+    diagnosis : str, default ""
+        What in the frame may bias its stripe (rows with two peaks, a background
+        gradient, a constant column: :func:`frame_diagnosis`); named when the
+        frame's stage position is questioned.
     """
 
     stage_mm: float
@@ -523,6 +571,7 @@ class PlateMeasurement:
     rows: np.ndarray = field(repr=False)
     u: np.ndarray = field(repr=False)
     file: str = ""
+    diagnosis: str = ""
 
     def name(self) -> str:
         """The frame's file, or its stage position when the file is unknown.
@@ -533,6 +582,16 @@ class PlateMeasurement:
             ``file`` or ``"stage s mm"``.
         """
         return self.file or f"stage {self.stage_mm:g} mm"
+
+    def cause(self) -> str:
+        """`` — but FILE shows …`` when the frame has a :attr:`diagnosis`, else empty.
+
+        Returns
+        -------
+        str
+            A clause to append to a message that questions the frame's stage position.
+        """
+        return f" — but {self.name()} shows {self.diagnosis}, which moves its stripe" if self.diagnosis else ""
 
 
 @dataclass(frozen=True)
@@ -702,8 +761,15 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         raise CalibrationError(f"no straight stripe ({int(keep.sum())} rows on a line)")
     if prof.saturated[keep].mean() > 0.5:
         raise CalibrationError("stripe saturated in most rows: lower the exposure")
+    double = double_stripe_rows(frame, prof.rows[keep], prof.u[keep], tol.second_peak_ratio)
+    if double.sum() > tol.double_rows_fraction * keep.sum():
+        raise CalibrationError(f"two stripes: {int(double.sum())} of its {int(keep.sum())} lit rows show a second "
+                               "peak of comparable height beside the stripe (a reflection or a second laser "
+                               "line): its stripe centres would be biased")
+    diagnosis = frame_diagnosis(frame, prof.rows[keep], prof.u[keep], double, tol)
     if detector == "paper":
-        return _paper_plate_frame(prof, keep, line, stage_mm, frame.shape[0])
+        return dataclasses.replace(_paper_plate_frame(prof, keep, line, stage_mm, frame.shape[0]),
+                                   diagnosis=diagnosis)
     rows_in = prof.rows[keep]
     ends = []
     for v_end, direction, side in ((rows_in.min(), -1, -1), (rows_in.max(), +1, +1)):
@@ -711,7 +777,125 @@ def measure_plate_frame(frame: np.ndarray, stage_mm: float, *, detector: str = "
         ends.append(None if ve is None else (line[0] + line[1] * ve, ve))
     return PlateMeasurement(stage_mm=float(stage_mm), u_mean_px=float(prof.u[keep].mean()),
                             n_rows=int(keep.sum()), line=line, top_px=ends[0], bottom_px=ends[1],
-                            rows=rows_in, u=prof.u[keep])
+                            rows=rows_in, u=prof.u[keep], diagnosis=diagnosis)
+
+
+def double_stripe_rows(frame: np.ndarray, rows: np.ndarray, u_px: np.ndarray, ratio: float = 0.5,
+                       half_px: int = 24) -> np.ndarray:
+    """Which rows hold a second stripe: a separate peak of comparable height beside the found one.
+
+    The frame is averaged over 9 rows first (a speckle grain is a few rows
+    tall, a stripe runs on).  In each row a window of ``±half_px`` columns is
+    centred on the brightest pixel near the found centre; a second local maximum at least 3 columns away
+    is a second peak when it rises above the window's median by at least
+    ``ratio`` of the brightest pixel's height and by 8 × the row's noise, and
+    the profile between the two dips below 60 % of it.  A second *stripe* (a
+    reflection, a second laser line) keeps its distance from the first along
+    the rows; the grains of a wide speckled stripe make second peaks at any
+    distance: only rows whose second peak lies within ±1 px of the frame's most
+    common distance count.
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The frame [DN].
+    rows : (n,) ndarray int
+        The rows where a stripe was found [px].
+    u_px : (n,) ndarray float
+        Its centre in each of them [px].
+    ratio : float, default 0.5
+        The second peak's height over the stripe's [-].
+    half_px : int, default 24
+        Half-width of the window searched [px].
+
+    Returns
+    -------
+    (n,) ndarray bool
+        True for a row with two stripes.
+    """
+    rows = np.asarray(rows, np.int64)
+    if rows.size == 0:
+        return np.zeros(0, bool)
+    n_cols = frame.shape[1]
+    offs = np.arange(-half_px, half_px + 1)
+    cols = np.clip(np.rint(np.asarray(u_px)).astype(np.int64)[:, None] + offs, 0, n_cols - 1)
+    lo, hi = int(rows.min()), int(rows.max()) + 1
+    band = uniform_filter1d(frame[max(lo - 4, 0):hi + 4].astype(np.float32), 9, axis=0, mode="nearest")
+    smooth = band[rows - max(lo - 4, 0)]                 # 9 rows averaged: speckle grains fade, stripes stay
+    x = np.take_along_axis(smooth, cols, axis=1).astype(np.float64)
+    top = cols[np.arange(rows.size), np.argmax(x, axis=1)]
+    x = np.take_along_axis(smooth, np.clip(top[:, None] + offs, 0, n_cols - 1), axis=1).astype(np.float64)
+    y = x - np.median(x, axis=1, keepdims=True)
+    noise = 1.4826 * np.median(np.abs(np.diff(x, axis=1)), axis=1) / math.sqrt(2) + 0.5
+    main = y[:, half_px]
+    offset = np.zeros(rows.size, np.int64)             # distance of the nearest second peak, 0: none
+    for side in (y[:, half_px:], y[:, half_px::-1]):
+        lows = np.minimum.accumulate(side, axis=1)
+        peak = (side[:, 2:-1] >= side[:, 1:-2]) & (side[:, 2:-1] > side[:, 3:])
+        high = side[:, 2:-1] >= np.maximum(ratio * main, 8 * noise)[:, None]
+        dip = lows[:, 1:-2] < 0.6 * side[:, 2:-1]
+        hit = peak & high & dip & (np.arange(2, side.shape[1] - 1) >= 3)
+        j = np.where(hit.any(axis=1), np.argmax(hit, axis=1) + 2, 0)
+        offset = np.where((offset == 0) | ((j > 0) & (j < offset)), j, offset)
+    if not offset.any():
+        return offset > 0
+    counts = np.convolve(np.bincount(offset[offset > 0], minlength=half_px + 2), np.ones(3), "same")
+    common = int(np.argmax(counts))
+    return (offset > 0) & (np.abs(offset - common) <= 1)
+
+
+def frame_diagnosis(frame: np.ndarray, rows: np.ndarray, u_px: np.ndarray, double: np.ndarray,
+                    tol: CalibrationTolerances = CalibrationTolerances()) -> str:
+    """What in a plate frame may bias its stripe, in words (empty when nothing is seen).
+
+    Three causes are looked for: rows with two stripes (``double``, from
+    :func:`double_stripe_rows`; at least 3 and 2 % of the rows); a background that changes across the frame
+    (the 5th percentile of each column over (at least 256 of) the rows, its straight-line change
+    from the first to the last column, above ``gradient_noise_ratio`` × its
+    scatter); a constant column (the stripe's column bright in every row, beyond
+    the plate's edges too — its 5th percentile that much above the columns two
+    beside it, its direct neighbours not: one pixel wide, a hot or stuck column,
+    not a plate's stripe).
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The frame [DN].
+    rows : (n,) ndarray int
+        Rows of the stripe [px].
+    u_px : (n,) ndarray float
+        Its centres [px].
+    double : (n,) ndarray bool
+        Rows with two stripes.
+    tol : CalibrationTolerances
+        ``gradient_noise_ratio``.
+
+    Returns
+    -------
+    str
+        E.g. ``"a second stripe in 12 of 140 rows"``; causes joined by "and".
+    """
+    out = []
+    if double.sum() >= max(3, 0.02 * double.size):
+        out.append(f"a second stripe in {int(double.sum())} of {double.size} rows (a reflection?)")
+    sub = frame[::max(1, frame.shape[0] // 256)]          # ≥ 256 rows suffice for a percentile
+    kth = int(0.05 * (sub.shape[0] - 1))
+    floor = np.partition(sub, kth, axis=0)[kth].astype(np.float64)
+    k = np.arange(floor.size, dtype=np.float64)
+    slope, icpt = np.polyfit(k, floor, 1)
+    scatter = 1.4826 * float(np.median(np.abs(floor - (slope * k + icpt)))) + 0.5
+    across = abs(slope) * (floor.size - 1)
+    if across > tol.gradient_noise_ratio * scatter:
+        out.append(f"a background gradient ({across:.0f} DN across the frame: ambient light?)")
+    u = np.asarray(u_px, np.float64)
+    if u.size and 2 <= round(float(np.median(u))) < floor.size - 2:
+        c = round(float(np.median(u)))
+        lift = floor[c] - max(floor[c - 2], floor[c + 2])
+        narrow = max(floor[c - 1], floor[c + 1]) - max(floor[c - 2], floor[c + 2]) < 0.1 * lift
+        if lift > tol.gradient_noise_ratio * scatter and narrow:
+            out.append(f"a constant column (column {c} bright in every row, beyond the plate too: a hot or "
+                       "stuck column?)")
+    return " and ".join(out)
 
 
 def _paper_plate_frame(prof, keep: np.ndarray, line, stage_mm: float, n_rows: int) -> PlateMeasurement:
@@ -743,7 +927,8 @@ def _no_stripe(frame: np.ndarray, n_rows: int, min_rows: int, saturation_dn: flo
     if sat > 0.5:
         return (f"frame saturated ({100 * sat:.0f} % of the pixels at the saturation level): no stripe "
                 "can be found; lower the exposure or the laser power")
-    return f"no stripe ({n_rows} lit rows < {min_rows})"
+    seen = frame_diagnosis(frame, np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool))
+    return f"no stripe ({n_rows} lit rows < {min_rows})" + (f": the frame shows {seen}" if seen else "")
 
 
 # ---------------------------------------------------------------- the fits
@@ -1073,18 +1258,36 @@ def _refined_estimate(d: _Data, r2, guess_d0):
                 C_stderr_mm=_sqrt_or_nan(None if cov_e is None else grad_C @ cov_e @ grad_C)), sigma_u
 
 
-def _measurement_data(measurements, plate_height_mm: float, tol: CalibrationTolerances) -> _Data:
+def _skip_summary(skipped) -> str:
+    """``; N frame(s) skipped: k × reason, …`` grouping the skip reasons by their first clause."""
+    if not skipped:
+        return ""
+    groups: dict[str, list[tuple[str, str]]] = {}
+    for name, reason in skipped:
+        groups.setdefault(str(reason).split(" (")[0].split(":")[0], []).append((str(name), str(reason)))
+    parts = []
+    for head, items in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        others = [n for n, _ in items[1:3]] + ([f"{len(items) - 3} more"] if len(items) > 3 else [])
+        parts.append(f"{len(items)} × {head} ({items[0][0]}: {items[0][1]}"
+                     + (f"; also {', '.join(others)}" if others else "") + ")")
+    return f"; {len(skipped)} frame(s) skipped: {'; '.join(parts)}"
+
+
+def _measurement_data(measurements, plate_height_mm: float, tol: CalibrationTolerances,
+                      skipped=()) -> _Data:
     """Check the frames and gather their measurements (every frame with a plate stripe)."""
     ms = tuple(measurements)
     if len(ms) < tol.min_frames:
         raise CalibrationError(f"only {len(ms)} usable calibration frame(s) (a plate stripe); "
-                               f"need at least {tol.min_frames}")
+                               f"need at least {tol.min_frames}{_skip_summary(skipped)}")
     top, bot = _endpoints(ms)
     d = _Data(np.array([m.stage_mm for m in ms]), np.array([m.u_mean_px for m in ms]), top, bot,
               float(plate_height_mm))
     if np.ptp(d.s) <= 0 or np.ptp(d.u) < 1.0:
+        causes = sorted({m.diagnosis for m in ms if m.diagnosis})
         raise CalibrationError(f"the plate did not move: stage positions span {np.ptp(d.s):.4g} mm and "
-                               f"the stripe {np.ptp(d.u):.3g} px")
+                               f"the stripe {np.ptp(d.u):.3g} px"
+                               + (f"; the frames show {causes[0]}" if causes else ""))
     nt, nb = int(d.has_t.sum()), int(d.has_b.sum())
     if nt < 2 or nb < 2:
         raise CalibrationError(f"{nt} frame(s) show the plate's top edge and {nb} its bottom edge; need "
@@ -1095,7 +1298,8 @@ def _measurement_data(measurements, plate_height_mm: float, tol: CalibrationTole
 def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, columns: int = 0,
                            rows: int = 0, method: str = "best",
                            tol: CalibrationTolerances = CalibrationTolerances(),
-                           skipped=(), accuracy: CalibrationAccuracy | None = None) -> CalibrationResult:
+                           skipped=(), accuracy: CalibrationAccuracy | None = None,
+                           pixel_pitch_um: float = math.nan) -> CalibrationResult:
     """Both estimates from per-frame plate measurements (pure; no I/O).
 
     Every frame with a plate stripe gives the distance relation; the frames
@@ -1120,6 +1324,8 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     accuracy : CalibrationAccuracy, optional
         The accuracy the calibration must state (default the class defaults);
         :func:`accuracy_warnings` fills each estimate's ``warnings``.
+    pixel_pitch_um : float, optional
+        Pixel pitch of the frames [µm], recorded (NaN: unknown).
 
     Returns
     -------
@@ -1145,12 +1351,13 @@ def calibrate_measurements(measurements, *, plate_height_mm: float = 89.0, colum
     ms = tuple(measurements)
     _check_stage_positions(ms, tol)
     ms, outliers, notes = _reject_distance_outliers(ms, tol)
-    d = _measurement_data(ms, plate_height_mm, tol)
+    d = _measurement_data(ms, plate_height_mm, tol, tuple(skipped) + outliers)
     pap0 = _paper_values(d, tol)
     ref, sigma_u = _refined_estimate(d, pap0["endpoint_fit_r2"], pap0["d0_mm"])
     pap, lt, lb = _paper_estimate(d, tol, sigma_u)
     common = dict(columns=int(columns), rows=int(rows), plate_height_mm=d.H, n_frames=len(ms),
-                  n_frames_both_edges=int(d.both.sum()))
+                  n_frames_both_edges=int(d.both.sum()), pixel_pitch_um=float(pixel_pitch_um),
+                  stage_range_mm=(float(d.s.min()), float(d.s.max())))
     estimates = {"paper": _estimate_json(pap), "refined": _estimate_json(ref)}
     acc = accuracy or CalibrationAccuracy()
     paper, refined = (_with_warnings(Calibration(**e, method=name, estimates=estimates, **common), acc)
@@ -1184,13 +1391,14 @@ def _check_stage_positions(ms, tol: CalibrationTolerances) -> None:
         if s[order[k + 1]] == s[order[k]] and abs(du[k]) > floor:
             raise CalibrationError(
                 f"{a.name()} and {b.name()} have the same stage position s = {a.stage_mm:g} mm but "
-                f"their stripes lie {abs(du[k]):.3g} px apart: is a stage_mm in the manifest wrong?")
+                f"their stripes lie {abs(du[k]):.3g} px apart: is a stage_mm in the manifest wrong?"
+                f"{a.cause()}{b.cause()}")
         if du[k] < -floor:
             raise CalibrationError(
                 f"stage positions and stripe columns disagree: {a.name()} (s = {a.stage_mm:g} mm, "
                 f"u = {a.u_mean_px:.2f} px) and {b.name()} (s = {b.stage_mm:g} mm, "
                 f"u = {b.u_mean_px:.2f} px); the stripe must move toward the hinge as s grows: "
-                "is a stage_mm in the manifest wrong or swapped?")
+                f"is a stage_mm in the manifest wrong or swapped?{a.cause()}{b.cause()}")
 
 
 def _reject_distance_outliers(ms, tol: CalibrationTolerances):
@@ -1230,7 +1438,9 @@ def _reject_distance_outliers(ms, tol: CalibrationTolerances):
                 "distortion, sensor roll) or several stage positions are wrong"]
         outliers.append((ms[worst].name(), f"outlier in the distance fit: the other frames put its stripe "
                          f"{err[worst]:+.3g} px from where it is ({ratio[worst]:.0f} × their residual σ "
-                         f"{scale[worst]:.2g} px): is its stage_mm ({ms[worst].stage_mm:g} mm) wrong?"))
+                         f"{scale[worst]:.2g} px): " + (f"it shows {ms[worst].diagnosis}"
+                                                        if ms[worst].diagnosis else
+                                                        f"is its stage_mm ({ms[worst].stage_mm:g} mm) wrong?")))
         ms = ms[:worst] + ms[worst + 1:]
     return ms, tuple(outliers), []
 
@@ -1433,6 +1643,224 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
             partial.append((rec.file, "top" if m.top_px is None else "bottom"))
         ms.append(m)
     report(progress, len(ff), len(ff))
+    check_used_frames_distinct(ff, ms)
     res = calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
-                                 rows=ff.rows, method=method, tol=tol, skipped=skipped, accuracy=accuracy)
-    return dataclasses.replace(res, partial=tuple(partial))
+                                 rows=ff.rows, method=method, tol=tol, skipped=skipped, accuracy=accuracy,
+                                 pixel_pitch_um=ff.rig_value("sensor", "pixel_pitch_um") or math.nan)
+    return check_against_manifest(ff, dataclasses.replace(res, partial=tuple(partial)))
+
+
+# ---------------------------------------------------------------- what the manifest knows
+
+_UNITS = (("cm", 10.0), ("inches", 25.4), ("m", 1000.0))
+_UNIT_MATCH = 0.03     # F² within 3 % of the rig's / a unit factor names the unit of the stage positions [-]
+_PLATE_MATCH = 0.10    # C further than 10 % from the rig's questions the plate height [-]
+_HINGE_MATCH = 0.25    # u_h further than 25 % from the rig's hinge column: another binning or sensor [-]
+
+
+def check_used_frames_distinct(ff: FrameFolder, measurements) -> None:
+    """Refuse a frame listed twice among the frames a calibration uses (:func:`check_distinct_frames`).
+
+    Parameters
+    ----------
+    ff : FrameFolder
+        The calibration folder.
+    measurements : iterable of PlateMeasurement
+        The frames with a plate stripe (their ``file`` names the entry).
+
+    Raises
+    ------
+    FrameError
+        Naming both entries.
+    """
+    index = {rec.file: i for i, rec in enumerate(ff.frames)}
+    check_distinct_frames(ff, [index[m.file] for m in measurements if m.file in index])
+
+
+def _stated(rig: dict, table: str, key: str) -> float | None:
+    """A finite number the manifest's rig states (a default the rig file leaves out is not stated)."""
+    value = rig.get(table, {}).get(key) if isinstance(rig.get(table), dict) else None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return float(value) if ok else None
+
+
+def _rig_geometry(ff: FrameFolder) -> HingeGeometry | None:
+    """The ideal geometry of what the manifest's rig states, or None (no rig, or one that states less).
+
+    Only stated values count: a partial rig's missing keys would take the paper's defaults.
+    """
+    if not isinstance(ff.rig, dict):
+        return None
+    keys = (("lens", "focal_length_mm"), ("laser", "scheimpflug_distance_mm"), ("laser", "tan_phi"),
+            ("sensor", "pixel_pitch_um"), ("sensor", "hinge_column"), ("sensor", "axis_row"))
+    values = [_stated(ff.rig, t, k) for t, k in keys]
+    if any(v is None for v in values) or values[0] <= 0 or values[3] <= 0:
+        return None
+    f, d, tan_phi, pitch_um, u_h, v_h = values
+    geo = HingeGeometry(f, d, tan_phi, pitch_um * 1e-3, u_h, v_h)
+    try:
+        ok = math.isfinite(geo.F2_px_mm) and math.isfinite(geo.C_mm) and geo.C_mm > 0
+    except (ValueError, ZeroDivisionError):
+        ok = False
+    return geo if ok else None
+
+
+def check_against_manifest(ff: FrameFolder, result: CalibrationResult) -> CalibrationResult:
+    """Check a calibration against what its frames' manifest knows: the rig's geometry.
+
+    * frames upside down: the calibration's hinge row ``v_h`` far from the rig's
+      ``axis_row`` while its mirror image ``rows − 1 − v_h`` lies near it (refused);
+    * stage positions in other units: the fitted F² a unit factor (10 cm, 25.4 in,
+      1000 m, within 3 %) off the rig's ``−f²/(p cos φ sin β)`` (refused, naming the unit);
+    * a wrong plate height: C more than 10 % off the rig's ``f / sin β`` (C scales with
+      the plate height): a warning giving the plate height the rig implies.
+
+    Parameters
+    ----------
+    ff : FrameFolder
+        The calibration folder (what its manifest's rig states: f, d, tan φ, the pixel
+        pitch, the hinge column and axis row; nothing is checked when it states less).
+    result : CalibrationResult
+        The calibration of its frames.
+
+    Returns
+    -------
+    CalibrationResult
+        ``result`` with the warnings added.
+
+    Raises
+    ------
+    CalibrationError
+        Frames upside down, stage positions in cm, inches or m, with the reason.
+    """
+    geo = _rig_geometry(ff)
+    if geo is None:
+        return result
+    cal = result.best
+    _check_upright(cal, geo, ff.rows)
+    _check_stage_units(cal, geo)
+    notes = _plate_height_notes(cal, geo)
+    return dataclasses.replace(result, warnings=tuple(result.warnings) + notes) if notes else result
+
+
+def _check_upright(cal: Calibration, geo: HingeGeometry, rows: int) -> None:
+    off = abs(cal.hinge_v_px - geo.axis_row)
+    mirrored = rows - 1 - cal.hinge_v_px
+    off_mirrored = abs(mirrored - geo.axis_row)
+    if off > max(8.0, 0.05 * rows) and off_mirrored < 0.25 * off:
+        raise CalibrationError(
+            f"the frames look upside down: the calibration's hinge row v_h = {cal.hinge_v_px:.1f} px lies "
+            f"{off:.0f} px from the rig's axis_row {geo.axis_row:g} px (manifest), its mirror image "
+            f"rows − 1 − v_h = {mirrored:.1f} px only {off_mirrored:.1f} px: flip the frames vertically "
+            "(heights would come out mirrored)")
+
+
+def _check_stage_units(cal: Calibration, geo: HingeGeometry) -> None:
+    ratio = cal.F2_px_mm / geo.F2_px_mm
+    for name, factor in _UNITS:
+        if abs(ratio * factor - 1.0) < _UNIT_MATCH:
+            raise CalibrationError(
+                f"the stage positions look like {name}, not mm: the fitted F² = {cal.F2_px_mm:.5g} px·mm is "
+                f"1/{factor:g} of the rig's {geo.F2_px_mm:.5g} px·mm (−f²/(p·cos φ·sin β), manifest); give "
+                f"stage_mm in millimetres (× {factor:g})")
+
+
+def _plate_height_notes(cal: Calibration, geo: HingeGeometry) -> tuple[str, ...]:
+    ratio = cal.C_mm / geo.C_mm
+    if abs(ratio - 1.0) <= _PLATE_MATCH:
+        return ()
+    return (f"C = {cal.C_mm:.5g} mm is {ratio:.3f} × the rig's {geo.C_mm:.5g} mm (f / sin β, manifest): is "
+            f"the plate height {cal.plate_height_mm:g} mm right? With the rig's C the plate would be "
+            f"{cal.plate_height_mm / ratio:.4g} mm high (C and every height scale with it)",)
+
+
+def applicability_problem(calibration, folder: FrameFolder) -> str | None:
+    """Why a calibration cannot be applied to a folder's frames, or None.
+
+    Checked: the image size the calibration was made with (when it records one);
+    the calibration's own consistency (:meth:`Calibration.problem`); the pixel
+    pitch it records against the manifest rig's (another binning); its image
+    hinge ``u_h`` against the rig's ``hinge_column`` (within 25 %: another
+    binning or sensor, also for calibrations that record no size).
+
+    Parameters
+    ----------
+    calibration : Calibration or GeneralCalibration
+        The calibration (a general model is checked through its paper estimate).
+    folder : FrameFolder
+        The frames.
+
+    Returns
+    -------
+    str or None
+        The reason, naming both values.
+    """
+    cal_shape = (calibration.rows, calibration.columns)
+    if all(cal_shape) and cal_shape != (folder.rows, folder.columns):
+        ratio = calibration.columns / folder.columns
+        hint = (f" (a calibration made at {ratio:g} × this binning)" if ratio == calibration.rows / folder.rows
+                else "")
+        return (f"the calibration was made for {cal_shape[0]} × {cal_shape[1]} frames, the frames are "
+                f"{folder.rows} × {folder.columns} (rows × columns){hint}")
+    problem = calibration.problem(folder.columns) if hasattr(calibration, "problem") else None
+    paper = calibration if isinstance(calibration, Calibration) else getattr(calibration, "paper", None)
+    if problem is None and paper is not None:
+        problem = _pitch_or_hinge_problem(paper, folder)
+    return problem
+
+
+def check_axis_position(axis_mm: float, calibration, columns: int, rows: int) -> str | None:
+    """Refuse a rotary axis outside the depth range a calibration covers; note one beyond its frames.
+
+    The depth range is the stage coordinate of the sensor's first and last column
+    edges on its middle row (a part's near side lies between them, the axis no
+    further than the part's radius beyond: an axis outside is a typo or a unit
+    error).  Within it but outside the stage range of the calibration's own
+    frames (when recorded) the mapping is extrapolated: a warning.
+
+    Parameters
+    ----------
+    axis_mm : float
+        The rotary axis position, stage coordinate [mm].
+    calibration : Calibration or GeneralCalibration
+        The calibration.
+    columns, rows : int
+        Size of the frames it is applied to [px].
+
+    Returns
+    -------
+    str or None
+        The warning, or None.
+
+    Raises
+    ------
+    CalibrationError
+        The axis outside the depth range, naming the range.
+    """
+    ends, _ = calibration.stage_from_pixel(np.array([-0.5, columns - 0.5]), np.full(2, 0.5 * (rows - 1)))
+    lo, hi = float(np.nanmin(ends)), float(np.nanmax(ends))
+    if not lo <= axis_mm <= hi:
+        raise CalibrationError(f"the rotary axis {axis_mm:g} mm lies outside the depth range the calibration "
+                               f"covers ({lo:.2f} … {hi:.2f} mm, stage coordinate): a typo or another unit?")
+    paper = calibration if isinstance(calibration, Calibration) else getattr(calibration, "paper", None)
+    s_lo, s_hi = paper.stage_range_mm if paper is not None else (math.nan, math.nan)
+    if math.isfinite(s_lo) and math.isfinite(s_hi) and not s_lo <= axis_mm <= s_hi:
+        return (f"the rotary axis {axis_mm:g} mm lies outside the stage range of the calibration frames "
+                f"({s_lo:g} … {s_hi:g} mm): the mapping there is extrapolated")
+    return None
+
+
+def _pitch_or_hinge_problem(cal: Calibration, folder: FrameFolder) -> str | None:
+    pitch = folder.rig_value("sensor", "pixel_pitch_um")
+    if pitch and math.isfinite(cal.pixel_pitch_um) and abs(cal.pixel_pitch_um / pitch - 1) > 1e-6:
+        return (f"the calibration was made with {cal.pixel_pitch_um:g} µm pixels, the frames' rig has "
+                f"{pitch:g} µm (a calibration made at {cal.pixel_pitch_um / pitch:.3g} × this binning, or for "
+                "another sensor)")
+    hinge = (folder.rig or {}).get("sensor", {}).get("hinge_column") if isinstance(folder.rig, dict) else None
+    if isinstance(hinge, (int, float)) and not isinstance(hinge, bool) and hinge > 0:
+        ratio = cal.hinge_u_px / hinge
+        if abs(ratio - 1) > _HINGE_MATCH:
+            return (f"the calibration's image hinge u_h = {cal.hinge_u_px:.1f} px is {ratio:.3g} × the frames' "
+                    f"rig hinge_column {hinge:g} px (manifest): a calibration made at another binning or "
+                    "for another sensor")
+    return None

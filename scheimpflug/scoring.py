@@ -48,6 +48,7 @@ __all__ = [
     "is_closed_mesh",
     "point_to_mesh",
     "sample_surface",
+    "scale_mismatch",
     "score_points",
     "two_sided_distance",
 ]
@@ -55,6 +56,11 @@ __all__ = [
 MAX_COORDINATE_MM = 1e12
 """Largest |coordinate| of a point or a mesh vertex that can be scored [mm] (1000 km: no part is
 larger; squared distances of coordinates beyond ≈ 1e154 overflow float64)."""
+
+UNIT_FACTORS = (("metres", 1000.0), ("inches", 25.4), ("cm", 10.0))
+"""Units whose factor to mm a cloud-to-mesh size ratio is compared with (:func:`scale_mismatch`)."""
+_UNIT_MATCH = 0.15      # a size ratio within 15 % of a unit factor names the unit [-]
+_GROSS_RATIO = 30.0     # a size ratio beyond this (either way) is a mismatch whatever the unit [-]
 
 _LEAF_SIZE = 4          # triangles per BVH leaf: 4 balances box tests against triangle tests
 _STACK = 128            # traversal stack depth; a median-split tree on 1e9 faces is < 64 deep
@@ -779,3 +785,48 @@ def two_sided_distance(truth: PointToMesh, model: PointToMesh, n_samples: int = 
     return TwoSidedDistance(truth_points_mm=t_pts, truth_to_model_mm=t_to_m, model_points_mm=m_pts,
                             model_face=m_face, model_to_truth_mm=m_res.distance_mm, truth_face=m_res.face,
                             signed=m_res.signed, hausdorff_mm=hausdorff, coverage_mm=float(coverage_mm))
+
+
+def _box_size(xyz: np.ndarray) -> float:
+    """Diagonal of the 0.5–99.5 % box of up to 100 000 of the points (a few strays do not count) [mm]."""
+    step = max(1, len(xyz) // 100_000)
+    lo, hi = np.percentile(xyz[::step], [0.5, 99.5], axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+def scale_mismatch(points_mm: np.ndarray, vertices_mm: np.ndarray) -> str | None:
+    """A gross scale mismatch between a cloud and a mesh, in words, or None.
+
+    The sizes compared are the diagonals of their bounding boxes (the cloud's
+    0.5–99.5 % box).  A ratio within 15 % of a unit factor (1000: metres, 25.4:
+    inches, 10: cm, either way) names the unit; any ratio beyond 30 either way
+    is a mismatch too.  A scan covering part of the mesh gives a ratio a little
+    above 1, never a unit factor by chance alone unless it covers a tenth.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) float
+        The cloud's points (finite) [mm as claimed].
+    vertices_mm : (m, 3) float
+        The mesh's vertices [mm as claimed].
+
+    Returns
+    -------
+    str or None
+        What the ratio suggests, or None when the sizes are alike.
+    """
+    a, b = _box_size(np.asarray(points_mm, np.float64)), _box_size(np.asarray(vertices_mm, np.float64))
+    if not (a > 0 and b > 0):
+        return None
+    ratio = b / a                          # > 1: the cloud is smaller than the mesh
+    for name, factor in UNIT_FACTORS:
+        for r, which, other in ((ratio, "cloud", "mesh"), (1 / ratio, "mesh", "cloud")):
+            if abs(r / factor - 1) < _UNIT_MATCH:
+                return (f"the {which} is {r:.4g} × smaller than the {other} (bounding boxes {min(a, b):.4g} "
+                        f"and {max(a, b):.4g}): the {which} looks like it is in {name}, not mm; the "
+                        "distances below are meaningless until both are in mm")
+    if max(ratio, 1 / ratio) > _GROSS_RATIO:
+        small = "cloud" if ratio > 1 else "mesh"
+        return (f"the {small} is {max(ratio, 1 / ratio):.4g} × smaller than the other (bounding boxes "
+                f"{min(a, b):.4g} and {max(a, b):.4g}): not the same part, or another unit")
+    return None

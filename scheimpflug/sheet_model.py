@@ -7,15 +7,21 @@ pinhole camera with a tilted sensor and a distorting lens makes of a plane:
 
     (s, h)  --G-->  (x, y)  --distortion k1, k2-->  (x_d, y_d)  --tilt, camera matrix-->  (u, v)
 
-* ``G`` (3 × 3, 8 free parameters) maps the sheet's stage coordinate ``s``
-  and height ``h`` [mm] to the camera's undistorted normalized coordinates
-  ``(x, y) = (X/Z, Y/Z)``: every plane-to-plane central projection is one.
+* ``G`` maps the sheet's stage coordinate ``s`` and height ``h`` [mm] to the
+  camera's undistorted normalized coordinates ``(x, y) = (X/Z, Y/Z)``: the
+  sheet's pose in the camera frame, ``G = [r1 r2 t]`` with ``r1``, ``r2`` the
+  stage and height axes — orthonormal: the sheet is a metric plane (rotation 3,
+  translation 3 parameters), so that ``μ·G·(s, h, 1)`` are camera-frame points in
+  millimetres and lengths there equal lengths on the sheet.
 * ``k1, k2`` distort radially about the optical axis in normalized
   coordinates, then the tilted sensor and the camera matrix give pixels
   (:class:`scheimpflug.tilted_camera.TiltedCamera`, OpenCV's
   ``CALIB_TILTED_MODEL``; the twin's camera :mod:`scheimpflug.model.camera`
   is exactly this model, so roll, tilt error, offsets and distortion are all
-  in it).
+  in it).  The principal point (2) and the principal distance (1) are fitted
+  too: with a metric sheet they take up what a general homography's two extra
+  degrees of freedom would hold (10 parameters with k1; one combination of the
+  three is held by a prior, below).
 
 What the plate frames determine
 -------------------------------
@@ -43,11 +49,15 @@ the plate:
   block (faces at known stage offsets, edges at known heights) — adds points
   of known ``(s, h)``: pass them as ``extra_points`` to
   :func:`fit_sheet_models` (``u, v, s, h`` per point);
-* the camera's intrinsics (principal distance, principal point, tilt): with
-  no distortion any of them gives the same homography.  They are taken from a
-  physical decomposition of the paper constants with the rig's focal length
-  and pixel pitch (:func:`ideal_camera`); the principal point is refined with
-  the distortion when the frames support it (``fit_centre``).
+* the camera's intrinsics without distortion: a plane seen once fixes the
+  principal point and distance only up to one combination (Zhang's two
+  constraints for three unknowns).  The fit starts from a physical
+  decomposition of the paper constants with the rig's focal length and pixel
+  pitch (:func:`ideal_camera`) and ties the principal distance to it with a
+  1 % prior (a pseudo-observation weighted by the stripe points' scatter);
+  with distortion the bending of the iso-``s`` lines fixes the distortion
+  centre — the principal point — and the data outweigh the prior.  The tilt
+  stays the decomposition's.
 
 Model selection (``--model auto``)
 ----------------------------------
@@ -82,6 +92,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from scipy import optimize, stats
+from scipy.spatial.transform import Rotation
 
 from scheimpflug.calibration import (
     Calibration,
@@ -90,6 +101,8 @@ from scheimpflug.calibration import (
     CalibrationTolerances,
     PlateMeasurement,
     calibrate_measurements,
+    check_against_manifest,
+    check_used_frames_distinct,
     measure_plate_frame,
 )
 from scheimpflug.callbacks import ProgressCallback, report
@@ -103,6 +116,7 @@ __all__ = [
     "DEFAULT_FOCAL_LENGTH_MM",
     "DEFAULT_PIXEL_PITCH_UM",
     "GeneralCalibration",
+    "MODELS",
     "ModelSelection",
     "SheetFit",
     "SheetModel",
@@ -114,11 +128,12 @@ __all__ = [
     "select_model",
 ]
 
+#: The calibration models a calibration file's ``"model"`` may name.
+MODELS = ("paper", "general")
 #: Focal length assumed for the decomposition when no rig is given (the paper's lens) [mm].
 DEFAULT_FOCAL_LENGTH_MM = 55.0
 #: Pixel pitch assumed when no rig is given (the paper's IMX174) [µm].
 DEFAULT_PIXEL_PITCH_UM = 5.86
-_SHEET_SCALE_MM = 100.0   # sheet coordinates are scaled by this inside the fit (conditioning) [mm]
 
 
 # A Protocol is never instantiated: its (*args, **kwargs) constructor has nothing to document.
@@ -375,7 +390,7 @@ def load_sheet_model(path: str | Path) -> Calibration | GeneralCalibration:
     Raises
     ------
     CalibrationError
-        Missing, unreadable or malformed file.
+        Missing, unreadable or malformed file, or a ``"model"`` that is not one of :data:`MODELS`.
     """
     p = Path(path)
     try:
@@ -384,7 +399,11 @@ def load_sheet_model(path: str | Path) -> Calibration | GeneralCalibration:
         raise CalibrationError(f"calibration file {str(p)!r} does not exist") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CalibrationError(f"calibration file {str(p)!r} is unreadable: {exc}") from None
-    if isinstance(d, dict) and d.get("model") == "general":
+    model = d.get("model") if isinstance(d, dict) else None
+    if model is not None and model not in MODELS:
+        raise CalibrationError(f"calibration file {str(p)!r}: \"model\": {model!r:.40} is not a known model "
+                               f"(known: {', '.join(MODELS)})")
+    if model == "general":
         try:
             return GeneralCalibration.from_json_dict(d)
         except CalibrationError as exc:
@@ -437,7 +456,7 @@ def ideal_camera(calibration: Calibration, focal_length_mm: float = DEFAULT_FOCA
         raise CalibrationError(
             f"the calibration (F² = {F2:.6g} px·mm, C = {C:.6g} mm) is not an ideal Scheimpflug rig "
             f"with f = {f:g} mm and pixel pitch {p * 1e3:g} µm (sin β = {sin_b:.4g}, cos φ = "
-            f"{cos_phi:.4g}): give the rig's lens.focal_length_mm and sensor.pixel_pitch_um")
+            f"{cos_phi:.4g}): the focal length or the pixel pitch (binned?) is not the frames'")
     beta, phi = math.asin(sin_b), math.acos(min(cos_phi, 1.0))
     hinge_obj = np.array([f, f / math.tan(beta), 0.0])         # H = (f, d − f tan φ, 0)
     e_p = np.array([math.cos(phi), -math.sin(phi), 0.0])
@@ -531,7 +550,9 @@ class SheetFit:
     def field_sigma(self, u, v) -> tuple[np.ndarray, np.ndarray]:
         """Standard uncertainty of the mapped stage coordinate and height at pixels.
 
-        First-order propagation of :attr:`covariance` through the mapping.
+        First-order propagation of :attr:`covariance` through the mapping, along the
+        covariance's eigenvectors (a weakly determined combination of parameters that
+        barely moves the mapping then adds what it moves, not rounding noise).
 
         Parameters
         ----------
@@ -545,19 +566,13 @@ class SheetFit:
         """
         u, v = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64))
         s0, h0 = self.mapping_of(self.params)(u, v)
-        js, jh = [], []
-        sd = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
-        for i in range(len(self.params)):
-            step = self.params.copy()
-            step[i] += 1e-3 * sd[i]
-            s1, h1 = self.mapping_of(step)(u, v)
-            js.append(((s1 - s0) * 1e3).ravel())   # change per standard deviation of parameter i
-            jh.append(((h1 - h0) * 1e3).ravel())
-        corr = self.covariance / np.outer(np.maximum(sd, 1e-300), np.maximum(sd, 1e-300))
-        js, jh = np.array(js), np.array(jh)
-        var_s = np.einsum("in,ij,jn->n", js, corr, js)
-        var_h = np.einsum("in,ij,jn->n", jh, corr, jh)
-        return np.sqrt(np.maximum(var_s, 0)).reshape(u.shape), np.sqrt(np.maximum(var_h, 0)).reshape(u.shape)
+        var_s, var_h = np.zeros(u.shape), np.zeros(u.shape)
+        lam, vec = np.linalg.eigh(0.5 * (self.covariance + self.covariance.T))
+        for i in np.flatnonzero(lam > 0):          # independent directions of the parameters' error
+            s1, h1 = self.mapping_of(self.params + 1e-3 * math.sqrt(lam[i]) * vec[:, i])(u, v)
+            var_s += ((s1 - s0) * 1e3) ** 2        # change per standard deviation along direction i
+            var_h += ((h1 - h0) * 1e3) ** 2
+        return np.sqrt(var_s), np.sqrt(var_h)
 
 
 def _solve(fun: Callable, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
@@ -588,31 +603,32 @@ def _fit_paper(data: _Data, start: Calibration, h_bottom: float) -> SheetFit:
     return SheetFit("paper", 6, n, rss, x, cov, cal, _paper_mapping)
 
 
-def _sheet_normalizer(data: _Data, h_bottom: float) -> np.ndarray:
-    """Affine map of (s, h) to O(1) coordinates about the data's centre (conditioning of G)."""
-    sc, hc, L = float(np.mean(data.s)), h_bottom + 0.5 * data.height_mm, _SHEET_SCALE_MM
-    return np.array([[1 / L, 0.0, -sc / L], [0.0, 1 / L, -hc / L], [0.0, 0.0, 1.0]])
+_FOCAL_PRIOR = 0.01   # relative σ of the principal distance about the rig's decomposition [-]
 
 
 class _GeneralParams:
-    """Parameter vector ↔ (camera, G).
+    """Parameter vector ↔ (camera, G): a metric sheet pose, the principal point and distance, distortion.
 
-    ``G = G0 N⁻¹ (I + E) N`` with E[2, 2] = 0 (8), then k1 (and k2), then the
-    principal point's shift (2) when fitted.
+    ``x = [ω (3), δt (3), δc (2), k1, (k2), δf]``: ``G = [r1 r2 t]`` with
+    ``[r1 r2 r1×r2] = exp([ω]×) R0`` and ``t = t0 + 100 mm · δt`` (``R0``, ``t0``
+    the decomposition's pose, its axes orthonormal); the principal point
+    ``c0 + 100 px · δc`` and the principal distance ``f0 · (1 + δf)``.
     """
 
-    def __init__(self, camera: TiltedCamera, g0: np.ndarray, norm: np.ndarray, k2: bool,
-                 fit_centre: bool):
-        self.camera, self.g0, self.norm, self.k2, self.fit_centre = camera, g0, norm, k2, fit_centre
-        self.n = 9 + k2 + 2 * fit_centre
+    def __init__(self, camera: TiltedCamera, g0: np.ndarray, k2: bool):
+        g = g0 / np.linalg.norm(g0[:, 0])
+        self.r0 = np.column_stack([g[:, 0], g[:, 1], np.cross(g[:, 0], g[:, 1])])
+        self.t0 = g[:, 2]
+        self.camera, self.k2 = camera, k2
+        self.n = 10 + k2
 
     def unpack(self, x: np.ndarray) -> tuple[TiltedCamera, np.ndarray]:
-        e = np.append(x[:8], 0.0).reshape(3, 3)
-        g = self.g0 @ np.linalg.inv(self.norm) @ (np.eye(3) + e) @ self.norm
-        cam = replace(self.camera, k1=float(x[8]), k2=float(x[9]) if self.k2 else 0.0)
-        if self.fit_centre:
-            cx, cy = self.camera.principal_px
-            cam = replace(cam, principal_px=(cx + float(x[-2]), cy + float(x[-1])))
+        r = Rotation.from_rotvec(x[:3]).as_matrix() @ self.r0
+        g = np.column_stack([r[:, 0], r[:, 1], self.t0 + 100.0 * x[3:6]])
+        cx, cy = self.camera.principal_px
+        cam = replace(self.camera, principal_px=(cx + 100.0 * float(x[6]), cy + 100.0 * float(x[7])),
+                      k1=float(x[8]), k2=float(x[9]) if self.k2 else 0.0,
+                      focal_px=self.camera.focal_px * (1.0 + float(x[-1])))
         return cam, g / g[2, 2]
 
     def mapping_of(self, x: np.ndarray) -> Callable:
@@ -625,12 +641,29 @@ class _GeneralParams:
         return mapping
 
 
-def _fit_general(data: _Data, camera: TiltedCamera, g0: np.ndarray, h_bottom: float, k2: bool,
-                 fit_centre: bool) -> tuple[SheetFit, _GeneralParams]:
-    """Least squares of G (8), k1 (k2, the principal point) with the height origin fixed."""
-    par = _GeneralParams(camera, g0, _sheet_normalizer(data, h_bottom), k2, fit_centre)
-    x, cov, rss, n = _solve(lambda x: _residuals(data, par.mapping_of(x), h_bottom), np.zeros(par.n))
-    return SheetFit("general", par.n, n, rss, x, cov, None, par.mapping_of), par
+def _stripe_scatter_px(data: _Data) -> float:
+    """Robust scatter of the stripe points about a smooth curve per frame [px] (≥ 1e-3)."""
+    r = [_smooth_residuals(data.v[data.s == s], data.u[data.s == s]) for s in np.unique(data.s)]
+    return max(_robust_sigma(np.concatenate(r)) if r else 0.0, 1e-3)
+
+
+def _fit_general(data: _Data, camera: TiltedCamera, g0: np.ndarray, h_bottom: float,
+                 k2: bool) -> tuple[SheetFit, _GeneralParams]:
+    """Least squares of the metric sheet pose (6), the principal point and distance (3), k1 (k2).
+
+    The height origin is fixed; the principal distance carries a 1 % prior
+    (:data:`_FOCAL_PRIOR`), one pseudo-observation left out of the RSS and the
+    observation count the F-test sees.
+    """
+    par = _GeneralParams(camera, g0, k2)
+    weight = _stripe_scatter_px(data) / _FOCAL_PRIOR
+
+    def fun(x):
+        return np.append(_residuals(data, par.mapping_of(x), h_bottom), weight * x[-1])
+
+    x, cov, rss, n = _solve(fun, np.zeros(par.n))
+    rss -= float(weight * x[-1]) ** 2
+    return SheetFit("general", par.n, n - 1, rss, x, cov, None, par.mapping_of), par
 
 
 # ---------------------------------------------------------------- data from measurements
@@ -849,7 +882,6 @@ def _field_sigma(fit: SheetFit, columns: int, rows: int) -> dict:
 def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: CalibrationResult, *,
                      focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
                      pixel_pitch_um: float = DEFAULT_PIXEL_PITCH_UM, fit_k2: bool = False,
-                     fit_centre: bool = False,
                      extra_points=None, alpha: float = 1e-3,
                      min_rss_drop: float = 0.2) -> tuple[SheetFit, SheetFit, GeneralCalibration, ModelSelection]:
     """Fit the paper form and the general model to the same residuals and compare them.
@@ -864,8 +896,6 @@ def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: Calibratio
         Lens focal length [mm] and pixel pitch [µm] for the camera's intrinsics (:func:`ideal_camera`).
     fit_k2 : bool
         Fit k2 too (over a field of ±6° the plate leaves it undetermined: off by default).
-    fit_centre : bool
-        Refine the principal point (the distortion centre) with the distortion.
     extra_points : (n, 4) float, optional
         Points of an extra target: pixel u, v [px] and their known stage coordinate and height [mm].
     alpha, min_rss_drop : float
@@ -886,7 +916,7 @@ def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: Calibratio
                         measurements)
     pfit = _fit_paper(data, start, h_b)
     camera, g0 = ideal_camera(start, focal_length_mm, pixel_pitch_um)
-    gfit, par = _fit_general(data, camera, g0, h_b, fit_k2, fit_centre)
+    gfit, par = _fit_general(data, camera, g0, h_b, fit_k2)
     cam, g = par.unpack(gfit.params)
     general = GeneralCalibration(camera=cam, homography=g, columns=start.columns, rows=start.rows,
                                  plate_height_mm=start.plate_height_mm, n_frames=len(measurements),
@@ -898,12 +928,16 @@ def fit_sheet_models(measurements: Sequence[PlateMeasurement], paper: Calibratio
     return pfit, gfit, replace(general, selection=sel.to_json_dict()), sel
 
 
-def _rig_optics(ff: FrameFolder, focal_length_mm, pixel_pitch_um) -> tuple[float, float, bool]:
-    """F [mm] and p [µm]: the arguments, else the manifest's rig, else the paper's (assumed)."""
-    f = focal_length_mm or ff.rig_value("lens", "focal_length_mm")
-    p = pixel_pitch_um or ff.rig_value("sensor", "pixel_pitch_um")
-    assumed = f is None or p is None
-    return float(f or DEFAULT_FOCAL_LENGTH_MM), float(p or DEFAULT_PIXEL_PITCH_UM), assumed
+def _rig_optics(ff: FrameFolder, focal_length_mm, pixel_pitch_um) -> tuple[float, float, str]:
+    """F [mm], p [µm] and where they come from: the arguments, else the manifest's rig, else assumed."""
+    f_rig, p_rig = ff.rig_value("lens", "focal_length_mm"), ff.rig_value("sensor", "pixel_pitch_um")
+    f = focal_length_mm or f_rig or DEFAULT_FOCAL_LENGTH_MM
+    p = pixel_pitch_um or p_rig or DEFAULT_PIXEL_PITCH_UM
+    where = lambda given, rig: "given" if given else ("the manifest's rig" if rig else  # noqa: E731
+                                                      "assumed: the manifest's rig has none")
+    source = (f"f = {f:g} mm ({where(focal_length_mm, f_rig)}), pixel pitch {p:g} µm "
+              f"({where(pixel_pitch_um, p_rig)})")
+    return float(f), float(p), source
 
 
 def _measure_all(ff: FrameFolder, detector: str, tol: CalibrationTolerances, progress):
@@ -928,7 +962,7 @@ def _measure_all(ff: FrameFolder, detector: str, tol: CalibrationTolerances, pro
 def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: float | None = None, *,
                            model: str = "auto", method: str = "best", detector: str = "cog",
                            focal_length_mm: float | None = None, pixel_pitch_um: float | None = None,
-                           fit_k2: bool = False, fit_centre: bool = False, extra_points=None,
+                           fit_k2: bool = False, extra_points=None,
                            alpha: float = 1e-3, min_rss_drop: float = 0.2,
                            progress: ProgressCallback | None = None,
                            tol: CalibrationTolerances | None = None,
@@ -950,8 +984,8 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     focal_length_mm, pixel_pitch_um : float, optional
         Lens focal length [mm] and pixel pitch [µm]; default the manifest's rig, else the
         paper's (assumed: they shape only the distortion's pattern, see :func:`ideal_camera`).
-    fit_k2, fit_centre : bool
-        Fit k2, refine the distortion centre (:func:`fit_sheet_models`).
+    fit_k2 : bool
+        Fit k2 (:func:`fit_sheet_models`).
     extra_points : (n, 4) float, optional
         Extra target points (u, v [px], s, h [mm]).
     alpha, min_rss_drop : float
@@ -984,23 +1018,25 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     if missing:
         raise CalibrationError(f"calibration frames need 'stage_mm' in the manifest; {missing[0]!r} has none")
     ms, skipped, partial = _measure_all(ff, detector, tol, progress)
+    check_used_frames_distinct(ff, ms)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         paper = calibrate_measurements(ms, plate_height_mm=plate_height_mm, columns=ff.columns,
                                        rows=ff.rows, method=method, tol=tol,
-                                       skipped=tuple(skipped), accuracy=accuracy)
-    paper = replace(paper, partial=tuple(partial))
-    f, p, _ = _rig_optics(ff, focal_length_mm, pixel_pitch_um)
+                                       skipped=tuple(skipped), accuracy=accuracy,
+                                       pixel_pitch_um=ff.rig_value("sensor", "pixel_pitch_um") or math.nan)
+    paper = check_against_manifest(ff, replace(paper, partial=tuple(partial)))
+    f, p, source = _rig_optics(ff, focal_length_mm, pixel_pitch_um)
     left_out = {name for name, _ in paper.skipped}        # e.g. a frame at a wrong stage position
     ms = [m for m in ms if m.file not in left_out]
     try:
         pfit, gfit, general, sel = fit_sheet_models(ms, paper, focal_length_mm=f, pixel_pitch_um=p,
-                                                    fit_k2=fit_k2, fit_centre=fit_centre,
+                                                    fit_k2=fit_k2,
                                                     extra_points=extra_points, alpha=alpha,
                                                     min_rss_drop=min_rss_drop)
     except CalibrationError as exc:
         if model == "general":
-            raise
+            raise CalibrationError(f"--model general: {exc} [used {source}]") from None
         sel = ModelSelection("paper", math.nan, 1.0, math.nan, math.nan, (0, 0), alpha, min_rss_drop,
                              f"paper: the general model is unavailable ({exc})")
         return SheetModelResult(paper.best, None, paper, None, None, sel, tuple(ms), tuple(skipped))

@@ -160,11 +160,12 @@ def test_axis_mm_option_is_validated(scan, tmp_path, capsys, value, needle):
     assert not out.exists()
 
 
-def test_axis_outside_the_depth_range_warns(scan, tmp_path, capsys):
+def test_axis_outside_the_depth_range_is_refused(scan, tmp_path, capsys):
+    """Issue 25: an axis outside the calibrated depth range was a warning and a cloud far away."""
     folder, cal = scan
-    assert main(["reconstruct", str(folder), "--calibration", str(cal), "--axis-mm", "5000", "--quiet",
-                 "--out", str(tmp_path / "c.ply")]) == 0
-    assert "outside the depth range" in capsys.readouterr().err
+    _fails(["reconstruct", str(folder), "--calibration", str(cal), "--axis-mm", "5000", "--quiet",
+            "--out", str(tmp_path / "c.ply")], capsys, "outside the depth range")
+    assert not (tmp_path / "c.ply").exists()
 
 
 @pytest.mark.parametrize("value", ["0", "-5", "nan"])

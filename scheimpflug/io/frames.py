@@ -8,11 +8,15 @@ Validation raises :class:`~scheimpflug.errors.FrameError` with the file and the
 reason: a missing folder or manifest, bad JSON, missing keys, a missing,
 unreadable or corrupt PNG, a frame whose size differs from the manifest's rig
 (``sensor.rows × sensor.columns``) or from the first frame (no rig), a colour
-frame or an unsupported dtype (only 8- and 16-bit grayscale).
+frame or an unsupported dtype (only 8- and 16-bit grayscale), values above the
+manifest's ADC range (``adc_bits``; MSB-aligned codes — every value a multiple of
+``2**(16 − adc_bits)`` — are accepted and saturate at ``(2**adc_bits − 1) ·
+2**(16 − adc_bits)``), a frame listed twice (:func:`check_distinct_frames`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -29,8 +33,8 @@ import numpy as np
 from scheimpflug.errors import FrameError
 from scheimpflug.model.rig import KEY_RANGES, key_in_range
 
-__all__ = ["MAX_SIDE_PX", "FrameFolder", "FrameRecord", "open_frame_folder", "read_frame",
-           "scenario_number"]
+__all__ = ["MAX_SIDE_PX", "FrameFolder", "FrameRecord", "check_distinct_frames", "open_frame_folder",
+           "radians_note", "read_frame", "scenario_number"]
 
 MAX_SIDE_PX = 65535
 """Largest frame side a manifest may declare (the rig's ``sensor.rows``/``columns`` range) [px]."""
@@ -133,9 +137,25 @@ class FrameFolder:
         ------
         FrameError
             If the file is missing, unreadable, corrupt, not grayscale, not 8-
-            or 16-bit, or not of the folder's shape (see :func:`read_frame`).
+            or 16-bit, or not of the folder's shape (see :func:`read_frame`), or
+            holds values above the manifest's ADC range ``2**adc_bits − 1`` that
+            are not MSB-aligned codes (every value a multiple of the shift).
         """
-        return read_frame(self.frame_path(i), (self.rows, self.columns))
+        frame = read_frame(self.frame_path(i), (self.rows, self.columns))
+        self._check_adc_range(i, frame)
+        return frame
+
+    def _check_adc_range(self, i: int, frame: np.ndarray) -> None:
+        """Refuse values above the manifest's ADC range unless they are MSB-aligned codes."""
+        if self.adc_bits is None or self.adc_bits >= 8 * frame.itemsize:
+            return
+        top = (1 << self.adc_bits) - 1
+        peak = int(frame.max())
+        if peak <= top or _msb_shift(frame, self.adc_bits):
+            return
+        raise FrameError(f"frame {str(self.frame_path(i))!r} has values up to {peak}, above {top} = "
+                         f"2**{self.adc_bits} − 1 (adc_bits in the manifest): the frames hold at least "
+                         f"{peak.bit_length()}-bit data, so the manifest's adc_bits is wrong")
 
     def __iter__(self) -> Iterator[tuple[FrameRecord, np.ndarray]]:
         for i, rec in enumerate(self.frames):
@@ -222,15 +242,97 @@ class FrameFolder:
         Returns
         -------
         float
-            ``2**adc_bits − 1`` when the rig gives the ADC depth, the frame is
-            16-bit and stays within it, else the dtype's maximum [DN].
+            ``2**adc_bits − 1`` when the manifest gives the ADC depth and the
+            frame stays within it; ``(2**adc_bits − 1) · 2**shift`` when its
+            values exceed that but are all multiples of ``2**shift`` (codes
+            stored MSB-aligned, ``shift`` = the word's bits − adc_bits); else
+            the dtype's maximum [DN].
         """
         top = float(np.iinfo(frame.dtype).max)
-        if self.adc_bits is not None and frame.dtype == np.uint16:
+        if self.adc_bits is not None and self.adc_bits < 8 * frame.itemsize:
             level = float(2 ** self.adc_bits - 1)
             if float(frame.max()) <= level:
                 return level
+            shift = _msb_shift(frame, self.adc_bits)
+            if shift:
+                return level * 2 ** shift
         return top
+
+
+def _msb_shift(frame: np.ndarray, adc_bits: int) -> int:
+    """The shift of MSB-aligned codes (word bits − adc_bits) if every value is a multiple of 2**shift, else 0."""
+    shift = 8 * frame.itemsize - adc_bits
+    return shift if shift > 0 and not np.any(frame & ((1 << shift) - 1)) else 0
+
+
+def radians_note(angles_deg) -> str | None:
+    """A warning when rotary angles span one turn in radians, not degrees, else None.
+
+    ``n ≥ 8`` angles spanning ``2π (n − 1)/n`` (to 2 %) are read as one turn in
+    radians: ``angle_deg`` must be degrees.
+
+    Parameters
+    ----------
+    angles_deg : sequence of float
+        The frames' rotary angles [deg].
+
+    Returns
+    -------
+    str or None
+        The warning.
+    """
+    a = np.asarray([x for x in angles_deg if x is not None], np.float64)
+    n = a.size
+    if n < 8:
+        return None
+    span = float(a.max() - a.min())
+    if 0.98 * 2 * math.pi * (n - 1) / n <= span <= 2 * math.pi * (1 + 1e-6):
+        return (f"the angles span {span:.4g}° over {n} frames, one turn in radians: are they radians? "
+                "angle_deg must be in degrees")
+    return None
+
+
+def check_distinct_frames(folder: FrameFolder, indices=None) -> None:
+    """Refuse a frame listed twice: one file in two entries, or one file's bytes under two names.
+
+    A frame counted twice counts one measurement twice: it shrinks the standard
+    errors and weights that frame double without adding information.
+
+    Parameters
+    ----------
+    folder : FrameFolder
+        The opened folder.
+    indices : iterable of int, optional
+        The entries whose content is compared (e.g. the frames a calibration
+        uses); default every entry.  Files named twice are refused among all.
+
+    Raises
+    ------
+    FrameError
+        Naming both entries.
+    """
+    mpath = str(folder.path / "manifest.json")
+    seen: dict[str, int] = {}
+    for i, rec in enumerate(folder.frames):
+        key = os.path.normcase(os.path.realpath(folder.path / rec.file))
+        if key in seen:
+            raise FrameError(f"{mpath!r}: frames[{seen[key]}] and frames[{i}] both list {rec.file!r}: a frame "
+                             "listed twice counts one measurement twice")
+        seen[key] = i
+    chosen = range(len(folder)) if indices is None else sorted(set(indices))
+    by_size: dict[int, list[int]] = {}
+    for i in chosen:
+        by_size.setdefault(folder.frame_path(i).stat().st_size, []).append(i)
+    for group in (g for g in by_size.values() if len(g) > 1):
+        by_hash: dict[str, int] = {}
+        for i in group:
+            digest = hashlib.sha256(folder.frame_path(i).read_bytes()).hexdigest()
+            if digest in by_hash:
+                j = by_hash[digest]
+                raise FrameError(f"{mpath!r}: frames[{j}] ({folder.frames[j].file}) and frames[{i}] "
+                                 f"({folder.frames[i].file}) hold the same file content: one measurement "
+                                 "listed twice under two names")
+            by_hash[digest] = i
 
 
 def read_frame(path: str | Path, expected_shape: tuple[int, int] | None = None) -> np.ndarray:

@@ -23,21 +23,29 @@ Rig
     optional: the calibration needs none; given, it goes into the manifest
     and its sensor size must match the frames.
 
-Bad input — a frame without a position, a non-numeric position, mixed sizes
-or bit depths, a colour or unreadable file — raises one :class:`FrameError`
-naming the file; nothing is written unless every frame is good (the folder is
-built under a temporary name and renamed).
+Bad input — a frame without a position, a non-numeric position, a file
+given twice (or listed twice in the CSV), one image under two names, values
+above the stated ADC range (``adc_bits``; MSB-aligned data are named as such:
+``msb_aligned`` shifts them back), mixed sizes or bit depths, a colour or
+unreadable file — raises one :class:`FrameError` naming the file; nothing is
+written unless every frame is good (the folder is built under a temporary
+name and renamed; another import filling the same folder meanwhile is named).
+Warnings: CSV rows for files not given, two frames at one position, rotary
+angles that span one turn in radians.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
+import hashlib
 import json
 import math
 import os
 import re
 import shutil
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +53,7 @@ import cv2
 import numpy as np
 
 from scheimpflug.errors import FrameError
+from scheimpflug.io.frames import radians_note
 
 __all__ = ["ImportedFrame", "import_frames", "positions_from_csv", "positions_from_names", "read_image"]
 
@@ -128,8 +137,41 @@ def _number(text: str, where: str) -> float:
     return value
 
 
+def _csv_table(p: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """Header and (line number, cells) of the non-blank rows of a CSV (a UTF-8 BOM is dropped)."""
+    try:
+        with p.open(newline="", encoding="utf-8-sig") as fh:
+            rows = [(i + 1, row) for i, row in enumerate(csv.reader(fh)) if any(c.strip() for c in row)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise FrameError(f"positions file {str(p)!r} cannot be read: {exc}") from None
+    if not rows:
+        return [], []
+    return [c.strip() for c in rows[0][1]], rows[1:]
+
+
+def _csv_positions(p: Path, header: list[str], rows) -> tuple[str, dict[str, tuple[int, str]]]:
+    """The position key and ``file → (line, text)``; a file listed twice is refused."""
+    keys = [k for k in _KEYS if k in header]
+    if "file" not in header or len(keys) != 1:
+        raise FrameError(f"positions file {str(p)!r} needs a header with 'file' and one of "
+                         f"'stage_mm' or 'angle_deg' (got {', '.join(header) or 'nothing'})")
+    col_file, col_pos = header.index("file"), header.index(keys[0])
+    table: dict[str, tuple[int, str]] = {}
+    for line, row in rows:
+        name = row[col_file].strip() if col_file < len(row) else ""
+        text = row[col_pos] if col_pos < len(row) else ""
+        if name in table:
+            raise FrameError(f"positions file {str(p)!r} lists {name!r} twice (lines {table[name][0]} and "
+                             f"{line}): one row per frame")
+        table[name] = (line, text)
+    return keys[0], table
+
+
 def positions_from_csv(frames, csv_path: str | Path) -> list[ImportedFrame]:
     """Stage positions or angles of ``frames`` from a CSV (module docstring).
+
+    Blank lines are skipped and a UTF-8 byte-order mark is accepted.  Rows for
+    files that are not among ``frames`` are left out with a warning naming them.
 
     Parameters
     ----------
@@ -146,26 +188,28 @@ def positions_from_csv(frames, csv_path: str | Path) -> list[ImportedFrame]:
     Raises
     ------
     FrameError
-        Unreadable CSV, no ``file`` or position column, a frame without a row, a non-numeric value.
+        Unreadable CSV, no ``file`` or position column, a file listed twice, a frame
+        without a row, a non-numeric value.
+
+    Warns
+    -----
+    UserWarning
+        Rows for files not among ``frames`` (named).
     """
     p = Path(csv_path)
-    try:
-        with p.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
-            header = rows[0].keys() if rows else []
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise FrameError(f"positions file {str(p)!r} cannot be read: {exc}") from None
-    keys = [k for k in _KEYS if k in header]
-    if "file" not in header or len(keys) != 1:
-        raise FrameError(f"positions file {str(p)!r} needs a header with 'file' and one of "
-                         f"'stage_mm' or 'angle_deg' (got {', '.join(header) or 'nothing'})")
-    table = {r["file"].strip(): r[keys[0]] for r in rows}
-    out = []
+    key, table = _csv_positions(p, *_csv_table(p))
+    out, used = [], set()
     for f in map(Path, frames):
-        text = table.get(str(f), table.get(f.name))
-        if text is None:
+        name = str(f) if str(f) in table else f.name
+        if name not in table:
             raise FrameError(f"frame {str(f)!r} has no row in {str(p)!r}")
-        out.append(ImportedFrame(f, keys[0], _number(text, f"{str(p)!r}, frame {str(f)!r}")))
+        used.add(name)
+        out.append(ImportedFrame(f, key, _number(table[name][1], f"{str(p)!r}, frame {str(f)!r}")))
+    unused = [n for n in table if n not in used]
+    if unused:
+        shown = ", ".join(repr(n) for n in unused[:5]) + (f" and {len(unused) - 5} more" if len(unused) > 5 else "")
+        warnings.warn(f"{str(p)!r}: {len(unused)} row(s) for files not given are left out: {shown}",
+                      stacklevel=2)
     return out
 
 
@@ -232,9 +276,65 @@ def _load_all(frames: list[ImportedFrame]) -> list[np.ndarray]:
     return images
 
 
+def _check_distinct(frames: list[ImportedFrame], images: list[np.ndarray]) -> None:
+    """Refuse a file given twice or one image under two names; warn of two frames at one position."""
+    seen: dict = {}
+    for fr in frames:
+        key = os.path.realpath(fr.path)
+        if key in seen:
+            raise FrameError(f"frame {str(fr.path)!r} is given twice ({str(seen[key])!r}): each frame "
+                             "must be imported once (a frame counted twice shrinks the standard errors "
+                             "without adding a measurement)")
+        seen[key] = fr.path
+    by_content: dict = {}
+    for fr, img in zip(frames, images):
+        digest = hashlib.sha256(img.tobytes()).hexdigest()
+        if digest in by_content:
+            raise FrameError(f"frames {str(by_content[digest])!r} and {str(fr.path)!r} hold the same image: "
+                             "one measurement under two names; import it once")
+        by_content[digest] = fr.path
+    for a, b in zip(frames, frames[1:]):
+        if a.value == b.value:
+            warnings.warn(f"frames {str(a.path)!r} and {str(b.path)!r} are at the same {a.key} = {a.value:g}: "
+                          "repeated frames count as independent measurements", stacklevel=3)
+
+
+def _adc_range(images: list[np.ndarray], frames: list[ImportedFrame], bits: int, adc_bits,
+               msb_aligned: bool) -> list[np.ndarray]:
+    """Check every frame against the ADC range 0 … 2**bits − 1; shift MSB-aligned data down."""
+    depth = 8 * images[0].itemsize
+    shift = depth - bits
+    if msb_aligned:
+        if adc_bits is None or shift == 0:
+            raise FrameError("--msb-aligned needs --adc-bits below the files' bit depth "
+                             f"({depth}): the number of bits the camera's codes have")
+        for fr, img in zip(frames, images):
+            if np.any(img & ((1 << shift) - 1)):
+                raise FrameError(f"frame {str(fr.path)!r} has values whose lowest {shift} bits are not 0: "
+                                 f"not {bits}-bit codes stored MSB-aligned in {depth} bits")
+        return [img >> shift for img in images]
+    top = (1 << bits) - 1
+    for fr, img in zip(frames, images):
+        peak = int(img.max())
+        if peak > top:
+            raise FrameError(f"frame {str(fr.path)!r} has values up to {peak}, above {top} = 2**{bits} − 1 "
+                             f"(--adc-bits {bits}): {_adc_hint(images, bits, depth, peak)}")
+    return images
+
+
+def _adc_hint(images: list[np.ndarray], bits: int, depth: int, peak: int) -> str:
+    """What values beyond the stated ADC range suggest."""
+    shift = depth - bits
+    if all(not np.any(img & ((1 << shift) - 1)) for img in images):
+        return (f"every value is a multiple of {1 << shift}: the data look MSB-aligned ({bits}-bit codes "
+                f"shifted left by {shift} bits); pass --msb-aligned to import them as {bits}-bit codes")
+    need = int(peak).bit_length()
+    return f"the frames hold at least {need}-bit data: give the camera's real ADC depth (--adc-bits {need} or more)"
+
+
 def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | None = None,
                   adc_bits: int | None = None, scenario: str | None = None,
-                  scenario_params: dict | None = None) -> Path:
+                  scenario_params: dict | None = None, msb_aligned: bool = False) -> Path:
     """Write a frame folder (manifest + PNG frames) from source frames with positions.
 
     Parameters
@@ -247,10 +347,15 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         Rig tables (``rig_to_dict``) written to the manifest; its sensor size must match.
     adc_bits : int, optional
         ADC depth (saturation at 2**bits − 1); default the files' bit depth (8 or 16).
+        Every value must lie within 0 … 2**bits − 1.
     scenario : str, optional
         Scenario name; default "calibration" for stage positions, "rotary" for angles.
     scenario_params : dict, optional
         E.g. ``{"plate_height_mm": 89}``.
+    msb_aligned : bool, default False
+        The files hold ``adc_bits`` codes shifted left to the top of the word (a 12-bit
+        camera's 16-bit files with values × 16): they are shifted back (the lowest bits
+        must be 0).
 
     Returns
     -------
@@ -260,8 +365,15 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
     Raises
     ------
     FrameError
-        No frames, mixed keys, bad frames (:func:`read_image`), a rig of another size, an
-        out folder that is not empty, a bad ``adc_bits``.
+        No frames, mixed keys, bad frames (:func:`read_image`), a file given twice or one
+        image under two names, values beyond the ADC range (naming the file, the largest
+        value and what it suggests), a rig of another size, an out folder that is not empty
+        (or filled meanwhile by another import), a bad ``adc_bits``.
+
+    Warns
+    -----
+    UserWarning
+        Two frames at the same position; angles that look like radians.
     """
     if not frames:
         raise FrameError("no frames to import")
@@ -269,11 +381,14 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         raise FrameError("frames mix stage positions and angles")
     frames = sorted(frames, key=lambda f: f.value)        # stable: equal positions keep their order
     images = _load_all(frames)
+    _check_distinct(frames, images)
     _check_rig(rig, images[0].shape)
     depth = 8 * images[0].itemsize
     bits = depth if adc_bits is None else int(adc_bits)
     if not 1 <= bits <= depth:
         raise FrameError(f"adc_bits = {adc_bits}: must be in 1..{depth} for {depth}-bit frames")
+    images = _adc_range(images, frames, bits, adc_bits, msb_aligned)
+    _warn_radians(frames)
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise FrameError(f"output folder {str(out)!r} exists and is not empty")
@@ -287,6 +402,13 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
     return out
 
 
+def _warn_radians(frames: list[ImportedFrame]) -> None:
+    """Rotary angles spanning one turn in radians look like radians (:func:`radians_note`)."""
+    note = radians_note([f.value for f in frames]) if frames[0].key == "angle_deg" else None
+    if note:
+        warnings.warn(note, stacklevel=3)
+
+
 def _write(out: Path, manifest: dict, frames: list[ImportedFrame], images: list[np.ndarray]) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
@@ -298,9 +420,20 @@ def _write(out: Path, manifest: dict, frames: list[ImportedFrame], images: list[
                 raise FrameError(f"cannot write {str(out / name)!r}")
             manifest["frames"].append({"file": name, fr.key: fr.value, "source_file": str(fr.path)})
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1), "utf-8")
+        _move_into_place(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _move_into_place(tmp: Path, out: Path) -> None:
+    """Rename the finished folder to ``out``; one clear error if another import filled it meanwhile."""
+    try:
         if out.exists():
             out.rmdir()
         os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR):
+            raise FrameError(f"output folder {str(out)!r} was filled while this import ran: another import "
+                             "into the same folder? import into an empty folder, one at a time") from None
         raise

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from scheimpflug.app.commands._common import add_rig_options, print_json, rig_from_args
+from scheimpflug.app.commands._common import add_rig_options, integer, print_json, rig_from_args
 from scheimpflug.app.commands._quality import add_quality_options, quality_from_args
 
 __all__ = ["add_parser"]
@@ -27,7 +27,8 @@ def add_parser(sub):
     p.add_argument("--model", choices=("paper", "general", "auto"), default="auto",
                    help="calibration model (default auto; 'paper' on a distorting rig shows what an "
                         "unmodelled distortion costs)")
-    p.add_argument("--binning", type=int, default=1, metavar="K", help="k × k binned sensor (default 1)")
+    p.add_argument("--binning", type=integer(1, 4096), default=1, metavar="K",
+                   help="k × k binned sensor (default 1)")
     p.add_argument("--quick", action="store_true",
                    help="2 sphere, 1 ball-bar and 1 plane position with fewer frames (not the guideline's "
                         "count: a smoke test)")
@@ -79,6 +80,7 @@ def _run(args) -> int:
     from sim.acceptance import run_acceptance
 
     rig = rig_from_args(args)
+    _check_binning(rig, args.binning)
     if args.no_quality_filter and args.min_snr is not None:
         raise ScheimpflugError("--no-quality-filter keeps every point: it cannot be combined with --min-snr")
     quality = quality_from_args(args)
@@ -95,3 +97,14 @@ def _run(args) -> int:
     if args.json:
         print_json(data)
     return 0
+
+
+def _check_binning(rig, k: int) -> None:
+    """One line, before any work, for a binning that leaves no pixel of the rig's sensor."""
+    from scheimpflug.errors import ScheimpflugError
+    from scheimpflug.model.binning import binned_rig
+
+    try:
+        binned_rig(rig, k)
+    except ValueError as exc:
+        raise ScheimpflugError(f"--binning {k}: {exc}") from None

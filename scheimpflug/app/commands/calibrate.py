@@ -94,7 +94,7 @@ def _summary(res) -> str:
 
 
 def _optics(args, folder):
-    """(f [mm], p [µm], assumed) from --rig, else the manifest's rig, else the paper's."""
+    """(f [mm], p [µm], assumed) from --rig, else the manifest's rig, else the paper's (each on its own)."""
     from scheimpflug.sheet_model import DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM
 
     if args.rig:
@@ -103,9 +103,7 @@ def _optics(args, folder):
         rig = load_rig(args.rig)
         return rig.lens.focal_length_mm, rig.sensor.pixel_pitch_um, False
     f, p = folder.rig_value("lens", "focal_length_mm"), folder.rig_value("sensor", "pixel_pitch_um")
-    if f is None or p is None:
-        return DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM, True
-    return float(f), float(p), False
+    return float(f or DEFAULT_FOCAL_LENGTH_MM), float(p or DEFAULT_PIXEL_PITCH_UM), f is None or p is None
 
 
 def _result_dict(res) -> dict:
@@ -134,7 +132,8 @@ def _run(args) -> int:
     with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
         warnings.simplefilter("ignore")
         res = calibrate_sheet_folder(folder, args.plate_height_mm, model=args.model, method=args.method,
-                                     detector=args.detector, focal_length_mm=f_mm, pixel_pitch_um=p_um,
+                                     detector=args.detector, focal_length_mm=f_mm if args.rig else None,
+                                     pixel_pitch_um=p_um if args.rig else None,
                                      progress=bar, accuracy=acc)
     for name, reason in res.paper.skipped:
         print(f"warning: {name}: skipped: {reason}", file=sys.stderr)
@@ -145,8 +144,9 @@ def _run(args) -> int:
     for w in res.paper.warnings + res.paper.best.warnings:
         print(f"warning: {w}", file=sys.stderr)
     if assumed and (args.opencv or res.chosen is res.general):
-        print(f"warning: no rig: the camera intrinsics assume f = {f_mm:g} mm and a {p_um:g} µm pixel "
-              f"pitch (give --rig)", file=sys.stderr)
+        print(f"warning: the manifest's rig lacks the focal length or the pixel pitch: the camera intrinsics "
+              f"use f = {f_mm:g} mm and a {p_um:g} µm pixel pitch, the missing one assumed (give --rig)",
+              file=sys.stderr)
     d = _result_dict(res)
     d["warnings"] = list(res.paper.warnings) + list(d.get("warnings", []))
     if args.out:

@@ -92,6 +92,11 @@ def _run(args) -> int:
     cloud = read_point_cloud(args.cloud)
     xyz, dropped = _select(args, cloud)
     vertices, faces, ids = read_mesh(args.mesh)
+    from scheimpflug.scoring import scale_mismatch
+
+    scale = scale_mismatch(xyz, vertices)
+    if scale:
+        print(f"warning: {scale}", file=sys.stderr)
     pm = PointToMesh(vertices, faces)
     res = pm.query(xyz)
     labels_all = ids if ids is not None else body_labels(pm.faces)
@@ -109,7 +114,7 @@ def _run(args) -> int:
     d = res.distance_mm[keep]
     out = {**distance_stats(d, res.signed), "distance_kind": "signed" if res.signed else "unsigned",
            "cloud": str(args.cloud), "mesh": str(args.mesh), "n_faces": int(len(pm.faces)),
-           "n_points_read": len(cloud), "n_dropped": dropped}
+           "n_points_read": len(cloud), "n_dropped": dropped, "scale_warning": scale}
     if args.region:
         out["region_filter"] = list(args.region)
     unique = np.unique(labels_all)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 from scheimpflug.app.commands._common import print_json
@@ -29,6 +30,9 @@ def add_parser(sub):
     p.add_argument("--rig", metavar="RIG.toml", help="rig file to record in the manifest (optional)")
     p.add_argument("--adc-bits", type=int, default=None,
                    help="ADC depth, e.g. 12 for a 12-bit camera's 16-bit files (default: the files' depth)")
+    p.add_argument("--msb-aligned", action="store_true",
+                   help="the files hold --adc-bits codes shifted to the top of the word (e.g. 12-bit "
+                        "values × 16 in 16-bit files): shift them back on import")
     p.add_argument("--scenario", choices=("calibration", "blocker", "rotary"), default=None,
                    help="what the frames show (default calibration for stage positions, rotary for angles)")
     p.add_argument("--plate-height-mm", type=float, default=None,
@@ -56,12 +60,16 @@ def _run(args) -> int:
     files = _expand(args.frames)
     if not files:
         raise FrameError(f"no .png/.tif/.tiff frames in {' '.join(args.frames)}")
-    frames = (positions_from_csv(files, args.positions) if args.positions
-              else positions_from_names(files, args.positions_from_names))
     rig = rig_to_dict(load_rig(args.rig)) if args.rig else None
     params = {"plate_height_mm": args.plate_height_mm} if args.plate_height_mm is not None else None
-    out = import_frames(frames, args.out, rig=rig, adc_bits=args.adc_bits, scenario=args.scenario,
-                        scenario_params=params)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        frames = (positions_from_csv(files, args.positions) if args.positions
+                  else positions_from_names(files, args.positions_from_names))
+        out = import_frames(frames, args.out, rig=rig, adc_bits=args.adc_bits, scenario=args.scenario,
+                            scenario_params=params, msb_aligned=args.msb_aligned)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
     summary = {"out": str(out), "frames": len(frames), "key": frames[0].key,
                "range": [min(f.value for f in frames), max(f.value for f in frames)]}
     print(f"import: {len(frames)} frames ({frames[0].key} {summary['range'][0]:g} … {summary['range'][1]:g}) "

@@ -77,15 +77,12 @@ def _axis_mm(args, calibration, folder) -> tuple[float, str]:
 
 
 def _warn_axis_outside(axis_mm: float, calibration, folder) -> None:
-    """A rotary axis outside the depth range the calibration covers is almost surely a typo."""
-    import numpy as np
+    """A rotary axis outside the depth range the calibration covers is refused (a typo or a unit)."""
+    from scheimpflug.calibration import check_axis_position
 
-    ends, _ = calibration.stage_from_pixel(np.array([-0.5, folder.columns - 0.5]),
-                                           np.full(2, 0.5 * (folder.rows - 1)))
-    lo, hi = float(np.nanmin(ends)), float(np.nanmax(ends))
-    if not lo <= axis_mm <= hi:
-        print(f"warning: --axis-mm {axis_mm:g} lies outside the depth range the calibration covers "
-              f"({lo:.2f} … {hi:.2f} mm): the cloud will be far from the part", file=sys.stderr)
+    note = check_axis_position(axis_mm, calibration, folder.columns, folder.rows)
+    if note:
+        print(f"warning: --axis-mm: {note}", file=sys.stderr)
 
 
 def _check_folder(folder, calibration) -> None:
@@ -95,11 +92,13 @@ def _check_folder(folder, calibration) -> None:
     if missing:
         raise FrameError(f"{folder.path}: frame {missing[0]} ({folder.frames[missing[0]].file}) has no "
                          f"'angle_deg': not a rotary scan")
-    cal_shape = (calibration.rows, calibration.columns)
-    if all(cal_shape) and cal_shape != (folder.rows, folder.columns):
-        raise CalibrationError(f"calibration was made for {cal_shape[0]} × {cal_shape[1]} frames, "
-                               f"the scan has {folder.rows} × {folder.columns}")
-    problem = calibration.problem(folder.columns) if hasattr(calibration, "problem") else None
+    from scheimpflug.calibration import applicability_problem
+    from scheimpflug.io.frames import radians_note
+
+    note = radians_note([r.angle_deg for r in folder.frames])
+    if note:
+        print(f"warning: {folder.path}: {note}", file=sys.stderr)
+    problem = applicability_problem(calibration, folder)
     if problem:
         raise CalibrationError(f"the calibration cannot be applied to {str(folder.path)!r}: {problem}")
 
@@ -160,6 +159,9 @@ def _from_folder(args, t0: float):
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration, folder)
     st = _extract(folder, args)
+    from scheimpflug.io.frames import check_distinct_frames
+
+    check_distinct_frames(folder, [i for i, r in enumerate(st.rows) if len(r)])   # a frame listed twice
     stats = st.stats
     cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in folder.frames], calibration,
                                  axis_mm, intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px)
