@@ -973,9 +973,10 @@ def render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderS
     stats.wall_s = time.perf_counter() - t_start
     ledger.write_sorted()
     _finish(out, manifest, scenario, stats, done)
-    if stats.frames_without_stripe:
-        warn(f"{len(stats.frames_without_stripe)} of {stats.frames_rendered} rendered frames hold "
-             f"no stripe: {index_ranges(stats.frames_without_stripe)}")
+    dark = {f.index for f in scenario.frames if getattr(f, "light", None) == "flood"}   # laser off by design
+    unlit = [i for i in stats.frames_without_stripe if i not in dark]
+    if unlit:
+        warn(f"{len(unlit)} of {stats.frames_rendered} rendered frames hold no stripe: {index_ranges(unlit)}")
     return stats
 
 

@@ -2,7 +2,10 @@
 
 Scenarios (docs/reference/interface.md): ``calibration`` (plate on the translation stage),
 ``blocker`` (thin plate on the rotary axis), ``rotary`` (a part on the rotary
-stage).  The folder layout, the truth files and the restart rules are
+stage), ``target`` (a printed pattern, hand-held or on the table: :mod:`sim.target`;
+its options and the camera pass's in :mod:`scheimpflug.app.commands._target`);
+``--background walls|box`` stands boards around the rotary table (:mod:`sim.backgrounds`).
+The folder layout, the truth files and the restart rules are
 documented in :mod:`sim.writer` and :mod:`sim.truth`.
 
 ``--binning K`` renders a reduced sensor with the same geometry (k × k
