@@ -30,6 +30,8 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 _EXPORTS = {
+    "CameraPass": "sim.camera_pass",
+    "CameraSettings": "sim.camera_pass",
     "FrameSpec": "sim.scenarios",
     "LightSheet": "sim.lightsheet",
     "MaterialSettings": "sim.materials",
@@ -58,6 +60,7 @@ _EXPORTS = {
     "select_variant": "sim.variant",
     "stage_from_part": "sim.stages",
     "stripe_truth": "sim.truth",
+    "target_scenario": "sim.target",
     "write_png": "sim.writer",
 }
 

@@ -348,3 +348,32 @@ def test_bad_settings_are_refused_in_one_line(variant):
     for kwargs in ({"seed": -1}, {"seed": 0, "flood_scale": -1.0}, {"seed": 0, "exposure_ms": 0.0}):
         with pytest.raises(RenderError):
             cp.render(np.eye(4), **kwargs)
+
+
+def test_white_furnace_more_bounces_bring_a_cavity_to_the_environments_radiance(variant):
+    """Albedo 1 everywhere under a uniform environment: every surface's radiance is the environment's
+    once the paths are long enough (the white furnace); one bounce leaves the cavity's floor darker."""
+    rig = load_preset("paper").replace(environment={"ambient_irradiance_w_m2": math.pi})
+    f, x_obj = rig.lens.focal_length_mm, 400.0
+    pose = untilted_pose(rig, f * x_obj / (x_obj - f), 24, 24, 0.02)        # sees 3.5 mm of the floor's centre
+    white = {"kind": "uniform", "albedo": 1.0}
+
+    def board(lo, hi, oid):
+        m = trimesh.creation.box(np.subtract(hi, lo))
+        m.apply_translation(0.5 * (np.add(lo, hi)))
+        return Textured(m, white, object_id=oid)
+
+    floor = board([x_obj, -30, -30], [x_obj + 2, 30, 30], 1)
+    walls = [board([x_obj - 40, -32, -30], [x_obj, -30, 30], 2), board([x_obj - 40, 30, -30], [x_obj, 32, 30], 3),
+             board([x_obj - 40, -30, -32], [x_obj, 30, -30], 4), board([x_obj - 40, -30, 30], [x_obj, 30, 32], 5)]
+    open_floor = make_pass(rig, [floor], pose=pose, spp=16, pixel_filter="box").render(np.eye(4), seed=1)
+    one = make_pass(rig, [floor, *walls], pose=pose, spp=16, pixel_filter="box").render(np.eye(4), seed=1)
+    deep = make_pass(rig, [floor, *walls], pose=pose, spp=64, bounces=24, pixel_filter="box").render(np.eye(4), seed=1)
+    # the walls hide 1 − (sky's configuration factor) of the floor centre's hemisphere: F = 4·F_c(30, 30, 40)
+    from sim.lights import corner_factor
+
+    sky = 4 * corner_factor(30.0, 30.0, 40.0)
+    print(f"furnace: one bounce {one.mean() / open_floor.mean():.4f} (sky factor {sky:.4f}), 24 bounces "
+          f"{deep.mean() / open_floor.mean():.4f}")
+    np.testing.assert_allclose(one.mean() / open_floor.mean(), sky, rtol=0.03)
+    assert deep.mean() / open_floor.mean() == pytest.approx(1.0, abs=0.02)
