@@ -45,7 +45,6 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.intersphinx",
     "sphinx.ext.mathjax",
-    "sphinx.ext.viewcode",
     "sphinx_gallery.gen_gallery",
     "scheimpflug_docs",
 ]
@@ -57,6 +56,7 @@ exclude_patterns = ["_build", "README.next.md", "**/README.md", "auto_examples/*
                     "auto_examples/*.json", "sg_execution_times.rst"]
 templates_path = ["_templates"]
 nitpicky = False
+smartquotes = False                   # "--near-mm" stays two hyphens, not an en dash
 suppress_warnings = ["config.cache"]   # sphinx-gallery's callables in the config cannot be pickled
 
 # ------------------------------------------------------------------ MyST
@@ -169,10 +169,10 @@ html_theme_options = {
     "navbar_align": "left",
     "show_toc_level": 2,
     "navigation_with_keys": False,
-    "header_links_before_dropdown": 7,
-    "secondary_sidebar_items": ["page-toc"],
+    "header_links_before_dropdown": 6,
     "footer_start": ["copyright"],
     "footer_end": ["sphinx-version"],
     "check_switcher": False,
 }
+html_theme_options["secondary_sidebar_items"] = {"**": ["page-toc"], "reference/rig-keys": [], "reference/cli": []}
 html_context = {"default_mode": "light"}

@@ -31,7 +31,7 @@ preset = "paper"
 [artefacts]
 kinds = ["ball-bar"]
 binning = 4
-frames = 3
+frames = 9
 """)
 result = run_study(load_study_spec(folder / "tolerance.toml", "tolerance"), folder / "out")
 summary = result.summary
@@ -44,9 +44,11 @@ for line in summary["ranking"]:
 # roll moves SD, the power does not.
 
 ranked = summary["sensitivity"]
+if not ranked or any(e.get("mu_star") is None for e in ranked):
+    raise RuntimeError("the draws did not measure the SD: " + " ".join(summary["ranking"]))
 keys = [e["key"] for e in ranked]
 fig, ax = plt.subplots(figsize=(8, 3.2))
-ax.barh(keys[::-1], [(e.get("mu_star") or 0.0) * 1000 for e in ranked][::-1], color="tab:blue")
+ax.barh(keys[::-1], [e["mu_star"] * 1000 for e in ranked][::-1], color="tab:blue")
 ax.set(xlabel="Morris μ* of SD: its mean change over the key's whole range [µm]",
        title="sensitivity of the sphere-spacing error")
 fig.tight_layout()

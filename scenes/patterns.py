@@ -1,7 +1,7 @@
 """Printed calibration patterns as parts: chessboard, ChArUco and circle grids on a plate.
 
 Pattern specs (docs/reference/interface.md ``--pattern SPEC``)
------------------------------------------------
+--------------------------------------------------------------
 ``chessboard:COLSxROWS:SQUARE_MM``
     COLS × ROWS *inner* corners (OpenCV's ``patternSize``), squares of edge
     SQUARE_MM; (COLS + 1) × (ROWS + 1) squares, the top-left one black.

@@ -4,4 +4,5 @@ import sys
 
 from scheimpflug.app.cli import main
 
-sys.exit(main())
+if __name__ == "__main__":      # not when imported (the docs' API reference imports every module)
+    sys.exit(main())

@@ -47,7 +47,7 @@ physics, not from a fit to one scan:
 * 13: the Cramér–Rao bound of a Gaussian stripe's centre under white noise,
   ``sqrt(2σ/√π) / SNR`` (:func:`centre_crb_px`), is 0.1 px for the twin's
   σ = 1.5 px stripe at SNR 13 — below the speckle floor of a real laser
-  (≈ 0.15 px, DESIGN.md §5), so the points kept are never noise-limited
+  (≈ 0.15 px, docs/explanation/design-notes.md §5), so the points kept are never noise-limited
   worse than the instrument's own floor;
 * the sweep edge: there only part of the sheet's thickness lights the
   surface, and the camera sees the footprint's offset from the sheet's centre

@@ -46,9 +46,11 @@ The environment (``[environment] ambient_irradiance_w_m2``) lights every frame.
 The manifest records per frame ``pose`` (index), ``light`` and ``exposure_ms``
 (and ``angle_deg`` on the table).
 
-Truth (per frame, :func:`pattern_truth`, besides the laser's stripe of
-:mod:`sim.truth`, which is empty in a flood frame)
-------------------------------------------------------------------------------
+Truth per frame
+---------------
+From :func:`pattern_truth`, besides the laser's stripe of :mod:`sim.truth` (which is
+empty in a flood frame):
+
 ``pattern_corners_px`` (n, 2) float64
     Every corner / dot centre where the chief ray through the lens centre meets
     the tilted sensor (:func:`scheimpflug.model.camera.project_points`) [px]; NaN

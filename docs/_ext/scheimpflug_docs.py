@@ -21,6 +21,7 @@ import argparse
 import dataclasses
 import re
 import sys
+import textwrap
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -179,12 +180,13 @@ def cli_rst(commands: list[CliCommand] | None = None) -> str:
         lines += [f".. _{_anchor(cmd.path)}:", "", title, mark * len(title), ""]
         if cmd.help:
             lines += [_esc(cmd.help[0].upper() + cmd.help[1:]) + ".", ""]
-        lines += [".. code-block:: text", "", "   " + cmd.usage, ""]
+        usage = textwrap.wrap(cmd.usage, 100, subsequent_indent=" " * (len(cmd.name) + 1), break_on_hyphens=False,
+                              break_long_words=False)
+        lines += [".. code-block:: text", "", *("   " + u for u in usage), ""]
         if cmd.description:
             lines += [_esc(cmd.description), ""]
         if cmd.subcommands:
-            lines += ["Subcommands: " + ", ".join(f":ref:`{s} <{_anchor((*cmd.path, s))}>`"
-                                                  for s in cmd.subcommands) + ".", ""]
+            lines += ["Subcommands (below): " + ", ".join(f"``{s}``" for s in cmd.subcommands) + ".", ""]
         opts = [o for o in cmd.options if o.names != ("--debug",) or not cmd.path]
         if opts:
             lines += [".. list-table::", "   :header-rows: 1", "   :widths: 30 12 58", "   :class: cli-options", "",
@@ -434,6 +436,8 @@ def check_links(html_dir: str | Path) -> list[str]:
     root = Path(html_dir)
     pages: dict[Path, _Page] = {}
     for path in sorted(root.rglob("*.html")):
+        if path.relative_to(root).parts[0] in ("_static", "_sources"):    # the theme's templates, sources
+            continue
         page = _Page()
         page.feed(path.read_text(encoding="utf-8", errors="replace"))
         pages[path.resolve()] = page
