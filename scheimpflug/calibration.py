@@ -1797,8 +1797,8 @@ def applicability_problem(calibration, folder: FrameFolder) -> str | None:
     """
     cal_shape = (calibration.rows, calibration.columns)
     if all(cal_shape) and cal_shape != (folder.rows, folder.columns):
-        ratio = calibration.columns / folder.columns
-        hint = (f" (a calibration made at {ratio:g} × this binning)" if ratio == calibration.rows / folder.rows
+        ratio = folder.columns / calibration.columns            # binning grows as the image shrinks
+        hint = (f" (a calibration made at {ratio:g} × this binning)" if ratio == folder.rows / calibration.rows
                 else "")
         return (f"the calibration was made for {cal_shape[0]} × {cal_shape[1]} frames, the frames are "
                 f"{folder.rows} × {folder.columns} (rows × columns){hint}")
@@ -1809,14 +1809,20 @@ def applicability_problem(calibration, folder: FrameFolder) -> str | None:
     return problem
 
 
-def check_axis_position(axis_mm: float, calibration, columns: int, rows: int) -> str | None:
-    """Refuse a rotary axis outside the depth range a calibration covers; note one beyond its frames.
+_AXIS_SPANS = 2.0    # an axis further than this many depth ranges beyond the range: a typo or a unit [-]
 
-    The depth range is the stage coordinate of the sensor's first and last column
-    edges on its middle row (a part's near side lies between them, the axis no
-    further than the part's radius beyond: an axis outside is a typo or a unit
-    error).  Within it but outside the stage range of the calibration's own
-    frames (when recorded) the mapping is extrapolated: a warning.
+
+def check_axis_position(axis_mm: float, calibration, columns: int, rows: int) -> str | None:
+    """Refuse a rotary axis far outside the depth range a calibration covers; warn outside it.
+
+    The depth range is the stage coordinate of the first and last column edges
+    on the middle row (the calibration's own image size when it records one,
+    else the frames').  A part's seen surface lies in it and its axis at most a
+    radius away: an axis further than :data:`_AXIS_SPANS` × the range's span
+    beyond either end (a part radius above twice the depth range) is a typo or
+    a unit error (1794.5 for 179.45, mm as cm) and is refused.  Outside the
+    range, or outside the stage range of the calibration's own frames (when
+    recorded: the mapping is extrapolated there), a warning.
 
     Parameters
     ----------
@@ -1835,15 +1841,22 @@ def check_axis_position(axis_mm: float, calibration, columns: int, rows: int) ->
     Raises
     ------
     CalibrationError
-        The axis outside the depth range, naming the range.
+        The axis too far outside the depth range, naming the range.
     """
-    ends, _ = calibration.stage_from_pixel(np.array([-0.5, columns - 0.5]), np.full(2, 0.5 * (rows - 1)))
+    n_u, n_v = (calibration.columns, calibration.rows) if calibration.columns and calibration.rows \
+        else (columns, rows)
+    ends, _ = calibration.stage_from_pixel(np.array([-0.5, n_u - 0.5]), np.full(2, 0.5 * (n_v - 1)))
     lo, hi = float(np.nanmin(ends)), float(np.nanmax(ends))
-    if not lo <= axis_mm <= hi:
-        raise CalibrationError(f"the rotary axis {axis_mm:g} mm lies outside the depth range the calibration "
-                               f"covers ({lo:.2f} … {hi:.2f} mm, stage coordinate): a typo or another unit?")
+    margin = _AXIS_SPANS * (hi - lo)
+    if not lo - margin <= axis_mm <= hi + margin:
+        raise CalibrationError(f"the rotary axis {axis_mm:g} mm lies far outside the depth range the calibration "
+                               f"covers ({lo:.2f} … {hi:.2f} mm, stage coordinate; more than twice its span "
+                               "beyond it): a typo or another unit?")
     paper = calibration if isinstance(calibration, Calibration) else getattr(calibration, "paper", None)
     s_lo, s_hi = paper.stage_range_mm if paper is not None else (math.nan, math.nan)
+    if not lo <= axis_mm <= hi:
+        return (f"the rotary axis {axis_mm:g} mm lies outside the depth range the calibration covers "
+                f"({lo:.2f} … {hi:.2f} mm): only a part whose radius reaches into it is seen")
     if math.isfinite(s_lo) and math.isfinite(s_hi) and not s_lo <= axis_mm <= s_hi:
         return (f"the rotary axis {axis_mm:g} mm lies outside the stage range of the calibration frames "
                 f"({s_lo:g} … {s_hi:g} mm): the mapping there is extrapolated")

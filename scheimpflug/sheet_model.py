@@ -65,8 +65,9 @@ Both forms are fitted by least squares to the same residuals: each stripe
 point's stage coordinate against its frame's (converted to columns [px]) and
 each edge's height against the plate's (converted to rows [px], weighted to
 the stripe points' scatter).  The paper form (u_h, v_h, F², d0, C and the
-plate's bottom height: 6 parameters) is nested in the general one (8 + 2 or
-+ 4), so the F-test for nested models applies::
+plate's bottom height: 6 parameters) is nested in the general one (pose 6,
+principal point and distance 3, k1: 10, or 11 with k2; the ideal rig's camera
+with k1 = 0 is the paper form), so the F-test for nested models applies::
 
     F = ((RSS_paper − RSS_general) / (p_g − p_p)) / (RSS_general / (N − p_g))
 

@@ -262,10 +262,11 @@ def test_a_calibration_of_another_binning_is_refused_also_without_its_size(plate
         d.pop(key)
     (tmp_path / "old.json").write_text(json.dumps(d))
     scan = _scan_of(tmp_path / "scan", 2)
-    for c in (cal, tmp_path / "old.json"):
-        err = _fails(["reconstruct", str(scan), "--calibration", str(c), "--axis-mm", "150",
-                      "--out", str(tmp_path / "c.ply"), "--quiet"], capsys, "binning")
-    assert "0.5 × the frames' rig hinge_column 799" in err
+    errs = [_fails(["reconstruct", str(scan), "--calibration", str(c), "--axis-mm", "150",
+                    "--out", str(tmp_path / "c.ply"), "--quiet"], capsys, "binning")
+            for c in (cal, tmp_path / "old.json")]
+    assert "a calibration made at 2 × this binning" in errs[0]
+    assert "0.5 × the frames' rig hinge_column 799" in errs[1]
 
 
 @pytest.mark.parametrize("unit, factor", [("cm", 10.0), ("inches", 25.4)])

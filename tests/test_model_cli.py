@@ -209,12 +209,12 @@ def test_meshing_error_leaves_no_file(tmp_path, capsys):
     import cv2
 
     scan = _dark_scan(tmp_path / "two")
-    u_c = 30.0                                                 # a surface ≈ 50 mm before the axis
+    u_c = 30.0                                                 # a surface ≈ 20 mm before the axis
     for i in (0, 1):
-        img = np.full((40, 60), 100.0)
+        img = np.full((40, 60), 100.0 + i)                     # two frames, not one listed twice
         img[5:35] += 3000.0 * np.exp(-0.5 * ((np.arange(60) - u_c) / 1.5) ** 2)
         cv2.imwrite(str(scan / f"frames/{i:05d}.png"), img.astype(np.uint16))
-    status = main(["reconstruct", str(scan), "--calibration", str(scan / "cal.json"), "--axis-mm", "80",
+    status = main(["reconstruct", str(scan), "--calibration", str(scan / "cal.json"), "--axis-mm", "50",
                    "--out", str(tmp_path / "c.ply"), "--model", str(tmp_path / "m.ply"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and "at least 3 rotary angles" in err[-1]
