@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from scheimpflug.errors import ScheimpflugError
-from scheimpflug.io.atomic import write_json_atomic, write_text_atomic
+from scheimpflug.io.atomic import finite_json, write_json_atomic, write_text_atomic
 from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.rig import ERROR_MODELS, TWIN_EFFECTS, Rig, rig_to_toml, with_error_models
 
@@ -395,7 +395,7 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
     timer.run("figures + report", _write_report, out, report, summary, ideal)
     summary["seconds"]["total"] = time.perf_counter() - t_start
     summary["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    write_json_atomic(out / "summary.json", _jsonable(summary))
+    write_json_atomic(out / "summary.json", finite_json(summary))
     _print_summary(summary, out)
     return summary
 
@@ -590,20 +590,6 @@ def _dominant(rows: dict, sources: list) -> dict:
                   if rows[s][key] is not None and abs(rows[s][key]) >= (1 + DOMINANCE_MIN_RISE) * b}
         out[key] = max(excess, key=excess.get) if excess and max(excess.values()) > 0 else None
     return out
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    return obj
 
 
 def _summary(rig, plan, quick, res: dict, timer, t_start) -> dict:
