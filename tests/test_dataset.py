@@ -153,9 +153,9 @@ def test_loader_reads_frames_truth_and_filters(png_dataset):
     assert len(ds) == 6 and ds.samples == [0, 1, 2] and ds.storage == "png"
     fr = ds[3]
     assert fr.image.dtype == np.uint16 and fr.image.shape == (1936 // 4, 1216 // 4)
-    assert np.array_equal(fr.image, read_png(base / "png" / fr.meta["file"]))
+    assert np.array_equal(fr.image, read_png(base / "png" / fr.meta["file"]))  # exact: copy
     with np.load(base / "png" / fr.meta["truth_file"]) as z:
-        assert np.array_equal(fr.truth["stripe_u"], z["stripe_u"], equal_nan=True)
+        assert np.array_equal(fr.truth["stripe_u"], z["stripe_u"], equal_nan=True)  # exact: copy
     lit = np.isfinite(fr.truth["stripe_u"])
     assert lit.sum() == fr.meta["lit_rows"]
     assert np.all(np.isfinite(fr.truth["stripe_distance_mm"][lit]))
@@ -166,7 +166,7 @@ def test_loader_reads_frames_truth_and_filters(png_dataset):
     assert [f.meta["sample"] for f in ds.sample(1)] == [1, 1]
     stack = ds.frames_dask()
     assert stack.shape == (6, 1936 // 4, 1216 // 4)
-    assert np.array_equal(np.asarray(stack[3]), fr.image)
+    assert np.array_equal(np.asarray(stack[3]), fr.image)  # exact: copy
     with pytest.raises(DatasetError, match="unknown index column"):
         ds.filter(colour="red")
 
@@ -252,21 +252,22 @@ def test_zarr_holds_the_same_frames_and_truth_lazily(png_dataset):
     assert (blosc.cname.value, blosc.clevel, blosc.shuffle.value) == ("zstd", 1, "bitshuffle")
     assert blosc.blocksize == 1 << 21
     for a, b in zip(png, zds):
-        assert np.array_equal(a.image, b.image)
+        assert np.array_equal(a.image, b.image)  # exact: copy
         for key in a.truth:
-            assert np.array_equal(a.truth[key], b.truth[key], equal_nan=True), key
+            assert np.array_equal(a.truth[key], b.truth[key], equal_nan=True), key  # exact: copy
     lazy = zds.frames_dask()
     assert isinstance(lazy, da.Array) and lazy.chunks[0] == (1,) * 6
-    assert np.array_equal(lazy[4].compute(), png[4].image)
+    assert np.array_equal(lazy[4].compute(), png[4].image)  # exact: copy
     xds = zds.filter(sample=2).to_xarray()
     assert xds["frames"].dims == ("frame", "row", "column") and xds.sizes["frame"] == 2
-    assert np.array_equal(xds["stripe_u"].values, np.stack([f.truth["stripe_u"] for f in png.sample(2)]),
+    assert np.array_equal(xds["stripe_u"].values, np.stack([f.truth["stripe_u"] for f in png.sample(2)]),  # exact: copy
                           equal_nan=True)
     # chunks written by the dataset's encoder are byte for byte what Zarr itself writes
     ref = zarr.open_group(str(base / "ref.zarr"), mode="w")
     ref.create_array("frames", shape=arr.shape, chunks=arr.chunks, dtype=arr.dtype,
                      compressors=arr.metadata.codecs[-1], chunk_key_encoding={"name": "default", "separator": "."})
     ref["frames"][4] = png[4].image
+    # exact: resume
     assert (base / "ref.zarr/frames/c.4.0.0").read_bytes() == (out / "frames.zarr/frames/c.4.0.0").read_bytes()
     assert verify_dataset(out).ok
 
@@ -420,4 +421,4 @@ def test_next_sample_of_the_same_part_reuses_its_mesh_with_the_same_bytes(tmp_pa
     rig = load_preset("paper")
     fresh = rotary_scenario(rig, part="sphere", step_deg=90.0, frames=1, truth_pixels_every=0)
     fresh.assembly.transformed(fresh.mesh_ref_from_part).to_ply(tmp_path / "fresh.ply")
-    assert (tmp_path / "fresh.ply").read_bytes() == meshes[1].read_bytes()
+    assert (tmp_path / "fresh.ply").read_bytes() == meshes[1].read_bytes()  # exact: same run

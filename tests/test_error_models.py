@@ -342,7 +342,7 @@ def test_sensor_errors_bit_reproducible_on_both_backends(paper):
     backends = ["numba"] + (["drjit"] if _drjit_llvm() is not None else [])
     for backend in backends:
         x, y = _flat_frames(rig, 300.0, (9, 9), backend)
-        assert np.array_equal(x, y)
+        assert np.array_equal(x, y)  # exact: same run
     if len(backends) == 2:   # the same model on both: equal means, equal fixed pattern
         n, d = (_flat_frames(rig, 300.0, (1, 2), b) for b in backends)
         assert abs(n[0].mean() - d[0].mean()) < 0.5
@@ -370,7 +370,7 @@ def test_dataset_truth_follows_the_erring_sheet_and_lens(paper):
         got, extra = fast.frame(fr.rig_from_part, fr.ref_from_part, caster, fr.rig_from_laser)
         rows = np.isfinite(ref.stripe_u)
         assert rows.sum() > 100
-        np.testing.assert_array_equal(np.isfinite(got.stripe_u), rows)
+        np.testing.assert_array_equal(np.isfinite(got.stripe_u), rows)  # exact: integers
         np.testing.assert_allclose(got.stripe_u[rows], ref.stripe_u[rows], atol=1e-6)
         np.testing.assert_allclose(got.stripe_point_mm[rows], ref.stripe_point_mm[rows], atol=1e-6)
         assert np.isfinite(extra["stripe_incidence_deg"][rows]).all()

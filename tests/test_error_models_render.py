@@ -185,7 +185,9 @@ def test_frame_folder_records_what_the_erring_instrument_did(variant, tmp_path):
     assert maps["prnu_gain"].shape == (rig.sensor.rows, rig.sensor.columns)
     # same seed, same frames and truth, bit for bit
     for e in man["frames"]:
+        # exact: same run
         assert np.array_equal(read_png(tmp_path / "a" / e["file"]), read_png(tmp_path / "b" / e["file"]))
+        # exact: same run
         assert (tmp_path / "a" / e["truth"]).read_bytes() == (tmp_path / "b" / e["truth"]).read_bytes()
 
 

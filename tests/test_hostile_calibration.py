@@ -199,7 +199,7 @@ def test_outputs_that_are_inputs_are_refused_and_force_overwrites(folder, tmp_pa
            "lies among the files of the input frame folder")
     _fails(["calibrate", str(folder), "--quiet", "--out", str(folder / "frames" / "00000.png")], capsys,
            "(frames)")
-    assert (folder / "manifest.json").read_bytes() == before
+    assert (folder / "manifest.json").read_bytes() == before  # exact: copy
     _fails(["calibrate", str(folder), "--quiet", "--out", str(tmp_path)], capsys, "is a folder")
     _fails(["calibrate", str(folder), "--quiet", "--plot", str(tmp_path / "x.xyz")], capsys,
            "unknown image format .xyz")

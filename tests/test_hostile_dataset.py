@@ -145,7 +145,7 @@ def test_zarr_dataset_killed_mid_sample_resumes_to_the_same_bytes(ref, tmp_path)
     res, warnings = _make(ref, out, storage="zarr")
     assert res.complete and not res.failures, warnings
     assert res.frames_rendered < 24                     # the frames made before the kill are kept
-    assert _hashes(out) == _hashes(ref / "zarr")
+    assert _hashes(out) == _hashes(ref / "zarr")  # exact: resume
     assert verify_dataset(out).ok and _leftovers(out) == []
 
 
@@ -159,7 +159,7 @@ def test_png_frame_damaged_in_a_partial_sample_is_rendered_again(ref, tmp_path):
     os.truncate(out / "samples" / ".000000.partial" / "frames" / "00002.png", 100)
     res, warnings = _make(ref, out)
     assert res.complete and not res.failures, warnings
-    assert _hashes(out) == _hashes(ref / "png")
+    assert _hashes(out) == _hashes(ref / "png")  # exact: resume
     assert verify_dataset(out).ok and _leftovers(out) == []
 
 
@@ -184,17 +184,18 @@ def test_rerunning_make_repairs_missing_and_corrupt_files(ref, tmp_path):
     assert res.complete and res.frames_rendered == 3, warnings      # only the three damaged frames
     assert any("sample 0 is damaged" in w and "00001.png is missing" in w for w in warnings), warnings
     assert any("sample 1 is damaged" in w and "00003.png: content differs" in w for w in warnings), warnings
-    assert _hashes(out) == _hashes(ref / "png")
+    assert _hashes(out) == _hashes(ref / "png")  # exact: resume
     assert verify_dataset(out).ok and _leftovers(out) == []
     (out / "samples" / "000000" / "sample.json").unlink()          # the sample's record itself
     res, warnings = _make(ref, out)
     assert res.complete and res.frames_rendered == 12, warnings
-    assert _hashes(out) == _hashes(ref / "png") and verify_dataset(out).ok
+    assert _hashes(out) == _hashes(ref / "png") and verify_dataset(out).ok  # exact: resume
     zarr = tmp_path / "zarr"                                       # a Zarr chunk altered
     shutil.copytree(ref / "zarr", zarr)
     chunk = zarr / "frames.zarr" / "stripe_u" / "c.13.0"
     chunk.write_bytes(chunk.read_bytes()[:-1] + bytes([chunk.read_bytes()[-1] ^ 0xFF]))
     res, warnings = _make(ref, zarr, storage="zarr")
+    # exact: resume
     assert res.frames_rendered == 1 and _hashes(zarr) == _hashes(ref / "zarr") and verify_dataset(zarr).ok
 
 
@@ -342,7 +343,7 @@ def test_a_full_disk_at_the_index_names_the_index_and_leaves_no_lock(ref, tmp_pa
         _make(ref, tmp_path / "new")
     assert not (tmp_path / "new").exists()          # no 0-byte lock, no folder
     monkeypatch.setattr(os, "pwrite", real_pwrite)
-    assert _make(ref, out)[0].complete and _hashes(out) == _hashes(ref / "png")
+    assert _make(ref, out)[0].complete and _hashes(out) == _hashes(ref / "png")  # exact: resume
 
 
 def test_a_full_disk_mid_sample_names_the_real_file_and_resumes_byte_identical(ref, tmp_path, monkeypatch):
@@ -365,7 +366,7 @@ def test_a_full_disk_mid_sample_names_the_real_file_and_resumes_byte_identical(r
     assert ".partial" not in reason and ".tmp" not in reason
     monkeypatch.setattr(sample, "_write_atomic", real)
     res, _ = _make(ref, out)
-    assert res.complete and _hashes(out) == _hashes(ref / "png") and _leftovers(out) == []
+    assert res.complete and _hashes(out) == _hashes(ref / "png") and _leftovers(out) == []  # exact: resume
 
 
 # ------------------------------------------------------------------ a frame listed twice

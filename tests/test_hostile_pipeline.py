@@ -184,7 +184,7 @@ def test_reconstruct_outputs_that_are_inputs_are_refused(scan, tmp_path, capsys)
     _fails(base + ["--out", str(frame)], capsys, "input frame folder", "(frames)")
     _fails(base + ["--out", str(cal)], capsys, "is an input of this command")
     _fails(base + ["--out", str(folder)], capsys, "is a folder")
-    assert frame.read_bytes() == before
+    assert frame.read_bytes() == before  # exact: copy
     out = tmp_path / "c.ply"
     assert main(base + ["--out", str(out)]) == 0
     _fails(base + ["--out", str(out)], capsys, "already exists: pass --force")

@@ -101,7 +101,7 @@ def _trial(out, tasks, results, ref) -> str:
     assert "being written by" in got[loser] or "different run" in got[loser]
     m = json.loads((out / "manifest.json").read_text())
     assert m["seed"] == winners[0] and m["complete"] is True
-    assert _frame_hashes(out) == ref[winners[0]]          # every file is the winner's run's
+    assert _frame_hashes(out) == ref[winners[0]]          # exact: same run; every file is the winner's run's
     for i in range(2):
         assert FileLedger(out).mismatch(i, [f"frames/{i:05d}.png", f"truth/{i:05d}.npz"]) is None
     assert not (out / LOCK_NAME).exists()
@@ -152,7 +152,7 @@ def test_resume_verifies_what_it_skips(tmp_path, damage):
     expected = 3 if damage == "delete-ledger" else 1
     assert twin.calls == expected and stats.frames_skipped == 3 - expected
     assert any("rendering again" in w for w in warnings), warnings
-    assert _digest(out) == _digest(tmp_path / "ref")
+    assert _digest(out) == _digest(tmp_path / "ref")  # exact: resume
     assert (out / LEDGER_NAME).read_bytes() == (tmp_path / "ref" / LEDGER_NAME).read_bytes()
     assert json.loads((out / "manifest.json").read_text())["complete"] is True
 
@@ -178,7 +178,7 @@ def test_disk_full_is_one_error_nothing_half_written_and_resumable(tmp_path, mon
     twin, stats = _render(out)
     assert twin.calls == 2 and stats.frames_skipped == 1
     _render(tmp_path / "ref")
-    assert _digest(out) == _digest(tmp_path / "ref")
+    assert _digest(out) == _digest(tmp_path / "ref")  # exact: resume
 
 
 @pytest.mark.render

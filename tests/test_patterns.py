@@ -30,7 +30,7 @@ def test_specs_parse_to_their_grids():
     assert (cb.kind, cb.grid_shape, cb.pitch_mm, cb.text) == ("chessboard", (10, 8), 7.0, "chessboard:10x8:7")
     ids = cb.corner_ids()
     assert ids.shape == (80, 2) and ids[1].tolist() == [1, 0] and ids[10].tolist() == [0, 1]   # row-major
-    np.testing.assert_array_equal(cb.corners_mm()[11], [7.0, 7.0])
+    np.testing.assert_array_equal(cb.corners_mm()[11], [7.0, 7.0])  # exact: copy
     assert cb.extent_mm() == (-7.0, -7.0, 70.0, 56.0)
     ch = parse_pattern("charuco:5x4:10:7")
     assert ch.grid_shape == (4, 3) and ch.dictionary == "DICT_4X4_50"
@@ -75,7 +75,7 @@ def test_charuco_texture_is_opencvs_board():
     ours = texture_albedo(spec.texture(0.0, 1.0), np.stack([(xx + 0.5) / 20 - 10, (yy + 0.5) / 20 - 10], -1))
     flat = ndimage.minimum_filter(ours, 5) == ndimage.maximum_filter(ours, 5)   # ≥ 2 px from an edge
     assert flat.mean() > 0.9
-    np.testing.assert_array_equal(ours[flat] * 255, img[flat])
+    np.testing.assert_array_equal(ours[flat] * 255, img[flat])  # exact: integers
     # and OpenCV finds its markers in our rendering of the texture (ids as its own)
     found, ids, _ = cv2.aruco.ArucoDetector(d).detectMarkers((ours * 255).astype(np.uint8))
     assert sorted(ids.ravel().tolist()) == list(range(10))
@@ -84,10 +84,11 @@ def test_charuco_texture_is_opencvs_board():
 def test_chessboard_and_circles_albedo_by_definition():
     cb = parse_pattern("chessboard:3x2:10").texture()
     pts = np.array([[-5, -5], [5, -5], [5, 5], [15, 15], [35, 15], [-15, 0], [0.0, 25.0]])
-    np.testing.assert_array_equal(texture_albedo(cb, pts),
+    np.testing.assert_array_equal(texture_albedo(cb, pts),  # exact: copy
                                   [BLACK_ALBEDO, WHITE_ALBEDO, BLACK_ALBEDO, BLACK_ALBEDO, WHITE_ALBEDO,
                                    WHITE_ALBEDO, WHITE_ALBEDO])
     ci = parse_pattern("circles:3x2:10:4").texture(0.0, 1.0)
+    # exact: copy
     np.testing.assert_array_equal(texture_albedo(ci, [[0, 0], [1.9, 0], [2.1, 0], [20, 10], [5, 5], [30, 0]]),
                                   [0, 0, 1, 0, 1, 1])
 

@@ -22,7 +22,7 @@ def test_round_trip(tmp_path, rng):
     np.testing.assert_allclose(back.xyz_mm, cloud.xyz_mm, atol=1e-5, rtol=0)
     np.testing.assert_allclose(back.angle_deg, cloud.angle_deg, rtol=1e-6)
     np.testing.assert_allclose(back.intensity, cloud.intensity, rtol=1e-6)
-    assert np.array_equal(back.row, cloud.row)
+    assert np.array_equal(back.row, cloud.row)  # exact: integers
     assert np.all(back.frame == -1)                      # no frame index given: unknown
     # the binary layout: header + 31 bytes per point + 17 of the point quality (4 float, 1 uchar)
     header_len = path.read_bytes().index(b"end_header\n") + len(b"end_header\n")
@@ -96,9 +96,9 @@ def test_read_mesh_with_object_ids(tmp_path):
     ids = np.arange(len(mesh.faces)) % 3 + 1
     _ply_with_ids(tmp_path / "m.ply", mesh, ids)
     v, f, got = read_mesh(tmp_path / "m.ply")
-    np.testing.assert_array_equal(v, mesh.vertices)
+    np.testing.assert_array_equal(v, mesh.vertices)  # exact: copy
     np.testing.assert_array_equal(f, mesh.faces)
-    np.testing.assert_array_equal(got, ids)
+    np.testing.assert_array_equal(got, ids)  # exact: integers
 
 
 def test_read_stl_has_no_ids(tmp_path):

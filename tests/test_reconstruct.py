@@ -55,7 +55,7 @@ def test_round_trip_random_points_and_angles(rng):
     assert len(cloud) == n_frames * 50
     np.testing.assert_allclose(cloud.xyz_mm[:, :2], np.vstack(truth)[:, :2], atol=1e-9)
     assert np.all(cloud.intensity == 7.0)
-    assert np.array_equal(cloud.angle_deg, np.repeat(angles, 50))
+    assert np.array_equal(cloud.angle_deg, np.repeat(angles, 50))  # exact: copy
 
 
 def test_integer_rows_round_trip(rng):
@@ -66,7 +66,7 @@ def test_integer_rows_round_trip(rng):
     back_u, back_v = _pixels_of(cloud.xyz_mm, cloud.angle_deg)
     np.testing.assert_allclose(back_u, np.concatenate(us), atol=1e-9)
     np.testing.assert_allclose(back_v, np.concatenate(rows), atol=1e-9)
-    assert cloud.row.dtype == np.int64 and np.array_equal(cloud.row, np.concatenate(rows))
+    assert cloud.row.dtype == np.int64 and np.array_equal(cloud.row, np.concatenate(rows))  # exact: integers
 
 
 def test_hinge_column_dropped():

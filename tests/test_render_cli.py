@@ -93,9 +93,9 @@ def test_same_seed_bit_identical_frames_and_truth(tmp_path, small_rig):
     sc = calibration_scenario(small_rig, steps=2, step_mm=50.0)
     _run(small_rig, sc, tmp_path / "a", seed=5)
     _run(small_rig, sc, tmp_path / "b", seed=5)
-    assert _digest(tmp_path / "a") == _digest(tmp_path / "b")
+    assert _digest(tmp_path / "a") == _digest(tmp_path / "b")  # exact: same run
     _run(small_rig, sc, tmp_path / "overlapped", seed=5, overlap=True)   # writer thread
-    assert _digest(tmp_path / "a") == _digest(tmp_path / "overlapped")
+    assert _digest(tmp_path / "a") == _digest(tmp_path / "overlapped")  # exact: same run
     sc6 = calibration_scenario(small_rig, steps=2, step_mm=50.0, seed=6)
     _run(small_rig, sc6, tmp_path / "c", seed=6)
     assert _digest(tmp_path / "a") != _digest(tmp_path / "c")
@@ -114,7 +114,7 @@ def test_interrupted_run_resumes_and_skips_complete_frames(tmp_path, small_rig):
     m = json.loads((out / "manifest.json").read_text())
     twin, stats = _run(small_rig, sc, out)
     assert twin.calls == 2 and stats.frames_skipped == 1
-    assert _digest(out) == full
+    assert _digest(out) == full  # exact: resume
     assert not list(out.rglob(".*.tmp*"))
     assert m["frames"] == json.loads((out / "manifest.json").read_text())["frames"]
 
@@ -191,7 +191,7 @@ def test_cli_renders_calibration_bit_identically_and_resumes(tmp_path, capsys):
     assert first["frames_rendered"] == 2 and first["frames_without_stripe"] == []
     assert main(args + ["--out", str(tmp_path / "b")]) == 0
     capsys.readouterr()
-    assert _digest(tmp_path / "a") == _digest(tmp_path / "b")        # frames and truth
+    assert _digest(tmp_path / "a") == _digest(tmp_path / "b")        # exact: same run; frames and truth
     assert main(args + ["--out", str(tmp_path / "a")]) == 0            # complete: nothing to do
     again = json.loads(capsys.readouterr().out)
     assert again["frames_rendered"] == 0 and again["frames_skipped"] == 2
@@ -257,7 +257,7 @@ def test_interrupt_leaves_a_resumable_folder(tmp_path, small_rig):
     assert twin.calls == 2 and stats.frames_skipped == 2
     assert json.loads((out / "manifest.json").read_text())["complete"] is True
     _run(small_rig, sc, tmp_path / "ref")
-    assert _digest(out) == _digest(tmp_path / "ref")
+    assert _digest(out) == _digest(tmp_path / "ref")  # exact: resume
 
 
 def test_png_encoder_round_trips_through_opencv(tmp_path):
@@ -267,9 +267,9 @@ def test_png_encoder_round_trips_through_opencv(tmp_path):
     img = np.random.default_rng(3).integers(0, 4096, (37, 53)).astype(np.uint16)
     img[0, 0], img[-1, -1] = 0, 65535
     decoded = cv2.imdecode(np.frombuffer(encode_png16(img), np.uint8), cv2.IMREAD_UNCHANGED)
-    assert decoded.dtype == np.uint16 and np.array_equal(decoded, img)
+    assert decoded.dtype == np.uint16 and np.array_equal(decoded, img)  # exact: copy
     write_png(tmp_path / "f.png", img)
-    assert np.array_equal(read_png(tmp_path / "f.png"), img)
+    assert np.array_equal(read_png(tmp_path / "f.png"), img)  # exact: copy
     with pytest.raises(ValueError, match="uint16"):
         encode_png16(img.astype(np.int32))
 
@@ -298,6 +298,6 @@ def test_truth_archive_is_a_standard_reproducible_npz(monkeypatch):
         assert back.files == list(arrays)
         for k, v in arrays.items():
             assert back[k].dtype == np.asarray(v).dtype and back[k].shape == np.shape(v)
-            np.testing.assert_array_equal(back[k], v)
+            np.testing.assert_array_equal(back[k], v)  # exact: copy
     monkeypatch.undo()
     assert writer.encode_npz(arrays) == outs[0]

@@ -75,7 +75,7 @@ def test_corner_truth_is_opencvs_projection_of_the_rig_truth_camera(target_folde
     assert len(dist) == 14 and cam["tau_deg"][1] == pytest.approx(21.646, abs=1e-3)   # the paper's tilt
     spec = parse_pattern("chessboard:10x8:7")
     z = np.load(target_folder / "truth" / "00000.npz")
-    assert np.array_equal(z["pattern_corner_ids"], spec.corner_ids())
+    assert np.array_equal(z["pattern_corner_ids"], spec.corner_ids())  # exact: integers
     obj = np.c_[spec.corners_mm(), np.zeros(80)]
     c_from_p = z["camera_from_pattern"]
     rvec, _ = cv2.Rodrigues(c_from_p[:3, :3])

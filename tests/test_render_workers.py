@@ -98,7 +98,7 @@ def test_a_failing_worker_names_the_frame_and_the_run_resumes(tmp_path, factory,
     stats, _ = render_with_workers(_job(), out, 2, warn=lambda m: None)
     assert stats.frames_skipped == len(written)
     render_with_workers(_job(), tmp_path / "clean", 1, warn=lambda m: None)
-    assert _files(out) == _files(tmp_path / "clean")
+    assert _files(out) == _files(tmp_path / "clean")  # exact: resume
 
 
 @pytest.mark.parametrize("realistic", [False, True], ids=["ideal", "realistic"])
@@ -177,5 +177,5 @@ def test_ray_queries_compile_once_for_any_ray_count_and_pose():
     a = np.random.default_rng(1).normal(size=(9, 3))
     v = dr_vector(mi, mi.Vector3f, a[1:])
     dr.eval(v)
-    assert np.array_equal(numpy_rows(v, np.float64), np.asarray(mi.Vector3f(a[1:].T.astype(np.float32)),
+    assert np.array_equal(numpy_rows(v, np.float64), np.asarray(mi.Vector3f(a[1:].T.astype(np.float32)),  # exact: copy
                                                                  np.float64))

@@ -117,7 +117,7 @@ def test_to_ply_round_trip_with_object_ids(tmp_path):
     asm = scenes.load_scene(EXAMPLES / "pile_variations.toml", seed=2)
     out = asm.to_ply(tmp_path / "truth" / "mesh.ply")
     mesh, ids = scenes.read_ply(out)
-    np.testing.assert_array_equal(mesh.vertices, asm.combined_mesh().vertices)
+    np.testing.assert_array_equal(mesh.vertices, asm.combined_mesh().vertices)  # exact: copy
     np.testing.assert_array_equal(mesh.faces, asm.combined_mesh().faces)
     counts = np.bincount(ids)
     assert counts[0] == 0 and [counts[p.object_id] for p in asm.parts] == [p.triangle_count for p in asm.parts]
@@ -134,7 +134,7 @@ def test_example_scene_same_seed_same_mesh_other_seed_other_mesh():
     b = scenes.load_part(EXAMPLES / "pile_variations.toml", seed=7)
     c = scenes.load_scene(EXAMPLES / "pile_variations.toml", seed=8)
     for pa, pb in zip(a.parts, b.parts):
-        np.testing.assert_array_equal(pa.mesh.vertices, pb.mesh.vertices)
+        np.testing.assert_array_equal(pa.mesh.vertices, pb.mesh.vertices)  # exact: same run
         np.testing.assert_array_equal(pa.mesh.faces, pb.mesh.faces)
     assert not np.array_equal(a.parts[0].mesh.vertices[:100], c.parts[0].mesh.vertices[:100]) \
         or a.parts[0].mesh.vertices.shape != c.parts[0].mesh.vertices.shape
@@ -153,7 +153,7 @@ def test_variation_of_one_part_leaves_the_others(tmp_path):
     (tmp_path / "edited.toml").write_text(edited)
     a = scenes.load_scene(EXAMPLES / "pile_variations.toml", seed=1)
     b = scenes.load_scene(tmp_path / "edited.toml", seed=1)
-    np.testing.assert_array_equal(a.parts[0].mesh.vertices, b.parts[0].mesh.vertices)
+    np.testing.assert_array_equal(a.parts[0].mesh.vertices, b.parts[0].mesh.vertices)  # exact: same run
     assert b.parts[2].analytic["width_mm"] < 35.0 <= 40.0 <= a.parts[2].analytic["width_mm"]
 
 

@@ -71,13 +71,13 @@ def test_speckle_statistics():
     assert pat.mean() == pytest.approx(1.0, abs=0.02)
     assert pat.std() == pytest.approx(1.0 / math.sqrt(1 + 1 / a_c), rel=0.05)
     assert pat.min() >= 0
-    np.testing.assert_array_equal(pat, ls.speckle_pattern(shape, 1.0, grain, seed=1))
+    np.testing.assert_array_equal(pat, ls.speckle_pattern(shape, 1.0, grain, seed=1))  # exact: same run
     assert not np.array_equal(pat, ls.speckle_pattern(shape, 1.0, grain, seed=2))
     # sub-pixel grain (paper rig: ≈ 0.6 px): white, contrast strongly reduced by the pixel
     small = ls.speckle_pattern(shape, 0.8, 0.6, seed=3)
     assert small.std() == pytest.approx(0.8 / math.sqrt(1 + 1 / (4 / math.pi * (0.6 / 1.22) ** 2)),
                                         rel=0.05)
-    np.testing.assert_array_equal(ls.speckle_pattern(shape, 0.0, grain, seed=1), 1.0)
+    np.testing.assert_array_equal(ls.speckle_pattern(shape, 0.0, grain, seed=1), 1.0)  # exact: copy
     assert ls.speckle_grain_um(450.0, 5.6, 0.1) == pytest.approx(1.22 * 0.45 * 5.6 * 1.1)
 
 

@@ -129,7 +129,7 @@ def test_inversion_branch_matches_the_numpy_reference():
     a, b = np.empty(5000), np.empty(5000, np.float32)
     sensor_module._invert_poisson_numpy(lam, u, a)
     sensor_module._inversion_kernel(lam, u, b, sensor_module._INV_K, sensor_module._PTRS_LAMBDA)
-    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a, b)  # exact: same run
     sensor_module._inversion_kernel(np.float32([9.0, 10.0, 5e4]), u[:3], b[:3],
                                     sensor_module._INV_K, sensor_module._PTRS_LAMBDA)
     assert b[0] >= 0 and b[1] == -1 and b[2] == -1          # λ ≥ 10 is left to PTRS

@@ -116,7 +116,7 @@ def test_speckle_is_attached_to_the_surface(variant):
     img, r0, c0 = _lit_block(rig, point, half=20)
     first = _speckle_model(rig, _plate_scene(pose)).pixel_speckle(img)
     again = _speckle_model(rig, _plate_scene(pose)).pixel_speckle(img)
-    assert np.array_equal(first, again)
+    assert np.array_equal(first, again)  # exact: same run
     import numba
 
     threads = numba.get_num_threads()
@@ -125,7 +125,7 @@ def test_speckle_is_attached_to_the_surface(variant):
         single = _speckle_model(rig, _plate_scene(pose)).pixel_speckle(img)
     finally:
         numba.set_num_threads(threads)
-    assert np.array_equal(first, single)        # independent of the thread count
+    assert np.array_equal(first, single)        # exact: threads; independent of the thread count
     # lift the plate by exactly 3 rows of image (≈ 5 grains) along the sheet
     rows_per_mm = abs(project_points(rig, point + [0, 0, 1.0]).uv_px[1]
                       - project_points(rig, point).uv_px[1])

@@ -49,7 +49,7 @@ def test_plate_stripe_is_the_closed_form_in_every_covered_row(rig, s):
     covered = np.arange(math.ceil(v_top), math.floor(v_bottom) + 1)
     covered = covered[(covered >= 0) & (covered < rig.sensor.rows)]
     lit = np.flatnonzero(np.isfinite(st.stripe_u))
-    np.testing.assert_array_equal(lit, covered)
+    np.testing.assert_array_equal(lit, covered)  # exact: integers
     np.testing.assert_allclose(st.stripe_u[covered], u_exp, atol=1e-6)
     assert np.all(st.stripe_count[covered] == 1)
     assert np.all(st.stripe_object_id[covered] == 1)

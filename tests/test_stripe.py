@@ -91,13 +91,13 @@ def test_paper_method_is_the_boundary_in_whole_pixels():
     frame = 100.0 + 40000.0 * stripe_profile(uc, sigma, COLS)
     p = extract_stripes(frame, "paper")
     crossing = uc + math.sqrt(sigma ** 2 + 1 / 12) * math.sqrt(2 * math.log(2))
-    assert len(p) == uc.size and np.array_equal(p.u, np.round(p.u))
+    assert len(p) == uc.size and np.array_equal(p.u, np.round(p.u))  # exact: integers
     # the closed form holds to 0.1 px (test above): the red pixel is floor(crossing) except within
     # 0.1 px of a pixel border, where either neighbour is right
     lo, hi = np.floor(crossing[p.rows] - 0.1), np.floor(crossing[p.rows] + 0.1)
     assert np.all((p.u >= lo) & (p.u <= hi))
     clear = lo == hi
-    assert clear.sum() > 30 and np.array_equal(p.u[clear], lo[clear])
+    assert clear.sum() > 30 and np.array_equal(p.u[clear], lo[clear])  # exact: integers
 
 
 def test_blank_rows_rejected_and_stripe_rows_kept():
@@ -160,7 +160,7 @@ def test_batch_matches_single():
     frames = [_frame(rng, 1.5, 5000.0, rows=30)[0] for _ in range(3)]
     for f, p in zip(frames, extract_stripes_batch(frames, "cog")):
         q = extract_stripes(f, "cog")
-        assert np.array_equal(p.u, q.u) and np.array_equal(p.rows, q.rows)
+        assert np.array_equal(p.u, q.u) and np.array_equal(p.rows, q.rows)  # exact: same run
 
 
 def test_bad_input():
@@ -203,7 +203,7 @@ def test_track_rule_follows_the_continuous_stripe_not_a_wide_secondary(rng):
     clean = rng.poisson(100.0 + 8000.0 * stripe_profile(uc, 1.2, COLS)).astype(np.float64)
     a, b = extract_stripes(clean, "cog", window_px=5), extract_stripes(clean, "cog", window_px=5,
                                                                       multi_peak="track")
-    assert np.array_equal(a.rows, b.rows) and np.allclose(a.u, b.u)
+    assert np.array_equal(a.rows, b.rows) and np.allclose(a.u, b.u)  # exact: integers
 
 
 def test_peak_choices_counts_against_truth():
