@@ -30,8 +30,10 @@ Per point, measured from the frames and the calibration only (never from truth):
     centre; both are fixed by the calibration (:func:`sheet_geometry`).  NaN
     where the grid gives no normal (a single frame, a lone row).
 ``sweep_edge``
-    The same row is empty in an adjacent frame: the sheet enters or leaves the
-    surface between the two (:func:`sweep_edges`).
+    The same row is empty in an adjacent frame (the sheet enters or leaves the
+    surface between the two) and the point is lit at less than half of what
+    the row's neighbour and Lambert's law predict: only part of the sheet's
+    thickness lights it (:func:`sweep_edges`).
 
 The default filter (:data:`DEFAULT_FILTER`)
 -------------------------------------------
@@ -49,9 +51,10 @@ physics, not from a fit to one scan:
   σ = 1.5 px stripe at SNR 13 — below the speckle floor of a real laser
   (≈ 0.15 px, docs/explanation/design-notes.md §5), so the points kept are never noise-limited
   worse than the instrument's own floor;
-* the sweep edge: there only part of the sheet's thickness lights the
-  surface, and the camera sees the footprint's offset from the sheet's centre
-  plane with the parallax of its triangulation angle.  On the ideal paper rig
+* the partly lit sweep edge: there only part of the sheet's thickness lights
+  the surface (at half the irradiance the sheet's centre plane misses it by
+  0.59 of the 1/e² half-thickness), and the camera sees the footprint's offset
+  from the sheet's centre plane with the parallax of its triangulation angle.  On the ideal paper rig
   these are the points that set PF (0.1–0.7 mm off, all on sweep edges); their
   incidence, estimated from the same biased points, comes out 3–8° too low for
   the incidence criterion to catch them (``benchmarks/RESULTS.md``).
@@ -70,6 +73,7 @@ from scheimpflug.sheet_model import GeneralCalibration, ideal_camera
 
 __all__ = [
     "DEFAULT_FILTER",
+    "PARTLY_LIT_FRACTION",
     "QUALITY_FIELDS",
     "QualityFilter",
     "SheetGeometry",
@@ -424,19 +428,42 @@ def incidence_angles(xyz_mm, angle_deg, normal, geometry: SheetGeometry, axis_mm
     return angle(q - geometry.laser_mm), angle(geometry.camera_mm - q)
 
 
-def sweep_edges(frame, row, n_frames: int) -> np.ndarray:
-    """Which points lie on the edge of the sheet's sweep over the surface.
+#: A sweep-edge point lit at less than this fraction of its row's neighbour (Lambert-corrected) is
+#: partly lit: the sheet's centre plane misses it by more than 0.59 of the 1/e² half-thickness [-].
+PARTLY_LIT_FRACTION = 0.5
+
+
+def _row_neighbours(f: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the point in the same row of frame f − 1 and of frame f + 1 (−1: none)."""
+    span = int(r.max() - r.min()) + 3
+    key = (f + 1) * span + (r - r.min() + 1)
+    order = np.argsort(key, kind="stable")
+    known = key[order]
+
+    def at(df):
+        q = key + df * span
+        j = np.clip(np.searchsorted(known, q), 0, known.size - 1)
+        return np.where(known[j] == q, order[j], -1)
+
+    return at(-1), at(1)
+
+
+def sweep_edges(frame, row, n_frames: int, intensity=None, incidence_laser_deg=None) -> np.ndarray:
+    """Which points lie on a partly lit edge of the sheet's sweep over the surface.
 
     A point of frame f, row r is on the sweep edge when the scan has a frame
     f − 1 (or f + 1) and that frame has no point in row r: between the two
-    frames the sheet entered or left the surface.  There the sheet's thickness
-    straddles the surface's boundary, only part of its profile lights the
-    surface, and the lit footprint's centre lies off the sheet's centre plane;
-    the camera sees that offset with the parallax of its triangulation angle γ
-    (a footprint centred y off the plane moves the point by ≈ y·cot γ along
-    the sheet: up to 0.85 mm on the paper rig, w = 0.15 mm, γ ≈ 10°).  With a
-    frame step smaller than the sheet's thickness more than one frame is partly
-    lit; the flag marks only the outermost.
+    frames the sheet entered or left the surface.  If it entered by less than
+    its own thickness, only part of the sheet's profile lights the surface, the
+    lit footprint's centre lies off the sheet's centre plane, and the camera
+    sees that offset with the parallax of its triangulation angle γ (a
+    footprint centred y off the plane moves the point by ≈ y·cot γ along the
+    sheet: up to 0.85 mm on the paper rig, w = 0.15 mm, γ ≈ 10°).  Such a
+    point is dimmer than the same row's point in the adjacent frame beyond
+    what Lambert's law says: with ``intensity`` given, an edge point is flagged
+    when its peak over cos(laser incidence) is below
+    :data:`PARTLY_LIT_FRACTION` of its neighbour's (a row seen in one frame
+    only is flagged); without, every edge point is.
 
     Parameters
     ----------
@@ -446,11 +473,15 @@ def sweep_edges(frame, row, n_frames: int) -> np.ndarray:
         Sensor row of each point [px].
     n_frames : int
         Frames in the scan.
+    intensity : (n,) array_like float, optional
+        Stripe peak of each point above the background [DN].
+    incidence_laser_deg : (n,) array_like float, optional
+        Laser incidence of each point [deg] (NaN or None: no cos correction).
 
     Returns
     -------
     (n,) ndarray bool
-        True on the sweep edge.
+        True on a (partly lit) sweep edge.
 
     Raises
     ------
@@ -464,18 +495,17 @@ def sweep_edges(frame, row, n_frames: int) -> np.ndarray:
         raise ValueError(f"frame indices must lie in [0, {n_frames}), got [{f.min()}, {f.max()}]")
     if f.size == 0:
         return np.zeros(0, dtype=bool)
-    span = int(r.max() - r.min()) + 3
-    key = (f + 1) * span + (r - r.min() + 1)
-    known = np.unique(key)
-
-    def present(df):
-        q = key + df * span
-        j = np.clip(np.searchsorted(known, q), 0, known.size - 1)
-        return known[j] == q
-
-    missing_before = (f > 0) & ~present(-1)
-    missing_after = (f < n_frames - 1) & ~present(1)
-    return missing_before | missing_after
+    before, after = _row_neighbours(f, r)
+    miss_before, miss_after = (f > 0) & (before < 0), (f < n_frames - 1) & (after < 0)
+    edge = miss_before | miss_after
+    if intensity is None:
+        return edge
+    cos = np.ones(f.size) if incidence_laser_deg is None else np.cos(np.radians(incidence_laser_deg))
+    lit = np.asarray(intensity, np.float64) / np.where(np.isfinite(cos) & (cos > 0), cos, 1.0)
+    other = np.where(miss_before, after, before)          # the row's neighbour on the surface's side
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fraction = np.where(other >= 0, lit / lit[np.maximum(other, 0)], np.nan)
+    return edge & ~(fraction >= PARTLY_LIT_FRACTION)
 
 
 def assess_points(cloud, geometry: SheetGeometry, axis_mm: float, n_frames: int,
@@ -512,8 +542,8 @@ def assess_points(cloud, geometry: SheetGeometry, axis_mm: float, n_frames: int,
         raise ValueError("the point quality needs every point's frame index (its place on the scan grid)")
     normal = grid_normals(cloud.xyz_mm, cloud.frame, cloud.row, half_window_mm)
     laser, camera = incidence_angles(cloud.xyz_mm, cloud.angle_deg, normal, geometry, axis_mm)
-    return dataclasses.replace(cloud, incidence_laser_deg=laser, incidence_camera_deg=camera,
-                               sweep_edge=sweep_edges(cloud.frame, cloud.row, n_frames))
+    edge = sweep_edges(cloud.frame, cloud.row, n_frames, cloud.intensity, laser)
+    return dataclasses.replace(cloud, incidence_laser_deg=laser, incidence_camera_deg=camera, sweep_edge=edge)
 
 
 # ---------------------------------------------------------------- the filter

@@ -130,8 +130,10 @@ class PointCloud:
         Angles between the estimated surface normal and the laser ray / the
         camera's line of sight [deg] (NaN or None: unknown).
     sweep_edge : (n,) ndarray bool or None
-        The same row is empty in an adjacent frame of the scan: the sheet
-        enters or leaves the surface there (None: unknown).
+        A partly lit edge of the sheet's sweep: the same row is empty in an
+        adjacent frame of the scan and the point is dimmer than Lambert's law
+        and that row's neighbour say (:func:`scheimpflug.point_quality.sweep_edges`;
+        None: unknown).
 
     Raises
     ------

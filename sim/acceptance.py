@@ -437,7 +437,8 @@ def measured_cloud(ff, cal, axis_mm: float, geometry: SheetGeometry):
     cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in ff.frames], cal, axis_mm,
                                  intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px)
     if geometry is None:
-        return dataclasses.replace(cloud, sweep_edge=sweep_edges(cloud.frame, cloud.row, len(ff))), st
+        edge = sweep_edges(cloud.frame, cloud.row, len(ff), cloud.intensity)
+        return dataclasses.replace(cloud, sweep_edge=edge), st
     return assess_points(cloud, geometry, axis_mm, len(ff)), st
 
 

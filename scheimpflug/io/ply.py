@@ -12,7 +12,7 @@ Point clouds are binary little-endian PLY with one ``vertex`` element::
     property float snr                stripe peak over the background noise [-]
     property float incidence_laser_deg   angle between surface normal and laser ray [deg]
     property float incidence_camera_deg  angle between surface normal and line of sight [deg]
-    property uchar sweep_edge         1: the sheet enters or leaves the surface here, 0: not, 255: unknown
+    property uchar sweep_edge         1: a partly lit edge of the sheet's sweep, 0: not, 255: unknown
 
 (the point quality, :mod:`scheimpflug.point_quality`; NaN where a quality is
 unknown) which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and

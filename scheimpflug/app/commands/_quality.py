@@ -34,8 +34,9 @@ def add_quality_options(p) -> None:
                         f"stripe; with --no-quality-filter the detection threshold, default "
                         f"{DETECTION_SNR:g})")
     g.add_argument("--keep-sweep-edges", action="store_true",
-                   help="keep the points where the sheet enters or leaves the surface (the same row "
-                        "empty in an adjacent frame: partly lit, biased by the sheet's thickness)")
+                   help="keep the points where the sheet enters or leaves the surface partly lit (the "
+                        "same row empty in an adjacent frame and the point under half as bright as "
+                        "that row's neighbour: biased by the sheet's thickness)")
     g.add_argument("--no-quality-filter", action="store_true",
                    help="keep every detected point (the qualities are still written)")
 
@@ -130,7 +131,7 @@ def measure_quality(cloud, calibration, folder, axis_mm: float):
     except (CalibrationError, ValueError, ArithmeticError):
         import dataclasses
 
-        edges = sweep_edges(cloud.frame, cloud.row, len(folder))
+        edges = sweep_edges(cloud.frame, cloud.row, len(folder), cloud.intensity)
         return dataclasses.replace(cloud, sweep_edge=edges), (
             f"incidence angles not measured: the calibration is no Scheimpflug rig with f = {f:g} mm and "
             f"pixel pitch {p:g} µm (give the rig's lens and sensor in the manifest)")
