@@ -138,6 +138,10 @@ class LightTransport:
         self.thinning = int(thinning)
         self.walk_thinning = int(walk_thinning)
         self.electrons_per_watt = electrons_per_watt
+        #: trace depths 2 … N in one symbolic loop (:meth:`_fused_depths`); False: the
+        #: wavefront loop of one set of kernels per depth (kept for comparison and for media
+        #: without a table, which random-walk)
+        self.fused = True
         media = scene.media
         self.has_media = any(m is not None for m in media)
         cols = [[0.0] * (len(media) + 1) for _ in range(5)]
@@ -155,11 +159,19 @@ class LightTransport:
         return self.bounces > 1 or self.has_media
 
     # ------------------------------------------------------------ random numbers
-    def _rand(self, s, path_id, depth: int, dim: int):
-        """Uniform [0, 1) for (frame key s, path, depth, dimension): stateless TEA hash."""
+    def _rand(self, s, path_id, depth, dim: int):
+        """Uniform [0, 1) for (frame key s, path, depth, dimension): stateless TEA hash.
+
+        ``depth`` is a Python int or, inside the fused loop, a ``mi.UInt32`` (the same
+        salt modulo 2³²).
+        """
         mi = self._mi
-        salt = (0x632BE5AB * (depth + 1) + 0x85157AF5 * (dim + 1)) & 0xFFFFFFFF
-        return mi.sample_tea_float32(path_id, s ^ mi.UInt32(salt), 6)
+        if isinstance(depth, int):
+            salt = mi.UInt32((0x632BE5AB * (depth + 1) + 0x85157AF5 * (dim + 1)) & 0xFFFFFFFF)
+        else:
+            salt = mi.UInt32(0x632BE5AB) * (depth + 1) \
+                + mi.UInt32((0x85157AF5 * (dim + 1)) & 0xFFFFFFFF)
+        return mi.sample_tea_float32(path_id, s ^ salt, 6)
 
     # ------------------------------------------------------------ main loop
     def trace(self, si, ray_d, beta, s, frame) -> TransportResult:
@@ -188,6 +200,14 @@ class LightTransport:
         path_id = dr.arange(mi.UInt32, dr.width(beta))
         beta0 = mi.Float(beta)
         active = si.is_valid() & (beta > 0)
+        if self.fused and self.bounces > 1 and self._fusable():
+            wo, weight, entered = self._scatter(si, ray_d, beta, path_id, 1, s, frame, active,
+                                                result)
+            ray, beta, beta0, path_id, active = self._next(si, wo, weight, entered, beta, beta0,
+                                                           path_id, 1, s, active)
+            if dr.width(beta) > 0:
+                self._fused_depths(ray, beta, beta0, path_id, active, s, frame, result)
+            return result
         for depth in range(1, self.bounces + 1):
             if depth > 1:
                 result.batches.append(self._connect(si, beta, path_id, depth, s, frame))
@@ -207,8 +227,90 @@ class LightTransport:
             dr.eval(si, active)
         return result
 
-    def _connect(self, si, beta, path_id, depth, s, frame) -> SplatBatch:
-        """Camera connection of the vertices of one depth (≥ 2) → a splat batch."""
+    def _fusable(self) -> bool:
+        """Whether the fused loop can trace this scene: no medium, or every medium tabulated."""
+        return not self.has_media or all(t is not None for t in self._tables_for_media())
+
+    def _fused_depths(self, ray, beta, beta0, path_id, active, s, frame, result) -> None:
+        """Depths 2 … N of every path in one symbolic Dr.Jit loop (one kernel, no readback).
+
+        The loop body is the wavefront code's depth (camera connection, BSDF sampling, the
+        tabulated media's entry geometry and exits, Russian roulette) on lanes that stay in
+        place instead of being compacted; what the wavefront code read back per depth is
+        scattered into slot (depth − 2)·n + lane of flat buffers and read once afterwards,
+        in lane (= path) order, so the splats and the subsurface light are the wavefront
+        code's, in its order.  ``dr.while_loop`` records the body once
+        (``JitFlag.SymbolicLoops``), as Mitsuba's own integrators do.
+        """
+        mi, dr = self._mi, self._dr
+        n, last = dr.width(beta), self.bounces
+        slots = n * (last - 1)
+        media = self.has_media
+        if media:
+            self._exit_table_arrays()
+        lane = dr.arange(mi.UInt32, n)
+        width = dr.opaque(mi.UInt32, n)      # not a literal: the kernel is the same every frame
+        splat = [dr.zeros(mi.Float, slots) for _ in range(4)]        # u, v, value, contrast
+        geo = [dr.zeros(mi.Float, slots) for _ in range(15)] if media else []  # 14 + ok
+        walks = dr.zeros(mi.UInt32, slots) if media else None
+
+        def cond(depth, o, d, b, act):
+            return act
+
+        def body(depth, o, d, b, act):
+            ray_k = mi.Ray3f(o, d)
+            si = self.scene.scene.ray_intersect(ray_k, act)
+            act = act & si.is_valid()
+            slot = (depth - 2) * width + lane
+            value, uv, contrast = self._connect_values(si, b, path_id, depth, s, frame)
+            for buf, x in zip(splat, (uv.x, uv.y, value, contrast)):
+                dr.scatter(buf, x, slot, act)
+            sample = act & ((depth < last) | media)
+            wo, weight, entered, part = self._sample_bsdf(si, ray_k.d, path_id, depth, s, sample)
+            out = None
+            if media:
+                is_med = (dr.gather(mi.Float, self._media[0], part) > 0.5) & sample
+                cols, ok = self._entry_columns(si, ray_k.d, b, part, path_id, depth, s, frame,
+                                               is_med)
+                for buf, x in zip(geo, [*cols, mi.Float(1.0)]):
+                    dr.scatter(buf, mi.Float(x), slot, ok)
+                goes_on = entered & (depth < last)
+                dr.scatter(walks, mi.UInt32(1), slot, goes_on)
+                out = self._table_exits(si, ray_k.d, b * weight, part, path_id, depth, s,
+                                        goes_on)
+            o, d, b, alive = self._continue(si, wo, weight, entered, out, b, beta0, path_id,
+                                            depth, s, act)
+            return depth + 1, o, d, b, alive & (depth < last)
+
+        state = (mi.UInt32(2) + 0 * lane, mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Float(beta),
+                 mi.Bool(active))
+        dr.while_loop(state=state, cond=cond, body=body, labels=("depth", "o", "d", "beta", "active"),
+                      label="sim.transport: depths 2 … N")
+        dr.eval(*splat, *geo, walks)
+        self._read_fused(n, splat, geo, walks, result)
+
+    def _read_fused(self, n, splat, geo, walks, result) -> None:
+        """The fused loop's buffers → splat batches and subsurface light, depth by depth."""
+        u, v, value, contrast = (np.asarray(b, np.float32).reshape(-1, n) for b in splat)
+        if geo:
+            cols = np.stack([np.asarray(b, np.float32) for b in geo]).reshape(15, -1, n)
+            n_walks = int(np.asarray(walks, np.uint32).sum())
+            result.walks = (result.walks[0] + n_walks, result.walks[1])
+        for k in range(u.shape[0]):
+            keep = value[k] != 0.0
+            result.batches.append(SplatBatch(k + 2, np.stack([u[k, keep], v[k, keep]]),
+                                             value[k, keep], contrast[k, keep]))
+            if geo:
+                sel = cols[14, k] != 0.0
+                if sel.any():
+                    img = result.subsurface.get(2)
+                    if img is None:
+                        img = result.subsurface[2] = np.zeros(self.shape, np.float32)
+                    _convolve_groups(img, cols[:14, k][:, sel].astype(np.float64), self._tables,
+                                     self.electrons_per_watt, coarse=True)
+
+    def _connect_values(self, si, beta, path_id, depth, s, frame):
+        """Camera connection of path vertices: (flux [W], pixel, speckle contrast), Dr.Jit."""
         mi, dr = self._mi, self._dr
         to_scene, to_rig = frame
         active = si.is_valid() & (beta > 0)
@@ -221,6 +323,12 @@ class LightTransport:
         ok &= ~self.scene.scene.ray_test(si.spawn_ray_to(to_scene @ a), ok)
         value = dr.select(ok, beta * f_cos * geo, 0.0)
         contrast = dr.gather(mi.Float, self._contrast, self.scene.part_index_dr(si))
+        return value, uv, contrast
+
+    def _connect(self, si, beta, path_id, depth, s, frame) -> SplatBatch:
+        """Camera connection of the vertices of one depth (≥ 2) → a splat batch."""
+        dr = self._dr
+        value, uv, contrast = self._connect_values(si, beta, path_id, depth, s, frame)
         dr.eval(value, uv, contrast)
         return SplatBatch(depth, numpy_rows(uv, np.float32), np.asarray(value, np.float32),
                           np.asarray(contrast, np.float32))
@@ -235,16 +343,8 @@ class LightTransport:
         the exit ray through ``self._exits``.
         """
         mi, dr = self._mi, self._dr
-        part = self.scene.part_index_dr(si)
+        wo, weight, entered, part = self._sample_bsdf(si, ray_d, path_id, depth, s, active)
         is_med = (dr.gather(mi.Float, self._media[0], part) > 0.5) & active
-        si = self._outside_frame(si, ray_d, is_med)
-        ctx = mi.BSDFContext(mi.TransportMode.Importance)
-        u1 = self._rand(s, path_id, depth, 2)
-        u2 = mi.Point2f(self._rand(s, path_id, depth, 3), self._rand(s, path_id, depth, 4))
-        bs, w = si.bsdf().sample(ctx, si, u1, u2, active)
-        wo = si.to_world(bs.wo)
-        weight = w[self.channel]
-        entered = is_med & (mi.Frame3f.cos_theta(bs.wo) < 0.0) & (weight > 0)
         self._exits = None
         if not self.has_media or not bool(dr.any(is_med)[0]):
             return wo, weight, entered
@@ -265,6 +365,25 @@ class LightTransport:
             self._exits = self._walk(si, wo, power, part, path_id, depth, s, frame, walks, result,
                                      with_nee=not tabulated)
         return wo, weight, entered
+
+    def _sample_bsdf(self, si, ray_d, path_id, depth, s, active):
+        """BSDF samples of path vertices (importance mode), translucent hits' frames turned first.
+
+        Returns (outgoing direction (scene), throughput weight f·cos θ/pdf of the laser's
+        channel, entered-medium mask, part index + 1); ``si`` is updated in place.
+        """
+        mi, dr = self._mi, self._dr
+        part = self.scene.part_index_dr(si)
+        is_med = (dr.gather(mi.Float, self._media[0], part) > 0.5) & active
+        self._outside_frame(si, ray_d, is_med)
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        u1 = self._rand(s, path_id, depth, 2)
+        u2 = mi.Point2f(self._rand(s, path_id, depth, 3), self._rand(s, path_id, depth, 4))
+        bs, w = si.bsdf().sample(ctx, si, u1, u2, active)
+        wo = si.to_world(bs.wo)
+        weight = w[self.channel]
+        entered = is_med & (mi.Frame3f.cos_theta(bs.wo) < 0.0) & (weight > 0)
+        return wo, weight, entered, part
 
     def _outside_frame(self, si, ray_d, mask):
         """Turn the shading frame of translucent hits toward the side the light came from."""
@@ -344,20 +463,7 @@ class LightTransport:
         from .subsurface import TABLE_INCIDENCE_DEG, SubsurfaceTable
 
         mi, dr = self._mi, self._dr
-        if getattr(self, "_exit_arrays", None) is None:
-            slots, unique = [-1], []
-            for table in self._tables[1:]:
-                if table is None:
-                    slots.append(-1)
-                    continue
-                if not any(table is t for t in unique):
-                    unique.append(table)
-                slots.append(next(i for i, t in enumerate(unique) if t is table))
-            albedo = np.concatenate([t.exit_albedo for t in unique])
-            cols = np.concatenate([t.exit_samples.reshape(-1, 5) for t in unique]).T
-            self._exit_arrays = (mi.Int32(slots), mi.Float(albedo),
-                                 [mi.Float(np.ascontiguousarray(c)) for c in cols])
-        slot, albedo, cols = self._exit_arrays
+        slot, albedo, cols = self._exit_table_arrays()
         n_angles, n_samples = len(TABLE_INCIDENCE_DEG), SubsurfaceTable.EXIT_SAMPLES
         step = TABLE_INCIDENCE_DEG[1] - TABLE_INCIDENCE_DEG[0]     # uniform, from 0°
         n = si.n
@@ -381,6 +487,25 @@ class LightTransport:
         point = mi.Point3f(si.p + ex * forward + ey * across + 1e-4 * n)
         direction = dr.normalize(dx * forward + dy * across + dz * inward)
         return ok & (weight > 0), point, direction, weight
+
+    def _exit_table_arrays(self):
+        """The tables' exit samples as Dr.Jit arrays: (table slot by part + 1, albedo, 5 columns)."""
+        mi = self._mi
+        if getattr(self, "_exit_arrays", None) is None:
+            self._tables_for_media()
+            slots, unique = [-1], []
+            for table in self._tables[1:]:
+                if table is None:
+                    slots.append(-1)
+                    continue
+                if not any(table is t for t in unique):
+                    unique.append(table)
+                slots.append(next(i for i, t in enumerate(unique) if t is table))
+            albedo = np.concatenate([t.exit_albedo for t in unique])
+            cols = np.concatenate([t.exit_samples.reshape(-1, 5) for t in unique]).T
+            self._exit_arrays = (mi.Int32(slots), mi.Float(albedo),
+                                 [mi.Float(np.ascontiguousarray(c)) for c in cols])
+        return self._exit_arrays
 
     def _tables_for_media(self) -> list:
         """The :class:`SubsurfaceTable` of each part's medium (None entries: not tabulable)."""
@@ -406,6 +531,19 @@ class LightTransport:
         direction and the view direction are given as azimuths in it (weighted by their
         sines, so that normal incidence or view carry no direction).
         """
+        dr = self._dr
+        cols, ok = self._entry_columns(si, ray_d, beta, part, path_id, depth, s, frame, is_med)
+        dr.eval(*cols, ok)      # one kernel: a gather from an unevaluated column evaluates it alone
+        idx = dr.compress(ok)
+        if dr.width(idx) == 0:
+            return None
+        cols = [dr.gather(type(c), c, idx) for c in cols]
+        dr.eval(*cols)
+        out = np.stack([np.asarray(c, np.float64) for c in cols])
+        return out
+
+    def _entry_columns(self, si, ray_d, beta, part, path_id, depth, s, frame, is_med):
+        """The 14 columns of :meth:`_entry_geometry` for every lane, and the lanes that count."""
         mi, dr = self._mi, self._dr
         to_scene, to_rig = frame
         n = si.n
@@ -426,17 +564,11 @@ class LightTransport:
         uv2 = self.lens.landing(to_rig @ mi.Point3f(si.p + eps * t_perp), a_rig)
         ok &= (dr.abs(uv1.x - uv0.x) + dr.abs(uv1.y - uv0.y) + dr.abs(uv2.x - uv0.x)
                + dr.abs(uv2.y - uv0.y)) < 100.0 * eps          # a real lens: < 100 px/mm
-        idx = dr.compress(ok)
-        if dr.width(idx) == 0:
-            return None
         cols = [part, beta * geo, uv0.x, uv0.y, (uv1.x - uv0.x) / eps, (uv1.y - uv0.y) / eps,
                 (uv2.x - uv0.x) / eps, (uv2.y - uv0.y) / eps, dr.acos(cos_in),
                 dr.acos(dr.minimum(cos_o, 1.0)),    # float32 rounding: ω·n can exceed 1 head-on
                 dr.dot(d, t_inc), dr.dot(d, t_perp), dr.dot(w, t_inc), dr.dot(w, t_perp)]
-        cols = [dr.gather(type(c), c, idx) for c in cols]
-        dr.eval(*cols)
-        out = np.stack([np.asarray(c, np.float64) for c in cols])
-        return out
+        return cols, ok
 
     def _nee_frame(self, si, local, med, a_rig, frame, entered) -> dict:
         """Per-walk constants of the camera connection through the boundary.
@@ -503,31 +635,50 @@ class LightTransport:
     def _next(self, si, wo, weight, entered, beta, beta0, path_id, depth, s, active):
         """Next segment of every surviving path (surface bounces + medium exits), compacted."""
         mi, dr = self._mi, self._dr
+        o, d, b, alive = self._continue(si, wo, weight, entered, self._exits, beta, beta0, path_id,
+                                        depth, s, active)
+        dr.eval(o, d, b, alive)  # one kernel for the gathers below (each would evaluate its source)
+        idx = dr.compress(alive)
+        ray = mi.Ray3f(dr.gather(mi.Point3f, o, idx), dr.gather(mi.Vector3f, d, idx))
+        return (ray, dr.gather(mi.Float, b, idx), dr.gather(mi.Float, beta0, idx),
+                dr.gather(mi.UInt32, path_id, idx), dr.full(mi.Bool, True, dr.width(idx)))
+
+    def _continue(self, si, wo, weight, entered, exits, beta, beta0, path_id, depth, s, active):
+        """Next segment of each path (surface bounce or medium exit), thinning, Russian roulette.
+
+        ``depth`` is a Python int (wavefront) or a ``mi.UInt32`` (fused loop, depth ≥ 2: no
+        thinning; the roulette where depth + 1 > ``rr_depth``, the same values).  Returns
+        (origin, direction, power, alive) of every lane.
+        """
+        mi, dr = self._mi, self._dr
         surface = active & ~entered & (weight > 0)
         beta_s = beta * weight
         origin = si.spawn_ray(wo)
         o, d, b = origin.o, origin.d, beta_s
         alive = surface
-        if self._exits is not None:
-            out, exit_p, exit_d, exit_w = self._exits
+        if exits is not None:
+            out, exit_p, exit_d, exit_w = exits
             o = dr.select(out, exit_p, o)
             d = dr.select(out, exit_d, d)
             b = dr.select(out, exit_w, b)
             alive |= out
-        if depth == 1 and self.thinning > 1:
+        if isinstance(depth, int) and depth == 1 and self.thinning > 1:
             m = self.thinning
             pick = mi.sample_tea_32(path_id // m, s ^ mi.UInt32(0x2545F491), 6)[0] % m
             alive &= (path_id % m) == pick
             b = b * float(m)
-        if depth + 1 > self.rr_depth:
+        if not isinstance(depth, int):
+            rr = depth + 1 > self.rr_depth
+            q = dr.minimum(b / dr.maximum(beta0, 1e-30), 0.95)
+            keep = self._rand(s, path_id, depth, 7) < q
+            alive &= keep | ~rr
+            b = dr.select(rr, b / dr.maximum(q, 1e-30), b)
+        elif depth + 1 > self.rr_depth:
             q = dr.minimum(b / dr.maximum(beta0, 1e-30), 0.95)
             keep = self._rand(s, path_id, depth, 7) < q
             alive &= keep
             b = b / dr.maximum(q, 1e-30)
-        idx = dr.compress(alive)
-        ray = mi.Ray3f(dr.gather(mi.Point3f, o, idx), dr.gather(mi.Vector3f, d, idx))
-        return (ray, dr.gather(mi.Float, b, idx), dr.gather(mi.Float, beta0, idx),
-                dr.gather(mi.UInt32, path_id, idx), dr.full(mi.Bool, True, dr.width(idx)))
+        return o, d, b, alive
 
     def subsurface_electrons(self, result: TransportResult) -> dict:
         """The fixed-point subsurface images as (rows, columns) float32 electrons.

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import io
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -858,26 +859,54 @@ def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
                 scenario.assembly.transformed(f.ref_from_part).to_ply(p)
 
 
-def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None) -> dict:
+def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None, defer=None) -> dict:
+    """The frame's truth arrays (stripe, secondary light, per-pixel, the scenario's own).
+
+    With a list ``defer`` (and no scenario truth of its own), the secondary-light truth
+    — numpy on the light split, no scene query — is left out and ``defer`` receives
+    ``(number of stripe arrays, the light split)`` for :func:`_complete_truth`.
+    """
     t0 = time.perf_counter()
     arrays = stripe_truth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"],
                           frame.rig_from_part, frame.ref_from_part, caster,
                           rig_from_laser=frame.rig_from_laser).arrays()
     split = light if light is not None and light.laser is not None else None
-    arrays.update(secondary_truth(rig.sensor.rows, *(
-        (split.laser, split.secondary, split.subsurface) if split is not None else ())))
+    if defer is not None and getattr(scenario, "frame_truth", None) is None:
+        defer.extend((len(arrays), split))
+    else:
+        arrays.update(_secondary_arrays(rig, split))
     t1 = time.perf_counter()
-    stats.seconds["truth"] += t1 - t0
+    _add_seconds(stats, "truth", t1 - t0)
     if scenario.wants_pixel_truth(frame.index):
         ref_from_rig = frame.ref_from_part @ invert(frame.rig_from_part)
         if "directions" not in mesh:
             mesh["directions"] = pixel_directions(rig)     # per rig, once per run
         arrays["point_mm"], arrays["object_id"] = pixel_truth(rig, caster, ref_from_rig,
                                                               mesh["directions"])
-        stats.seconds["truth_pixels"] += time.perf_counter() - t1
+        _add_seconds(stats, "truth_pixels", time.perf_counter() - t1)
     if getattr(scenario, "frame_truth", None) is not None:     # the scenario's own truth (sim.target)
         arrays = scenario.frame_truth(rig, scenario, frame, caster, arrays)
     return arrays
+
+
+def _secondary_arrays(rig, split) -> dict:
+    """The secondary-light truth of a frame's light split (None: the ideal twin's empty one)."""
+    return secondary_truth(rig.sensor.rows, *(
+        (split.laser, split.secondary, split.subsurface) if split is not None else ()))
+
+
+def _complete_truth(rig, arrays: dict, deferred: list, stats) -> dict:
+    """Insert the deferred secondary-light truth after the stripe arrays (same key order)."""
+    if not deferred:
+        return arrays
+    t0 = time.perf_counter()
+    n, split = deferred
+    items = list(arrays.items())
+    out = dict(items[:n])
+    out.update(_secondary_arrays(rig, split))
+    out.update(items[n:])
+    _add_seconds(stats, "truth", time.perf_counter() - t0)
+    return out
 
 
 def scene_arrays(scenario: Scenario) -> dict:
@@ -894,19 +923,21 @@ def scene_arrays(scenario: Scenario) -> dict:
 
 def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dict,
                     progress: ProgressCallback | None = None,
-                    warn: Callable[[str], None] | None = None, overlap: bool = False) -> RenderStats:
+                    warn: Callable[[str], None] | None = None, overlap: bool = True) -> RenderStats:
     """Render every frame of a scenario not yet complete in a frame folder.
 
-    Per frame: render, sensor noise, geometric truth (these use the posed scene),
-    truth file, PNG.  With ``overlap=True`` the two writes (libdeflate/zlib
-    release the GIL) run in one background thread while the next frame is
-    rendered and its truth computed, at most one frame behind; results are
-    identical.  Off by default: with the Dr.Jit sensor kernel both cores are
-    busy and it measured 91 against 87 ms per frame (benchmarks/RESULTS.md).  Frames whose truth holds no stripe are
-    reported through ``warn`` (default: stderr); ``progress(done, total)`` is
-    called after each frame written (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the
-    ``png``/``truth_write`` entries of ``RenderStats.seconds`` are
-    background-thread time and do not add up to the wall time.
+    Per frame: render and geometric truth (these use the posed scene), sensor noise,
+    secondary-light truth, truth file, PNG.  With ``overlap=True`` (the default) the
+    frame loop is a two-stage pipeline: the render and the scene's truth here, the
+    noise, the secondary-light truth and both writes of the frame before in one
+    background thread (Dr.Jit's kernels, libdeflate and zlib release the GIL), at most
+    one frame behind; the files are the same byte for byte.  ``overlap=False`` runs
+    every stage of a frame before the next frame (the loop before issue 27).  Frames
+    whose truth holds no stripe are reported through ``warn`` (default: stderr);
+    ``progress(done, total)`` is called after each frame written
+    (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the ``noise``, ``png`` and
+    ``truth_write`` entries of ``RenderStats.seconds`` are background-thread time and
+    do not add up to the wall time.
 
     Parameters
     ----------
@@ -925,8 +956,8 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
         ``progress(done, total)`` after each frame written.
     warn : callable, optional
         Receives each warning as one line; default: print to stderr.
-    overlap : bool, default False
-        Write each frame's files in a background thread while the next frame
+    overlap : bool, default True
+        Noise and write each frame in a background thread while the next frame
         is rendered.
 
     Returns
@@ -1008,26 +1039,46 @@ class _Counter:
 
 
 def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger=None) -> None:
+    """The frames of ``todo``: pipelined on two threads (``overlap``) or one after the other.
+
+    Pipelined: this thread renders a frame and computes its scene-bound truth (the stripe
+    from geometry and ray queries on the posed scene), while one background thread turns
+    the frame before it into files — sensor noise (Dr.Jit's kernel), the secondary-light
+    truth (numpy), the truth archive and the PNG (libdeflate and zlib release the GIL) —
+    at most one frame behind.  Every frame's noise is seeded by its own seed, so the files
+    are those of the sequential loop, byte for byte.
+    """
     from concurrent.futures import ThreadPoolExecutor
 
     model = SensorModel.from_rig(rig)
     mesh = scene_arrays(scenario)
-    pending: list = []
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    if not overlap:
         for frame in todo:
             image, arrays = frame_products(rig, scenario, twin, frame, stats, warn, mesh, model)
-            job = (out, model, frame, None, image, arrays, stats, ledger)
-            if not overlap:
-                _finish_frame(*job)
-                bar.update()
-                continue
-            pending.append(pool.submit(_finish_frame, *job))
-            while len(pending) > 1 or (pending and pending[0].done()):
-                pending.pop(0).result()              # re-raises a failed write here
-                bar.update()
-        for fut in pending:
-            fut.result()
+            _finish_frame(out, model, frame, None, image, arrays, stats, ledger)
             bar.update()
+        return
+    pending = None
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
+        for frame in todo:
+            electrons = _timed(stats, "render", twin.render, frame)
+            deferred: list = []
+            arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, deferred)
+            if pending is not None:      # the frame before, written meanwhile: re-raises its
+                pending.result()         # failure here, before anything of this frame is written
+                bar.update()
+            pending = pool.submit(_files_of_frame, rig, out, model, frame, electrons, arrays,
+                                  deferred, stats, ledger)
+        if pending is not None:
+            pending.result()
+            bar.update()
+
+
+def _files_of_frame(rig, out, model, frame, electrons, arrays, deferred, stats, ledger) -> None:
+    """The background half of a pipelined frame: noise, deferred truth, truth file, PNG."""
+    image = _noise(electrons, model, frame, stats)
+    _finish_frame(out, model, frame, None, image, _complete_truth(rig, arrays, deferred, stats),
+                  stats, ledger)
 
 
 def index_ranges(indices) -> str:
@@ -1044,10 +1095,19 @@ def index_ranges(indices) -> str:
     return ", ".join(parts)
 
 
+_STATS_LOCK = threading.Lock()
+
+
+def _add_seconds(stats: RenderStats, key: str, seconds: float) -> None:
+    """stats.seconds[key] += seconds (both threads of the pipelined loop add to it)."""
+    with _STATS_LOCK:
+        stats.seconds[key] = stats.seconds.get(key, 0.0) + seconds
+
+
 def _timed(stats: RenderStats, key: str, fn, *args):
     t0 = time.perf_counter()
     result = fn(*args)
-    stats.seconds[key] += time.perf_counter() - t0
+    _add_seconds(stats, key, time.perf_counter() - t0)
     return result
 
 
@@ -1066,10 +1126,10 @@ def _noise(electrons, model, frame, stats) -> np.ndarray:
                   getattr(frame, "exposure_factor", 1.0))
 
 
-def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh) -> dict:
+def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, defer=None) -> dict:
     """Truth arrays of one frame (main thread: uses the posed scene); warns if no stripe."""
     arrays = _frame_truth(rig, scenario, frame, twin.caster(frame), stats, mesh,
-                          _twin_light(twin, frame))
+                          _twin_light(twin, frame), defer)
     stats.frames_rendered += 1
     if not np.isfinite(arrays["stripe_u"]).any():
         stats.frames_without_stripe.append(frame.index)
