@@ -13,6 +13,7 @@ import ast
 import importlib
 import inspect
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -83,6 +84,56 @@ def test_import_contract_catches_a_wrong_way_import(tmp_path, module, code, chai
     res = subprocess.run([_tool("lint-imports")], cwd=tmp_path, capture_output=True, text=True, env=env)
     assert res.returncode != 0
     assert chain in res.stdout
+
+
+#: Why a test may compare floats bit for bit (``# exact: <reason>`` on the line or the line above):
+#: the project promises bit-identity only on one machine, for the same seed and configuration.
+EXACT_REASONS = {
+    "same run": "the same seed and configuration, twice on this machine",
+    "threads": "another thread, worker or Dask-worker count on this machine (ordered accumulation)",
+    "resume": "a resumed or repaired run against an uninterrupted one, on this machine",
+    "copy": "the same values stored, read back, converted or looked up, with no arithmetic between",
+    "integers": "integer, boolean, id or whole-pixel values",
+}
+_EXACT = re.compile(r"(?<!not )(?<!not np\.)(np\.testing\.assert_array_equal\(|np\.array_equal\(|array_equal\("
+                    r"|\.tobytes\(\) ==|\.read_bytes\(\) ==|\b_(digest|hashes|numbers|files)\([^)]*\) ==)")
+
+
+def _exact_comparisons_without_reason() -> list[str]:
+    bad = []
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        if path.name == Path(__file__).name:      # this file quotes the patterns it looks for
+            continue
+        lines = path.read_text().splitlines()
+        for i, line in enumerate(lines):
+            m = _EXACT.search(line)
+            if not m or line[:m.start()].rstrip().endswith("not"):
+                continue
+            tagged = re.compile(r"# exact: (" + "|".join(EXACT_REASONS) + r")\b")
+            if not (tagged.search(line) or (i and tagged.search(lines[i - 1]))):
+                bad.append(f"{path.name}:{i + 1}: {line.strip()[:90]}")
+    return bad
+
+
+def test_no_exact_float_comparison_without_its_reason():
+    """Every bit-for-bit comparison in the suite says why it may be exact (issue 25): floats of
+    different code paths, configurations or machines are compared with a tolerance instead."""
+    bad = _exact_comparisons_without_reason()
+    assert not bad, ("exact comparisons without '# exact: <reason>' (" + ", ".join(EXACT_REASONS) + "):\n"
+                     + "\n".join(bad))
+
+
+def test_the_exact_comparison_lint_bites(tmp_path, monkeypatch):
+    """The lint finds an untagged comparison and accepts a tagged one (the test of the test)."""
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_x.py").write_text(
+        "assert np.array_equal(a, b)\n"
+        "assert np.array_equal(a, b)  # exact: same run\n"
+        "assert not np.array_equal(a, c)\n"
+        "# exact: copy\nnp.testing.assert_array_equal(x, y)\n"
+        "assert _digest(p) == _digest(q)  # exact: because\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    assert [b.split(":")[1] for b in _exact_comparisons_without_reason()] == ["1", "6"]
 
 
 def test_ruff_is_clean():

@@ -214,7 +214,7 @@ def test_ply_round_trip_of_the_quality(tmp_path, rng):
     back = read_point_cloud(write_point_cloud(tmp_path / "q.ply", cloud))
     for name in ("stripe_width_px", "snr", "incidence_laser_deg", "incidence_camera_deg"):
         np.testing.assert_allclose(getattr(back, name), getattr(cloud, name), rtol=1e-6, equal_nan=True)
-    assert np.array_equal(back.sweep_edge, cloud.sweep_edge)
+    assert np.array_equal(back.sweep_edge, cloud.sweep_edge)  # exact: integers
     # a cloud without quality: written as NaN / unknown, read back as unknown
     bare = PointCloud(xyz_mm=cloud.xyz_mm, angle_deg=cloud.angle_deg, row=cloud.row, intensity=cloud.intensity)
     back = read_point_cloud(write_point_cloud(tmp_path / "bare.ply", bare))
@@ -290,7 +290,7 @@ def test_default_filter_halves_pf_of_a_binned_sphere_scan_and_uses_no_truth(tmp_
     shutil.move(folder / "truth", tmp_path / "truth-away")
     again, _ = measured_cloud(open_frame_folder(folder), res["sheet_model"], res["axis_mm"], geo)
     for name in ("snr", "stripe_width_px", "incidence_laser_deg", "incidence_camera_deg", "sweep_edge"):
-        np.testing.assert_array_equal(getattr(again, name), getattr(cloud, name))
+        np.testing.assert_array_equal(getattr(again, name), getattr(cloud, name))  # exact: same run
 
 
 def _sphere_frames(tmp_path, rng, n_rows=400, v_h=200.0):
