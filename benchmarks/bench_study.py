@@ -1,5 +1,5 @@
-"""The README's worked example of `scheimpflug study`, timed: a design sweep for a 300–600 mm
-range on a metal part, then the tolerance study of the design it ranks first.
+"""The worked example of `scheimpflug study` (docs/tutorials/tolerance-study.md), timed: a design sweep for a
+300–600 mm range on a metal part, then the tolerance study of the design it ranks first.
 
     python benchmarks/bench_study.py [--workers 2] [--out DIR]
 

@@ -6,7 +6,7 @@ Dr.Jit refuses an array of more than 2³² entries with a raw ``RuntimeError``
 after having allocated for minutes.  Measured peak memory per sample (``/usr/bin/time``
 maximum resident set of ``scheimpflug render calibration --binning 8 --steps 1
 --truth-pixels none``, 242 rows, ``--spp`` 10⁵ … 10⁶, minus the 0.32 GB of a
-1000-spp run; README "Render"): ≈ 20.5 B with one bounce (the ideal twin; the same
+1000-spp run; docs/tutorials/render-and-calibrate.md): ≈ 20.5 B with one bounce (the ideal twin; the same
 with ``--subsurface`` on the cardboard plate) and ≈ 206–209 B with two or more
 (``--bounces 2``, ``--bounces 8`` and the paper-as-built rig's 3 give the same: the
 path state of the bounces dominates).  A frame may use :data:`LASER_MEMORY_BUDGET_BYTES`

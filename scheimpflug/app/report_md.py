@@ -88,8 +88,8 @@ def _model_lines(s: dict) -> list[str]:
             rel = f"{100 * o['volume_error_rel']:+.1f} %" if o.get("volume_error_rel") is not None else "–"
             out.append(f"| {names.get(k, k)} | {o['bodies'] or '–'} | {_f(o['model_volume_mm3'], '{:.6g}')} | "
                        f"{_f(o['true_volume_mm3'], '{:.6g}')} | {rel} |")
-    out += ["", "The model is meshed directly on the scan's frame × row grid (README, 'From profiles to a "
-            "model'); faces no profile measured — the top no profile reached (capped), the disc on the "
+    out += ["", "The model is meshed directly on the scan's frame × row grid (docs/howto/surface-model.md); "
+            "faces no profile measured — the top no profile reached (capped), the disc on the "
             "rotary table, gaps bridged between profiles, and for the pile the hidden parts (the ring under "
             "the box, the tape's core, the top cut by the field of view) — are filled by the stated rule, "
             "so the volume errors above are those of the rule, reported as measured."]

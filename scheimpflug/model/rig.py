@@ -86,7 +86,7 @@ class Lens:
     There is no key for a thick lens's principal-plane separation: a thick
     lens focused on the sheet maps the sheet onto the sensor exactly as the
     thin lens does (its image space is only shifted by the separation, which
-    focusing absorbs); README "Error models" shows it and what it does change.
+    focusing absorbs); `docs/explanation/twin-optics.md` ("Error models") shows it and what it does change.
     """
 
     focal_length_mm: float = 55.0

@@ -15,7 +15,7 @@ _METHODS = ("grid", "poisson")
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("surface model (README: 'From profiles to a model')")
+    g = p.add_argument_group("surface model (docs/howto/surface-model.md)")
     g.add_argument("--model", metavar="OUT.stl|OUT.ply",
                    help="also write a watertight triangle mesh of the scan (PLY: with per-face 'fill' "
                         "(0 measured, 1 gap, 2 table, 3 cap, 4 side) and 'body')")
@@ -74,7 +74,7 @@ def _default_sections(model) -> list[float]:
 
 
 def model_summary(model, section_z) -> dict:
-    """The ``reconstruct --json`` model fields (README)."""
+    """The ``reconstruct --json`` model fields (docs/reference/json.md)."""
     from scheimpflug.meshing import FILL_NAMES
     from scheimpflug.scoring import is_closed_mesh
     from scheimpflug.volumetry import solid_summary

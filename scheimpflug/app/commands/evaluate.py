@@ -25,7 +25,7 @@ def add_parser(sub):
                    help="score and fit only the points nearest to this object id / body (repeatable)")
     p.add_argument("--z-range", nargs=2, type=number(-1e6, 1e6, unit="mm"), metavar=("ZMIN", "ZMAX"),
                    help="keep only points with ZMIN <= z <= ZMAX [mm] (e.g. the smooth band)")
-    g = p.add_argument_group("two-sided scoring of a surface model (README: 'From profiles to a model')")
+    g = p.add_argument_group("two-sided scoring of a surface model (docs/howto/surface-model.md)")
     g.add_argument("--model", metavar="MODEL.ply|stl",
                    help="also score this surface model (from 'reconstruct --model') against the truth both "
                         "ways: coverage, Hausdorff and mean distances, volume error")
