@@ -37,9 +37,8 @@ def main():
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     from scheimpflug.app.cli import main as cli
-    from scheimpflug.calibration import measure_plate_frame
+    from scheimpflug.calibration import load_calibration, measure_plate_frame
     from scheimpflug.io.frames import open_frame_folder
-    from scheimpflug.io.opencv import load_calibration
 
     root = Path(args.out or tempfile.mkdtemp())
     root.mkdir(parents=True, exist_ok=True)

@@ -353,7 +353,7 @@ def test_upside_down_frames_are_refused(tmp_path, capsys):
 def test_opencv_export_with_a_distorting_lens_is_metric(tmp_path):
     """undistortPoints ∩ laser_plane made the plate 0.1–1 % long; now the camera frame is the sheet's."""
     from scheimpflug.calibration import PlateMeasurement
-    from scheimpflug.io.opencv import opencv_dict
+    from scheimpflug.calibration.opencv import opencv_dict
     from scheimpflug.sheet_model import fit_sheet_models, ideal_camera
 
     paper = Calibration(hinge_u_px=GEO.hinge_u_px, hinge_v_px=GEO.hinge_v_px, F2_px_mm=GEO.F2_px_mm,

@@ -124,7 +124,7 @@ def test_auto_picks_the_right_model(fits):
 
 @pytest.mark.parametrize("name", ["ideal", "both"])
 def test_opencv_projectpoints_reproduces_the_pipeline(fits, name, tmp_path):
-    from scheimpflug.io.opencv import read_opencv, write_opencv
+    from scheimpflug.calibration.opencv import read_opencv, write_opencv
 
     f = fits[name]
     model = f["general"] if name == "both" else f["paper"]
@@ -161,7 +161,7 @@ def test_calibrate_cli_model_choice_and_opencv(twins, tmp_path, capsys):
     assert d["model"] == "general" and d["selection"]["chosen"] == "general"
     for key in ("hinge_px", "F2_px_mm", "F2_sigma_px_mm", "d0_mm", "C_mm", "C_sigma_mm", "endpoint_fit_r2"):
         assert key in d
-    from scheimpflug.io.opencv import load_calibration
+    from scheimpflug.calibration import load_calibration
 
     gen, back = load_calibration(out), load_calibration(cv)
     assert gen.method == "general" and abs(gen.camera.k1 + 0.05) < 0.01

@@ -30,7 +30,7 @@ def add_parser(sub):
 
 def _run(args) -> int:
     from scheimpflug.axis import locate_axis, locate_axis_from_cylinder
-    from scheimpflug.io.opencv import load_calibration
+    from scheimpflug.calibration import load_calibration
 
     cal = load_calibration(args.calibration)
     res = locate_axis(args.dir, cal, blocker_thickness_mm=args.blocker_thickness_mm)

@@ -34,8 +34,9 @@ def add_parser(sub):
                    help="paper form (Eqs. 11–12), general model (homography + radial distortion), or "
                         "auto (default): the general model when an F-test on the residuals finds it "
                         "significantly better and it removes ≥ 20 %% of the residual sum of squares")
-    p.add_argument("--method", choices=("paper", "refined", "best"), default="best",
-                   help="paper form's estimate (default best: smaller standard error of u_h)")
+    p.add_argument("--method", choices=("paper", "refined", "best", "general"), default="best",
+                   help="paper form's estimate (default best: smaller standard error of u_h); general = "
+                        "--model general with the best estimate as its start")
     p.add_argument("--detector", choices=("gaussian3", "cog", "blais-rioux", "edge", "paper"),
                    default="cog",
                    help="stripe detector (default cog: windowed centre of gravity, unbiased on "
@@ -131,7 +132,8 @@ def _run(args) -> int:
     f_mm, p_um, assumed = _optics(args, folder)
     with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
         warnings.simplefilter("ignore")
-        res = calibrate_sheet_folder(folder, args.plate_height_mm, model=args.model, method=args.method,
+        model, method = ("general", "best") if args.method == "general" else (args.model, args.method)
+        res = calibrate_sheet_folder(folder, args.plate_height_mm, model=model, method=method,
                                      detector=args.detector, focal_length_mm=f_mm if args.rig else None,
                                      pixel_pitch_um=p_um if args.rig else None,
                                      progress=bar, accuracy=acc)
@@ -152,7 +154,7 @@ def _run(args) -> int:
     if args.out:
         write_json_atomic(args.out, finite_json(d))     # undefined numbers as null
     if args.opencv:
-        from scheimpflug.io.opencv import write_opencv
+        from scheimpflug.calibration.opencv import write_opencv
 
         write_opencv(args.opencv, res.chosen, f_mm, p_um, assumed)
     if args.plot:

@@ -147,9 +147,9 @@ def _check_outputs(args, is_cloud: bool) -> None:
 
 
 def _from_folder(args, t0: float):
+    from scheimpflug.calibration import load_calibration
     from scheimpflug.errors import FrameError
     from scheimpflug.io.frames import open_frame_folder
-    from scheimpflug.io.opencv import load_calibration
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 

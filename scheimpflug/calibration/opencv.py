@@ -11,7 +11,7 @@ export") writes::
      "model": "paper" | "general", "assumptions": {...}, "format": "scheimpflug-opencv/1"}
 
 in OpenCV's camera frame (x right along the columns, y down along the rows,
-z forward; :mod:`scheimpflug.tilted_camera`).  ``cv2.projectPoints`` of a
+z forward; :mod:`scheimpflug.calibration.camera`).  ``cv2.projectPoints`` of a
 sheet point ``X = origin + s·stage_axis + h·height_axis`` (stage coordinate
 ``s``, height ``h`` [mm]) with ``rvec = tvec = 0`` gives the pixel the
 pipeline's calibration gives; a pixel's ray (``cv2.undistortPoints``) meets
@@ -25,13 +25,14 @@ A calibration fixes the pixel ↔ sheet mapping, a plane-to-plane homography
 (with distortion).  A camera matrix and a pose hold more: no homography tells
 the focal length, the pixel pitch or where the optical axis is.  The paper
 form is decomposed into the ideal Scheimpflug rig with the rig's focal length
-``f`` and pixel pitch ``p`` (:func:`scheimpflug.sheet_model.ideal_camera`):
+``f`` and pixel pitch ``p`` (:func:`scheimpflug.calibration.camera.ideal_camera`):
 ``fx = fy`` is then the sensor's distance from the lens centre along the
 optical axis over ``p`` (≈ d·tan β / p, not f / p: the sensor of a Scheimpflug
 rig sits beyond the focal plane), ``(cx, cy)`` where the optical axis meets the
 sensor, ``τy = β`` and ``τx = 0``.  The general model carries its own
 intrinsics (the same decomposition, its principal point and distance refined
-with the distortion: :mod:`scheimpflug.sheet_model`).  The metric scale of the
+with the distortion: :mod:`scheimpflug.calibration.general`); the target
+calibration its own camera and laser plane (:mod:`scheimpflug.calibration.target`).  The metric scale of the
 camera frame is set by the stage: one stage millimetre is one millimetre of
 ``stage_axis``.  For both models the sheet is a metric plane in the camera
 frame — ``stage_axis`` and ``height_axis`` are orthonormal — so that a point
@@ -41,6 +42,11 @@ with a distorting lens too (before issue 25 the general model's sheet axes were
 those of a free homography: 0.1–0.3 % apart in length on a k1 = −0.05 … −0.2
 twin).  Other intrinsics reproduce the same pixels with another plane; these are
 the physical ones when ``f`` and ``p`` are right.
+
+Reading one back (:func:`read_opencv`) gives the same mapping.  A foreign OpenCV
+calibration — ``camera_matrix``, ``dist_coeffs`` (any of OpenCV's lengths, every
+term) and ``laser_plane``, without a ``sheet_frame`` — reads as a sheet model too;
+its sheet frame follows the rule of :func:`scheimpflug.calibration.model.sheet_frame_from_plane`.
 """
 
 from __future__ import annotations
@@ -53,20 +59,23 @@ from typing import Any
 import cv2
 import numpy as np
 
-from scheimpflug.errors import CalibrationError
-from scheimpflug.io.atomic import atomic_path, write_json_atomic
-from scheimpflug.sheet_model import (
+from scheimpflug.calibration.camera import (
     DEFAULT_FOCAL_LENGTH_MM,
     DEFAULT_PIXEL_PITCH_UM,
-    GeneralCalibration,
+    OpenCVCamera,
+    TiltedCamera,
     ideal_camera,
 )
-from scheimpflug.tilted_camera import TiltedCamera
+from scheimpflug.calibration.general import GeneralCalibration
+from scheimpflug.calibration.model import check_laser_plane, metric_error, sheet_frame_from_plane
+from scheimpflug.errors import CalibrationError
+from scheimpflug.io.atomic import atomic_path, write_json_atomic
 
-__all__ = ["FORMAT", "as_general", "load_calibration", "opencv_dict", "read_opencv", "write_opencv"]
+__all__ = ["FORMAT", "YAML_SUFFIXES", "as_general", "opencv_dict", "read_opencv", "write_opencv"]
 
 FORMAT = "scheimpflug-opencv/1"
-_YAML_SUFFIXES = (".yml", ".yaml", ".xml")
+#: File suffixes written and read through ``cv2.FileStorage`` (anything else is JSON).
+YAML_SUFFIXES = (".yml", ".yaml", ".xml")
 
 
 def as_general(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
@@ -122,7 +131,8 @@ def opencv_dict(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
     n /= np.linalg.norm(n)
     if n @ origin < 0:
         n = -n
-    model = "general" if isinstance(calibration, GeneralCalibration) else "paper"
+    model = ("target" if getattr(calibration, "method", "") == "target" else
+             "general" if isinstance(calibration, GeneralCalibration) else "paper")
     return {"format": FORMAT, "model": model,
             "camera_matrix": gen.camera.camera_matrix.tolist(),
             "dist_coeffs": gen.camera.dist_coeffs.tolist(),
@@ -130,7 +140,7 @@ def opencv_dict(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
             "laser_plane": [*map(float, n), float(-n @ origin)],
             "sheet_frame": {"origin_mm": origin.tolist(), "stage_axis": e_s.tolist(),
                             "height_axis": e_h.tolist(),
-                            "metric_error": float(max(abs(np.linalg.norm(e_h) - 1.0), abs(e_s @ e_h)))},
+                            "metric_error": metric_error(e_s, e_h)},
             "assumptions": {"focal_length_mm": focal_length_mm, "pixel_pitch_um": pixel_pitch_um,
                             "source": "assumed (no rig given)" if assumed else "rig",
                             "metric_scale": "one stage millimetre = one millimetre of stage_axis"}}
@@ -158,7 +168,7 @@ def write_opencv(path: str | Path, calibration, focal_length_mm: float = DEFAULT
     """
     d = opencv_dict(calibration, focal_length_mm, pixel_pitch_um, assumed)
     p = Path(path)
-    if p.suffix.lower() not in _YAML_SUFFIXES:
+    if p.suffix.lower() not in YAML_SUFFIXES:
         write_json_atomic(p, d)
         return d
     with atomic_path(p) as tmp:
@@ -173,7 +183,7 @@ def write_opencv(path: str | Path, calibration, focal_length_mm: float = DEFAULT
 
 
 def _read_any(p: Path) -> dict:
-    if p.suffix.lower() not in _YAML_SUFFIXES:
+    if p.suffix.lower() not in YAML_SUFFIXES:
         d = json.loads(p.read_text("utf-8"))
         if not isinstance(d, dict):
             raise ValueError("not a JSON object")
@@ -183,32 +193,44 @@ def _read_any(p: Path) -> dict:
         raise ValueError("cv2.FileStorage cannot open it")
     mat = lambda k: fs.getNode(k).mat()  # noqa: E731
     d = {k: mat(k) for k in ("camera_matrix", "dist_coeffs", "image_size", "laser_plane")}
-    d["sheet_frame"] = {k: mat(f"sheet_{k}") for k in ("origin_mm", "stage_axis", "height_axis")}
+    frame = {k: mat(f"sheet_{k}") for k in ("origin_mm", "stage_axis", "height_axis")}
     fs.release()
-    if any(v is None for v in d.values()) or any(v is None for v in d["sheet_frame"].values()):
-        raise ValueError("a key is missing")
+    if any(v is None for k, v in d.items() if k != "image_size"):
+        raise ValueError("a key is missing (camera_matrix, dist_coeffs and laser_plane are needed)")
+    if all(v is not None for v in frame.values()):
+        d["sheet_frame"] = frame
     return d
 
 
-def _camera(K: np.ndarray, dist: np.ndarray) -> TiltedCamera:
-    if K.shape != (3, 3) or dist.shape != (14,):
-        raise ValueError(f"camera_matrix must be 3 × 3 and dist_coeffs 14 values, got {K.shape}, {dist.shape}")
-    if abs(K[0, 0] - K[1, 1]) > 1e-9 * abs(K[0, 0]) or K[0, 1] != 0:
-        raise ValueError("only square pixels without skew (fx = fy, no skew) are supported")
-    others = np.delete(dist, [0, 1, 12, 13])
-    if np.any(others != 0):
-        raise ValueError("only k1, k2, tau_x and tau_y may be non-zero in dist_coeffs")
-    return TiltedCamera(float(K[0, 0]), (float(K[0, 2]), float(K[1, 2])), float(dist[12]),
-                        float(dist[13]), float(dist[0]), float(dist[1]))
+def _camera(K: np.ndarray, dist: np.ndarray):
+    """OpenCV's camera: a TiltedCamera where it is one (square pixels, k1, k2, τ), else an OpenCVCamera."""
+    cam = OpenCVCamera(K, dist)
+    d = cam.dist_coeffs
+    square = abs(K[0, 0] - K[1, 1]) <= 1e-9 * abs(K[0, 0])
+    if square and not np.any(np.delete(d, [0, 1, 12, 13])):
+        return TiltedCamera(float(K[0, 0]), (float(K[0, 2]), float(K[1, 2])), float(d[12]),
+                            float(d[13]), float(d[0]), float(d[1]))
+    return cam
+
+
+def _sheet_homography(d: dict, plane: np.ndarray) -> np.ndarray:
+    """G = [stage_axis, height_axis, origin] of the file's sheet frame, or of the plane's rule."""
+    sf = d.get("sheet_frame")
+    if sf is None:
+        origin, e_s, e_h = sheet_frame_from_plane(plane)
+        return np.column_stack([e_s, e_h, origin])
+    return np.column_stack([np.asarray(sf[k], np.float64).ravel()
+                            for k in ("stage_axis", "height_axis", "origin_mm")])
 
 
 def read_opencv(path: str | Path) -> GeneralCalibration:
-    """Read an OpenCV export back as a calibration (the same mapping, hence the same reconstruction).
+    """Read an OpenCV calibration as a sheet model (an export of ours gives the same mapping back).
 
     Parameters
     ----------
     path : str or Path
-        A file written by :func:`write_opencv` (JSON, YAML or XML).
+        A file written by :func:`write_opencv` (JSON, YAML or XML), or any JSON with
+        ``camera_matrix``, ``dist_coeffs`` and ``laser_plane`` (module docstring).
 
     Returns
     -------
@@ -218,8 +240,8 @@ def read_opencv(path: str | Path) -> GeneralCalibration:
     Raises
     ------
     CalibrationError
-        A missing or unreadable file, a missing key, or a model this pipeline does not hold
-        (tangential or higher-order terms, non-square pixels, a sheet frame off the laser plane).
+        A missing or unreadable file, a missing key, a singular camera matrix, a laser plane with a
+        non-unit normal, or a sheet frame off the laser plane.
     """
     p = Path(path)
     if not p.is_file():
@@ -228,11 +250,11 @@ def read_opencv(path: str | Path) -> GeneralCalibration:
         d = _read_any(p)
         cam = _camera(np.asarray(d["camera_matrix"], np.float64),
                       np.asarray(d["dist_coeffs"], np.float64).ravel())
-        sf = d["sheet_frame"]
-        g = np.column_stack([np.asarray(sf[k], np.float64).ravel()
-                             for k in ("stage_axis", "height_axis", "origin_mm")])
-        size = np.asarray(d["image_size"]).ravel()
-        plane = np.asarray(d["laser_plane"], np.float64).ravel()
+        plane = check_laser_plane(d["laser_plane"])
+        g = _sheet_homography(d, plane)
+        size = np.asarray(d.get("image_size") if d.get("image_size") is not None else [0, 0]).ravel()
+    except CalibrationError as exc:
+        raise CalibrationError(f"OpenCV calibration {str(p)!r}: {exc}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError,
             cv2.error) as exc:
         raise CalibrationError(f"OpenCV calibration {str(p)!r}: {exc}") from None
@@ -242,31 +264,3 @@ def read_opencv(path: str | Path) -> GeneralCalibration:
                                f"laser plane (off by {off:.3g} mm)")
     return GeneralCalibration(camera=cam, homography=g / g[2, 2], columns=int(size[0]),
                               rows=int(size[1]))
-
-
-def load_calibration(path: str | Path):
-    """Read any calibration file: ``scheimpflug calibrate --out`` JSON or an OpenCV export.
-
-    Parameters
-    ----------
-    path : str or Path
-        Calibration JSON (paper or general model) or an OpenCV export (JSON with
-        ``camera_matrix``, or ``.yml``/``.yaml``/``.xml``).
-
-    Returns
-    -------
-    Calibration or GeneralCalibration
-        The calibration (:func:`scheimpflug.sheet_model.load_sheet_model` or :func:`read_opencv`).
-    """
-    from scheimpflug.sheet_model import load_sheet_model
-
-    p = Path(path)
-    if p.suffix.lower() in _YAML_SUFFIXES:
-        return read_opencv(p)
-    try:
-        d = json.loads(p.read_text("utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        d = None
-    if isinstance(d, dict) and "camera_matrix" in d:
-        return read_opencv(p)
-    return load_sheet_model(p)

@@ -1,0 +1,81 @@
+"""Reading any calibration file as a sheet model (:class:`scheimpflug.calibration.model.SheetModel`).
+
+:func:`load_sheet_model` reads what ``scheimpflug calibrate`` writes — the
+paper form, the general model — and an OpenCV calibration (our ``--opencv``
+export, or any JSON/YAML with ``camera_matrix``, ``dist_coeffs`` and
+``laser_plane``: :func:`scheimpflug.calibration.opencv.read_opencv`).  Calibration
+files written before the calibration became a package (``model`` absent or
+``"paper"``, ``"general"``) read as they always did.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from scheimpflug.calibration.general import GeneralCalibration
+from scheimpflug.calibration.model import MODELS
+from scheimpflug.calibration.opencv import YAML_SUFFIXES, read_opencv
+from scheimpflug.calibration.paper import Calibration
+from scheimpflug.errors import CalibrationError
+
+__all__ = ["load_calibration", "load_sheet_model"]
+
+
+def _read_json(p: Path) -> dict:
+    try:
+        d = json.loads(p.read_text("utf-8"))
+    except FileNotFoundError:
+        raise CalibrationError(f"calibration file {str(p)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CalibrationError(f"calibration file {str(p)!r} is unreadable: {exc}") from None
+    if not isinstance(d, dict):
+        raise CalibrationError(f"calibration file {str(p)!r} must hold a JSON object")
+    return d
+
+
+def _from_dict(p: Path, d: dict):
+    model = d.get("model")
+    if model is not None and model not in MODELS:
+        raise CalibrationError(f"calibration file {str(p)!r}: \"model\": {model!r:.40} is not a known model "
+                               f"(known: {', '.join(MODELS)})")
+    try:
+        if model == "general":
+            return GeneralCalibration.from_json_dict(d)
+    except CalibrationError as exc:
+        raise CalibrationError(f"calibration file {str(p)!r}: {exc}") from None
+    return Calibration.load(p)
+
+
+def load_sheet_model(path: str | Path):
+    """Read any calibration file as a sheet model (module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        A calibration JSON of ``scheimpflug calibrate`` (paper form, general model), or an OpenCV
+        calibration (JSON with ``camera_matrix``, or ``.yml``/``.yaml``/``.xml``).
+
+    Returns
+    -------
+    SheetModel
+        :class:`~scheimpflug.calibration.paper.Calibration` or
+        :class:`~scheimpflug.calibration.general.GeneralCalibration`.
+
+    Raises
+    ------
+    CalibrationError
+        A missing, unreadable or malformed file, a ``"model"`` that is not one of :data:`MODELS`,
+        or a foreign calibration this pipeline cannot hold (the reason named).
+    """
+    p = Path(path)
+    if p.suffix.lower() in YAML_SUFFIXES:
+        return read_opencv(p)
+    d = _read_json(p)
+    if "camera_matrix" in d and d.get("model") != "target":
+        return read_opencv(p)
+    return _from_dict(p, d)
+
+
+#: The name this function had in ``scheimpflug.io.opencv`` (before the calibration package).
+load_calibration = load_sheet_model
