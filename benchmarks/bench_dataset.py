@@ -110,7 +110,7 @@ def stages(frames: int, part: str) -> None:
     root = Path(tempfile.mkdtemp(prefix="bench_stages_"))
     (root / "s" / "frames").mkdir(parents=True)
     (root / "s" / "truth").mkdir()
-    sinks = {"zarr": _ZarrSink(root, ZarrLayout(0, ZARR_CODEC)), "png": _PngSink(root / "s", "s")}
+    sinks = {"zarr": _ZarrSink(root, ZarrLayout(0, ZARR_CODEC), root / "s"), "png": _PngSink(root / "s", "s")}
     cpu: dict[str, float] = {}
 
     def timed(key, fn, *a):

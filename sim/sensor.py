@@ -732,7 +732,7 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
     lam = np.asarray(electrons)
     if lam.ndim != 2:
         raise ValueError(f"electrons must be a (rows, columns) array, got shape {lam.shape}")
-    if not np.all(lam >= 0):  # also catches NaN
+    if lam.size and not lam.min() >= 0:  # also catches NaN (min propagates it); no temporary
         raise ValueError("electrons must be finite and >= 0 (expected photo-electrons per pixel)")
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
     gain, dark = model.fixed_pattern(lam.shape)

@@ -11,10 +11,11 @@ the study's Dask workers (:mod:`sim.dataset.engine`) and the render workers of
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 
-__all__ = ["configure_threads", "cores", "set_blas_threads", "tune_malloc"]
+__all__ = ["configure_threads", "cores", "drjit_threads", "set_blas_threads", "tune_malloc"]
 
 _THREADS: dict = {}
 
@@ -67,6 +68,39 @@ def configure_threads(n: int) -> None:
         pass
     set_blas_threads(n)
     _THREADS["n"] = n
+
+
+@contextlib.contextmanager
+def drjit_threads(n: int):
+    """Dr.Jit's thread pool sized to ``n`` within the block, its size before restored after.
+
+    The pipelined frame loop (:func:`sim.writer.render_scenario`) runs with one pool
+    thread: its two threads are the parallelism, and an idle pool thread spins after
+    every kernel (nanothread), which took ≈ 15 ms of CPU per ideal frame from the
+    other stage (``benchmarks/RESULTS.md``).  The results do not depend on it (every
+    lane's value is its own; the fixed-point images are sums of integers).
+
+    Parameters
+    ----------
+    n : int
+        Pool threads (≥ 1).
+
+    Yields
+    ------
+    None
+        Nothing: the pool is resized around the block (no-op without Dr.Jit).
+    """
+    try:
+        import drjit as dr
+    except ImportError:  # pragma: no cover - no Dr.Jit
+        yield
+        return
+    before = dr.thread_count()
+    dr.set_thread_count(max(1, int(n)))
+    try:
+        yield
+    finally:
+        dr.set_thread_count(before)
 
 
 def set_blas_threads(n: int) -> int:

@@ -79,7 +79,15 @@ from .jobfolder import JobKind, check_identity, create_folder, open_job, remove_
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
 from .stages import invert, rig_from_stage
-from .truth import RayCaster, pixel_directions, pixel_truth, rig_truth, secondary_truth, stripe_truth
+from .threads import drjit_threads
+from .truth import (
+    RayCaster,
+    SceneTruth,
+    pixel_directions,
+    pixel_truth,
+    rig_truth,
+    secondary_truth,
+)
 
 __all__ = [
     "FORMAT",
@@ -443,7 +451,7 @@ def encode_png16(image: np.ndarray, compression: int = PNG_COMPRESSION, parts: i
     rows, cols = image.shape
     raw = np.empty((rows, 2 * cols + 1), dtype=np.uint8)
     raw[:, 0] = 0                                                   # filter: none
-    raw[:, 1:] = image.astype(">u2").view(np.uint8).reshape(rows, 2 * cols)
+    raw[:, 1:].view(">u2")[...] = image                           # big-endian, in one pass
     data = memoryview(raw).cast("B")
     if _libdeflate is not None and 1 <= compression <= 12:
         idat = _libdeflate.zlib_compress(data, int(compression))
@@ -867,9 +875,11 @@ def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None, defer=No
     ``(number of stripe arrays, the light split)`` for :func:`_complete_truth`.
     """
     t0 = time.perf_counter()
-    arrays = stripe_truth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"],
-                          frame.rig_from_part, frame.ref_from_part, caster,
-                          rig_from_laser=frame.rig_from_laser).arrays()
+    if "scene_truth" not in mesh:     # per run: the faces in Morton blocks (sim.truth.SceneTruth)
+        mesh["scene_truth"] = SceneTruth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"])
+    stripe, _ = mesh["scene_truth"].frame(frame.rig_from_part, frame.ref_from_part, caster,
+                                          frame.rig_from_laser)
+    arrays = stripe.arrays()
     split = light if light is not None and light.laser is not None else None
     if defer is not None and getattr(scenario, "frame_truth", None) is None:
         defer.extend((len(arrays), split))
@@ -912,8 +922,9 @@ def _complete_truth(rig, arrays: dict, deferred: list, stats) -> dict:
 def scene_arrays(scenario: Scenario) -> dict:
     """Per-run truth inputs, part frame.
 
-    Vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,) (plus ``directions``,
-    the pixel chief rays, added on first use).
+    Vertices (n, 3) f64, faces (m, 3) i64, face_ids (m,) (plus, added on first use,
+    ``scene_truth`` — the :class:`sim.truth.SceneTruth` of the run's rig — and
+    ``directions``, the pixel chief rays).
     """
     m = scenario.assembly.combined_mesh()
     return {"vertices": np.asarray(m.vertices, dtype=np.float64),
@@ -1045,8 +1056,9 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
     from geometry and ray queries on the posed scene), while one background thread turns
     the frame before it into files — sensor noise (Dr.Jit's kernel), the secondary-light
     truth (numpy), the truth archive and the PNG (libdeflate and zlib release the GIL) —
-    at most one frame behind.  Every frame's noise is seeded by its own seed, so the files
-    are those of the sequential loop, byte for byte.
+    at most one frame behind; Dr.Jit's pool has one thread meanwhile
+    (:func:`sim.threads.drjit_threads`).  Every frame's noise is seeded by its own seed,
+    so the files are those of the sequential loop, byte for byte.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -1059,7 +1071,7 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
             bar.update()
         return
     pending = None
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
+    with drjit_threads(1), ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
         for frame in todo:
             electrons = _timed(stats, "render", twin.render, frame)
             deferred: list = []
