@@ -80,6 +80,9 @@ if stages:
     mesh, model, st = scene_arrays(scenario), SensorModel.from_rig(rig), RenderStats()
     acc = np.zeros(4)
     sel = scenario.frames[warm:warm + min(frames, 12)]
+    f0 = scenario.frames[0]
+    twin.render(f0)
+    _frame_truth(rig, scenario, f0, twin.caster(f0), st, mesh, _twin_light(twin, f0))   # per-run set-up
     for f in sel:
         t = [time.process_time()]
         e = twin.render(f); t.append(time.process_time())

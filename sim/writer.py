@@ -937,18 +937,18 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
                     warn: Callable[[str], None] | None = None, overlap: bool = True) -> RenderStats:
     """Render every frame of a scenario not yet complete in a frame folder.
 
-    Per frame: render and geometric truth (these use the posed scene), sensor noise,
+    Per frame: render, sensor noise, geometric truth (these use the posed scene),
     secondary-light truth, truth file, PNG.  With ``overlap=True`` (the default) the
-    frame loop is a two-stage pipeline: the render and the scene's truth here, the
-    noise, the secondary-light truth and both writes of the frame before in one
-    background thread (Dr.Jit's kernels, libdeflate and zlib release the GIL), at most
-    one frame behind; the files are the same byte for byte.  ``overlap=False`` runs
+    frame loop is a two-stage pipeline: render, noise and the scene's truth here, the
+    secondary-light truth and both writes of the frame before in one background thread
+    (libdeflate and zlib release the GIL), at most one frame behind; the files are the
+    same byte for byte.  ``overlap=False`` runs
     every stage of a frame before the next frame (the loop before issue 27).  Frames
     whose truth holds no stripe are reported through ``warn`` (default: stderr);
     ``progress(done, total)`` is called after each frame written
-    (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the ``noise``, ``png`` and
-    ``truth_write`` entries of ``RenderStats.seconds`` are background-thread time and
-    do not add up to the wall time.
+    (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the ``png`` and
+    ``truth_write`` entries of ``RenderStats.seconds`` (and the secondary-light part of
+    ``truth``) are background-thread time and do not add up to the wall time.
 
     Parameters
     ----------
@@ -968,8 +968,8 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     warn : callable, optional
         Receives each warning as one line; default: print to stderr.
     overlap : bool, default True
-        Noise and write each frame in a background thread while the next frame
-        is rendered.
+        Write each frame (and its secondary-light truth) in a background thread while
+        the next frame is rendered.
 
     Returns
     -------
@@ -1052,13 +1052,13 @@ class _Counter:
 def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger=None) -> None:
     """The frames of ``todo``: pipelined on two threads (``overlap``) or one after the other.
 
-    Pipelined: this thread renders a frame and computes its scene-bound truth (the stripe
-    from geometry and ray queries on the posed scene), while one background thread turns
-    the frame before it into files — sensor noise (Dr.Jit's kernel), the secondary-light
-    truth (numpy), the truth archive and the PNG (libdeflate and zlib release the GIL) —
-    at most one frame behind; Dr.Jit's pool has one thread meanwhile
-    (:func:`sim.threads.drjit_threads`).  Every frame's noise is seeded by its own seed,
-    so the files are those of the sequential loop, byte for byte.
+    Pipelined: this thread renders a frame, adds its sensor noise and computes its
+    scene-bound truth (the stripe from geometry and ray queries on the posed scene) — all
+    of Dr.Jit's kernels on one thread, its pool at one thread meanwhile
+    (:func:`sim.threads.drjit_threads`; two threads sharing it measured slower) — while one
+    background thread turns the frame before it into files — the secondary-light truth
+    (numpy, numba), the truth archive and the PNG (libdeflate and zlib release the GIL) —
+    at most one frame behind.  The files are those of the sequential loop, byte for byte.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -1074,21 +1074,21 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
     with drjit_threads(1), ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
         for frame in todo:
             electrons = _timed(stats, "render", twin.render, frame)
+            image = _noise(electrons, model, frame, stats)     # Dr.Jit's kernels on one thread
             deferred: list = []
             arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, deferred)
             if pending is not None:      # the frame before, written meanwhile: re-raises its
                 pending.result()         # failure here, before anything of this frame is written
                 bar.update()
-            pending = pool.submit(_files_of_frame, rig, out, model, frame, electrons, arrays,
+            pending = pool.submit(_files_of_frame, rig, out, model, frame, image, arrays,
                                   deferred, stats, ledger)
         if pending is not None:
             pending.result()
             bar.update()
 
 
-def _files_of_frame(rig, out, model, frame, electrons, arrays, deferred, stats, ledger) -> None:
-    """The background half of a pipelined frame: noise, deferred truth, truth file, PNG."""
-    image = _noise(electrons, model, frame, stats)
+def _files_of_frame(rig, out, model, frame, image, arrays, deferred, stats, ledger) -> None:
+    """The background half of a pipelined frame: deferred truth, truth file, PNG."""
     _finish_frame(out, model, frame, None, image, _complete_truth(rig, arrays, deferred, stats),
                   stats, ledger)
 
