@@ -120,7 +120,11 @@ def test_sigkill_of_the_whole_tree_then_rerun_gives_identical_hashes(reference):
 def test_missing_part_file_is_recorded_and_the_rest_complete(reference, cluster, tmp_path):
     from sim.dataset import load_spec, make_dataset
 
+    # a part file that exists but cannot be read fails its samples only (a missing file is refused
+    # at the spec, before any sample: tests/test_hostile_dataset.py)
     spec = tmp_path / "spec.toml"
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "missing.stl").write_bytes(b"solid nothing\nthis is not a mesh\n")
     spec.write_text(SPEC.replace('part = "sphere"', "").replace(
         'material = { choices = ["metal", "cardboard"] }',
         'part = { choices = ["sphere", "parts/missing.stl"] }'))
@@ -186,20 +190,20 @@ def test_a_killed_worker_loses_only_its_frames_in_flight(reference, cluster):
 
 
 def test_a_missing_part_file_added_later_is_made_on_rerun(reference, cluster, tmp_path):
-    """The remedy for a failed sample: provide the file and rerun the same command."""
-    import shutil
-
+    """The remedy for a missing part file: provide the file and rerun the same command (the first
+    run is refused at the spec, before anything is written)."""
+    from scheimpflug.errors import DatasetError
     from sim.dataset import load_spec, make_dataset
 
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC.replace('part = "sphere"', "").replace(
         'material = { choices = ["metal", "cardboard"] }',
         'part = { choices = ["sphere", "late.ply"] }'))
-    first = make_dataset(load_spec(spec), tmp_path / "out", scheduler=cluster, warn=lambda m: None)
-    assert first.failures
+    with pytest.raises(DatasetError, match=r"part 'late.ply': no such file"):
+        load_spec(spec)
+    assert not (tmp_path / "out").exists()
     from scenes import load_part
 
     load_part("sphere").to_ply(tmp_path / "late.ply")
     second = make_dataset(load_spec(spec), tmp_path / "out", scheduler=cluster)
-    assert second.complete and second.samples_made == len(first.failures)
-    shutil.rmtree(tmp_path / "out")
+    assert second.complete and second.samples_made == 4
