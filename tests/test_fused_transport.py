@@ -111,4 +111,6 @@ def test_pipelined_frame_loop_writes_the_sequential_loop_files(tmp_path, realist
         out = tmp_path / f"overlap_{overlap}"
         render_scenario(rig, scenario, out, twin, manifest, warn=lambda m: None, overlap=overlap)
         digests.append(_folder_digest(out))
+    # exact: threads (the pipelined loop: a second thread, Dr.Jit's pool at one thread; every
+    # value computed by the same code, every accumulation ordered)
     assert len(digests[0]) == 8 and digests[1] == digests[0]
