@@ -82,8 +82,8 @@ def drjit_threads(n: int):
 
     Parameters
     ----------
-    n : int
-        Pool threads (≥ 1).
+    n : int or None
+        Pool threads (≥ 1); None leaves the pool as it is.
 
     Yields
     ------
@@ -93,6 +93,8 @@ def drjit_threads(n: int):
     try:
         import drjit as dr
     except ImportError:  # pragma: no cover - no Dr.Jit
+        dr = None
+    if dr is None or n is None:
         yield
         return
     before = dr.thread_count()

@@ -1054,8 +1054,8 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
 
     Pipelined: this thread renders a frame, adds its sensor noise and computes its
     scene-bound truth (the stripe from geometry and ray queries on the posed scene) — all
-    of Dr.Jit's kernels on one thread, its pool at one thread meanwhile
-    (:func:`sim.threads.drjit_threads`; two threads sharing it measured slower) — while one
+    of Dr.Jit's kernels on one thread, its pool at one thread meanwhile unless the twin has
+    a camera pass (:func:`sim.threads.drjit_threads`; two threads sharing it measured slower) — while one
     background thread turns the frame before it into files — the secondary-light truth
     (numpy, numba), the truth archive and the PNG (libdeflate and zlib release the GIL) —
     at most one frame behind.  The files are those of the sequential loop, byte for byte.
@@ -1071,7 +1071,9 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
             bar.update()
         return
     pending = None
-    with drjit_threads(1), ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
+    # one pool thread, unless a camera pass (a path tracer over every pixel) needs both cores
+    pool_threads = 1 if getattr(twin, "camera", None) is None else None
+    with drjit_threads(pool_threads), ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
         for frame in todo:
             electrons = _timed(stats, "render", twin.render, frame)
             image = _noise(electrons, model, frame, stats)     # Dr.Jit's kernels on one thread
