@@ -65,6 +65,7 @@ from scheimpflug.calibration.paper import (
     endpoint_residual_px,
 )
 from scheimpflug.calibration.pattern import PatternSpec, parse_pattern
+from scheimpflug.calibration.target import TargetCalibration, TargetResult, calibrate_target_folder
 
 __all__ = [
     "CAMERA_FROM_RIG",
@@ -84,6 +85,8 @@ __all__ = [
     "SheetFit",
     "SheetModel",
     "SheetModelResult",
+    "TargetCalibration",
+    "TargetResult",
     "TiltedCamera",
     "accuracy_warnings",
     "applicability_problem",
@@ -91,6 +94,7 @@ __all__ = [
     "calibrate_folder",
     "calibrate_measurements",
     "calibrate_sheet_folder",
+    "calibrate_target_folder",
     "camera_from_sensor_pose",
     "check_against_manifest",
     "check_axis_position",

@@ -8,6 +8,7 @@ paper     (the same) — the paper's endpoint estimate                  :class:`
 refined   (the same) — the refined joint fit                          :class:`CalibrationResult`
 general   (the same) — homography ∘ radial distortion                 :class:`SheetModelResult`
 auto      (the same) — general or paper form by the F-test            :class:`SheetModelResult`
+target    a printed pattern in poses, the laser line on it (no stage)  :class:`TargetResult`
 ========  ==========================================================  ==========================
 
 Every result's ``model`` is the sheet model it gives
@@ -18,13 +19,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from scheimpflug.calibration import general, paper
+from scheimpflug.calibration import general, paper, target
 from scheimpflug.io.frames import FrameFolder
 
 __all__ = ["METHODS", "calibrate_folder"]
 
 #: The methods :func:`calibrate_folder` knows (module docstring).
-METHODS = ("best", "paper", "refined", "general", "auto")
+METHODS = ("best", "paper", "refined", "general", "auto", "target")
 
 
 def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | None = None, *,
@@ -43,11 +44,13 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
         The method's own options: ``detector``, ``progress``, ``tol``, ``accuracy`` (every plate
         method; :func:`scheimpflug.calibration.paper.calibrate_folder`), ``focal_length_mm``,
         ``pixel_pitch_um``, ``fit_k2``, ``extra_points``, ``alpha``, ``min_rss_drop`` (general, auto:
-        :func:`scheimpflug.calibration.general.calibrate_sheet_folder`).
+        :func:`scheimpflug.calibration.general.calibrate_sheet_folder`), ``pattern`` (required),
+        ``tilt``, ``pixel_pitch_um``, ``distortion``, ``refine``, ``detector``, ``stripe_along``,
+        ``progress`` (target: :func:`scheimpflug.calibration.target.calibrate_target_folder`).
 
     Returns
     -------
-    CalibrationResult or SheetModelResult
+    CalibrationResult, SheetModelResult or TargetResult
         The method's result; its ``model`` is the sheet model.
 
     Raises
@@ -61,4 +64,8 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
         return paper.calibrate_folder(folder, plate_height_mm, method=method, **options)
     if method in ("general", "auto"):
         return general.calibrate_sheet_folder(folder, plate_height_mm, model=method, **options)
+    if method == "target":
+        if "pattern" not in options:
+            raise ValueError("method 'target' needs pattern=SPEC")
+        return target.calibrate_target_folder(folder, **options)
     raise ValueError(f"unknown calibration method {method!r} (known: {', '.join(METHODS)})")

@@ -1,7 +1,7 @@
 """Reading any calibration file as a sheet model (:class:`scheimpflug.calibration.model.SheetModel`).
 
 :func:`load_sheet_model` reads what ``scheimpflug calibrate`` writes — the
-paper form, the general model — and an OpenCV calibration (our ``--opencv``
+paper form, the general model, the target calibration — and an OpenCV calibration (our ``--opencv``
 export, or any JSON/YAML with ``camera_matrix``, ``dist_coeffs`` and
 ``laser_plane``: :func:`scheimpflug.calibration.opencv.read_opencv`).  Calibration
 files written before the calibration became a package (``model`` absent or
@@ -17,6 +17,7 @@ from scheimpflug.calibration.general import GeneralCalibration
 from scheimpflug.calibration.model import MODELS
 from scheimpflug.calibration.opencv import YAML_SUFFIXES, read_opencv
 from scheimpflug.calibration.paper import Calibration
+from scheimpflug.calibration.target import TargetCalibration
 from scheimpflug.errors import CalibrationError
 
 __all__ = ["load_calibration", "load_sheet_model"]
@@ -42,6 +43,8 @@ def _from_dict(p: Path, d: dict):
     try:
         if model == "general":
             return GeneralCalibration.from_json_dict(d)
+        if model == "target":
+            return TargetCalibration.from_json_dict(d)
     except CalibrationError as exc:
         raise CalibrationError(f"calibration file {str(p)!r}: {exc}") from None
     return Calibration.load(p)
@@ -59,8 +62,9 @@ def load_sheet_model(path: str | Path):
     Returns
     -------
     SheetModel
-        :class:`~scheimpflug.calibration.paper.Calibration` or
-        :class:`~scheimpflug.calibration.general.GeneralCalibration`.
+        :class:`~scheimpflug.calibration.paper.Calibration`,
+        :class:`~scheimpflug.calibration.general.GeneralCalibration` or
+        :class:`~scheimpflug.calibration.target.TargetCalibration`.
 
     Raises
     ------

@@ -1,4 +1,4 @@
-"""Measuring one calibration frame: plate endpoints (and, in :mod:`.target`, pattern corners and laser points).
+"""Measuring one calibration frame: plate endpoints, pattern corners, laser points on a pattern.
 
 A plate frame (the paper's calibration, :mod:`scheimpflug.calibration.paper`)
 shows one vertical stripe on the plate's face: :func:`measure_plate_frame`
@@ -36,18 +36,31 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
+from scipy import optimize, special
 from scipy.ndimage import uniform_filter1d
 
+from scheimpflug.calibration.pattern import aruco_dictionary, charuco_board, charuco_layout
 from scheimpflug.errors import CalibrationError
 from scheimpflug.stripe import extract_stripes, saturated_fraction
 
 __all__ = [
+    "MAX_WINDOW_PX",
+    "MIN_WINDOW_PX",
+    "WINDOW_FRACTION",
     "CalibrationTolerances",
+    "PatternDetection",
     "PlateMeasurement",
+    "corner_windows_px",
+    "detect_pattern",
     "double_stripe_rows",
     "frame_diagnosis",
     "measure_plate_frame",
+    "MODEL_PATCH_STEPS",
+    "refine_corners",
+    "refine_corners_model",
+    "stripe_points",
 ]
 
 
@@ -484,3 +497,490 @@ def _no_stripe(frame: np.ndarray, n_rows: int, min_rows: int, saturation_dn: flo
     return f"no stripe ({n_rows} lit rows < {min_rows})" + (f": the frame shows {seen}" if seen else "")
 
 
+
+
+# ---------------------------------------------------------------- pattern corners
+
+#: The sub-pixel window's half-size is this fraction of the corner's shorter square side [-]
+#: (module docstring of :func:`refine_corners`): 11–18 px on the 3DScanScience frames (squares
+#: 53–89 px), where the notebook's ±11 px reproduces; ±5 px there moves fx by +1.7 px.
+WINDOW_FRACTION = 0.2
+#: The window's half-size stays in [MIN_WINDOW_PX, MAX_WINDOW_PX] [px].
+MIN_WINDOW_PX, MAX_WINDOW_PX = 2, 30
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 60, 1e-4)
+
+
+@dataclass(frozen=True)
+class PatternDetection:
+    """The pattern's corners found in one frame (:func:`detect_pattern`).
+
+    Parameters
+    ----------
+    ids : (n,) ndarray int64
+        Index of each corner in the pattern's grid (:meth:`PatternSpec.corner_ids` order).
+    corners_px : (n, 2) ndarray float64
+        Their sub-pixel image positions (u, v) [px].
+    window_px : (n,) ndarray int64
+        Half-size of each corner's sub-pixel window [px] (:func:`refine_corners`).
+    file : str, default ""
+        The frame's file, for messages.
+    """
+
+    ids: np.ndarray
+    corners_px: np.ndarray
+    window_px: np.ndarray = field(repr=False)
+    file: str = ""
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def _to_uint8(frame: np.ndarray) -> np.ndarray:
+    """The frame stretched between its 1st and 99.5th percentile to 8 bits (what OpenCV's detectors take)."""
+    x = np.asarray(frame, np.float32)
+    lo, hi = np.percentile(x[:: max(1, x.shape[0] // 512), :: max(1, x.shape[1] // 512)], (1.0, 99.5))
+    if hi <= lo:
+        hi = lo + 1.0
+    return np.clip((x - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+
+
+def _neighbour_spacing(spec, ids: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Each corner's shortest distance to a grid neighbour that was found (NaN when none) [px]."""
+    nc, nr = spec.grid_shape
+    grid = np.full((nr + 2, nc + 2, 2), np.nan)
+    ij = spec.corner_ids()[ids]
+    grid[ij[:, 1] + 1, ij[:, 0] + 1] = corners
+    out = np.full(len(ids), np.inf)
+    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = grid[ij[:, 1] + 1 + dj, ij[:, 0] + 1 + di]
+        d = np.linalg.norm(nb - corners, axis=1)
+        out = np.fmin(out, np.where(np.isfinite(d), d, np.inf))
+    return np.where(np.isfinite(out), out, np.nan)
+
+
+def corner_windows_px(spec, ids: np.ndarray, corners_px: np.ndarray) -> np.ndarray:
+    """The sub-pixel window of each corner by the rule of :func:`refine_corners` [px].
+
+    Parameters
+    ----------
+    spec : PatternSpec
+        The pattern (its grid; for ChArUco the marker's margin in its white squares).
+    ids : (n,) array_like int
+        Corner indices in the grid.
+    corners_px : (n, 2) array_like float
+        Their (initial) image positions [px].
+
+    Returns
+    -------
+    (n,) ndarray int64
+        Half-sizes [px]: :data:`WINDOW_FRACTION` × the corner's shortest side to a found neighbour
+        (for ChArUco at most 0.8 × the markers' margin in the same units), clamped to
+        [:data:`MIN_WINDOW_PX`, :data:`MAX_WINDOW_PX`]; a corner without a found neighbour takes the
+        median of the others.
+    """
+    side = _neighbour_spacing(spec, np.asarray(ids, np.int64), np.asarray(corners_px, np.float64))
+    if not np.isfinite(side).any():
+        return np.full(len(side), MIN_WINDOW_PX, np.int64)
+    side = np.where(np.isfinite(side), side, np.nanmedian(side))
+    fraction = WINDOW_FRACTION
+    if spec.kind == "charuco":
+        margin = 0.5 * (spec.pitch_mm - spec.marker_mm) / spec.pitch_mm
+        fraction = min(fraction, 0.8 * margin)
+    return np.clip(np.round(fraction * side), MIN_WINDOW_PX, MAX_WINDOW_PX).astype(np.int64)
+
+
+def refine_corners(image: np.ndarray, corners_px: np.ndarray, windows_px: np.ndarray) -> np.ndarray:
+    """Sub-pixel corners by ``cv2.cornerSubPix``, each with its own window.
+
+    The rule (:func:`corner_windows_px`): the window's half-size is a fifth of the
+    corner's shorter square side in pixels — it holds the four squares that meet at
+    the corner and no other corner or edge (which lie a side away), with room for a
+    blurred edge's gradient.  A fixed small window on large squares sees too little of
+    the edges (the 3DScanScience frames: ±5 px moves fx by 1.7 px against the ±11 px
+    the notebook used, ±9…±17 px agree within 0.3 px); a large one on small squares
+    reaches the neighbours.
+
+    Parameters
+    ----------
+    image : (rows, columns) ndarray
+        The frame [DN].
+    corners_px : (n, 2) array_like float
+        Initial corners [px].
+    windows_px : (n,) array_like int
+        Half-sizes of their windows [px].
+
+    Returns
+    -------
+    (n, 2) ndarray float64
+        Refined corners [px].
+    """
+    img = np.asarray(image, np.float32)
+    out = np.asarray(corners_px, np.float64).copy()
+    w = np.asarray(windows_px, np.int64)
+    for size in np.unique(w):
+        sel = w == size
+        pts = out[sel].astype(np.float32).reshape(-1, 1, 2)
+        out[sel] = cv2.cornerSubPix(img, pts, (int(size), int(size)), (-1, -1), _SUBPIX_CRITERIA).reshape(-1, 2)
+    return out
+
+
+#: Half-width of the model fit's patch in grid steps (the neighbouring corners lie 1 step away) [-].
+MODEL_PATCH_STEPS = 0.4
+_MIN_PATCH_PIXELS = 30
+
+
+def _grid_axes(spec, ids: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Image steps of one grid column and one grid row at every corner (the grid's homography's Jacobian)."""
+    ij = spec.corner_ids()[ids].astype(np.float64)
+    if len(ij) < 4:
+        return None
+    h, _ = cv2.findHomography(ij, corners, 0)
+    if h is None:
+        return None
+    p = np.c_[ij, np.ones(len(ij))] @ h.T
+    w = p[:, 2:3]
+    xy = p[:, :2] / w
+    return (h[:2, 0][None] - xy * h[2, 0]) / w, (h[:2, 1][None] - xy * h[2, 1]) / w
+
+
+def _patch(img: np.ndarray, c0: np.ndarray, a: np.ndarray, white_margin: float | None, white_sign: float):
+    """Pixels (x, y) and values within ±MODEL_PATCH_STEPS grid steps of a corner; ChArUco's markers left out."""
+    rho = MODEL_PATCH_STEPS
+    ext = np.abs(a).sum(axis=1) * rho
+    x0, x1 = int(np.floor(c0[0] - ext[0])), int(np.ceil(c0[0] + ext[0]))
+    y0, y1 = int(np.floor(c0[1] - ext[1])), int(np.ceil(c0[1] + ext[1]))
+    if x0 < 0 or y0 < 0 or x1 >= img.shape[1] or y1 >= img.shape[0]:
+        return None
+    yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+    xy = np.c_[xx.ravel(), yy.ravel()].astype(np.float64)
+    g = (xy - c0) @ np.linalg.inv(a).T
+    keep = (np.abs(g) < rho).all(axis=1)
+    if white_margin is not None:
+        white = np.sign(g[:, 0]) * np.sign(g[:, 1]) == white_sign
+        keep &= ~(white & (np.minimum(np.abs(g[:, 0]), np.abs(g[:, 1])) > white_margin))
+    if keep.sum() < _MIN_PATCH_PIXELS:
+        return None
+    return xy[keep], img[yy.ravel()[keep], xx.ravel()[keep]]
+
+
+def _saddle_design(xy: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Columns (1, erf(d1/s)·erf(d2/s)) of the blurred-corner model at the pixels, for parameters p."""
+    d = xy - p[:2]
+    d1 = d @ np.array([math.cos(p[2]), math.sin(p[2])])
+    d2 = d @ np.array([math.cos(p[3]), math.sin(p[3])])
+    s = abs(p[4]) + 0.3
+    e = special.erf(d1 / s) * special.erf(d2 / s)
+    return np.c_[np.ones_like(e), e]
+
+
+def _fit_saddle(xy: np.ndarray, values: np.ndarray, c0: np.ndarray, a: np.ndarray) -> np.ndarray | None:
+    """The corner of the blurred-saddle model fitted to a patch (variable projection), or None."""
+    def residuals(p):
+        m = _saddle_design(xy, p)
+        coef, *_ = np.linalg.lstsq(m, values, rcond=None)
+        return m @ coef - values
+
+    angles = [math.atan2(a[1, k], a[0, k]) + 0.5 * math.pi for k in (0, 1)]   # normals of the two edges
+    p0 = np.array([c0[0], c0[1], angles[0], angles[1], 2.0])
+    sol = optimize.least_squares(residuals, p0, method="lm", x_scale=[1.0, 1.0, 0.05, 0.05, 1.0],
+                                 xtol=1e-10, ftol=1e-12, max_nfev=400)
+    side = min(np.hypot(*a[:, 0]), np.hypot(*a[:, 1]))
+    c = sol.x[:2]
+    return c if sol.success and np.hypot(*(c - c0)) < 0.3 * side else None
+
+
+def refine_corners_model(image: np.ndarray, spec, ids: np.ndarray, corners_px: np.ndarray) -> np.ndarray:
+    """Sub-pixel corners by fitting a blurred corner's model, for blurred (defocused) patterns.
+
+    Near a chessboard corner the image of a print blurred by a point-symmetric spread
+    is ``a + b·erf(d₁/s)·erf(d₂/s)`` to first order, ``d₁, d₂`` the distances to the
+    two edges through the corner (straight lines under perspective); the model and
+    the ideal corner are both symmetric under a half turn about the corner, so the
+    fitted corner is unbiased by the blur where ``cv2.cornerSubPix``'s gradient
+    condition is not (its window rarely holds the whole blurred edge pair).  The
+    patch is ±:data:`MODEL_PATCH_STEPS` grid steps about the corner in the grid's
+    local frame (the homography of all corners found); on a ChArUco board the white
+    squares' pixels farther than 0.6 × the markers' margin from both edges are left out.
+    Fitted: the corner (2), the two edge directions (2), the blur ``s`` (1); the
+    levels ``a, b`` by linear least squares at each step.  On the twin's blurred
+    paper-rig frames (spot 3–14 px): median error 0.04–0.06 px against the exact
+    corners, ``cornerSubPix`` 0.15–0.30 px (benchmarks/RESULTS.md).
+
+    Parameters
+    ----------
+    image : (rows, columns) ndarray
+        The frame [DN].
+    spec : PatternSpec
+        The pattern.
+    ids : (n,) array_like int
+        Corner indices in its grid.
+    corners_px : (n, 2) array_like float
+        Initial corners (within a few pixels) [px].
+
+    Returns
+    -------
+    (n, 2) ndarray float64
+        Refined corners [px]; NaN where the fit fails or moves the corner by more than
+        0.3 of the shorter square side (a corner lost in blur or clutter), or with fewer
+        than 4 corners (no local grid).
+    """
+    img = np.asarray(image, np.float64)
+    ids = np.asarray(ids, np.int64)
+    c0 = np.asarray(corners_px, np.float64)
+    out = np.full_like(c0, np.nan)
+    axes = _grid_axes(spec, ids, c0)
+    if axes is None:
+        return out
+    margin, square_marker = None, None
+    if spec.kind == "charuco":
+        margin = 0.6 * 0.5 * (spec.pitch_mm - spec.marker_mm) / spec.pitch_mm
+        square_marker = charuco_layout(spec)["square_marker"]
+    ij = spec.corner_ids()[ids]
+    for k in range(len(ids)):
+        a = np.column_stack([axes[0][k], axes[1][k]])
+        sign = 0.0 if square_marker is None else (1.0 if square_marker[ij[k, 1] + 1, ij[k, 0] + 1] >= 0 else -1.0)
+        patch = _patch(img, c0[k], a, margin, sign)
+        if patch is not None:
+            c = _fit_saddle(*patch, c0[k], a)
+            if c is not None:
+                out[k] = c
+    return out
+
+
+def _extends_beyond(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]) -> bool:
+    """Whether the squares go on past a found grid: it is part of a larger board (another spec).
+
+    Through the grid's homography, the centres of the outermost ring of squares (half a step
+    outside the outer corners) alternate dark and light; a step further out lies the print's
+    margin.  Where that next ring alternates too, with at least half the board's contrast,
+    the detector found a sub-board.
+    """
+    nc, nr = size
+    j, i = np.mgrid[0:nr, 0:nc]
+    h, _ = cv2.findHomography(np.c_[i.ravel(), j.ravel()].astype(np.float64), corners, 0)
+    if h is None:
+        return False
+    for ring, other in ((np.arange(-1, nc) + 0.5, None), (None, np.arange(-1, nr) + 0.5)):
+        for edge in ((-0.5, -1.5), (nr - 0.5, nr + 0.5)) if other is None else ((-0.5, -1.5), (nc - 0.5, nc + 0.5)):
+            vals = []
+            for pos in edge:
+                pts = np.c_[ring, np.full(ring.size, pos)] if other is None else np.c_[np.full(other.size, pos), other]
+                q = np.c_[pts, np.ones(len(pts))] @ h.T
+                uv = np.rint(q[:, :2] / q[:, 2:]).astype(np.int64)
+                if (uv < 0).any() or (uv[:, 0] >= gray.shape[1]).any() or (uv[:, 1] >= gray.shape[0]).any():
+                    vals = []
+                    break
+                vals.append(gray[uv[:, 1], uv[:, 0]].astype(np.float64))
+            if len(vals) == 2:
+                contrast = np.abs(np.diff(vals[0])).mean()
+                if contrast > 0 and np.abs(np.diff(vals[1])).mean() > 0.5 * contrast:
+                    return True
+    return False
+
+
+def _chessboard_corners(gray: np.ndarray, spec) -> np.ndarray | None:
+    size = spec.grid_shape
+    ok, c = cv2.findChessboardCornersSB(gray, size, cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+    if not ok:
+        flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+        ok, c = cv2.findChessboardCorners(gray, size, flags)
+    if not ok:
+        return None
+    c = c.reshape(-1, 2).astype(np.float64)
+    return None if _extends_beyond(gray, c, size) else c
+
+
+def _markers_on_one_board(found: dict, obj: np.ndarray) -> dict:
+    """The markers one homography of the board explains (a board of another layout puts them at random).
+
+    The threshold, a third of the median marker side in the image, passes a strongly distorting
+    lens and a marker's corner noise; a misread id or a marker of another board lies squares off.
+    """
+    if len(found) < 4:
+        return found
+    keys = list(found)
+    src = np.concatenate([obj[k] for k in keys])
+    dst = np.concatenate([found[k] for k in keys])
+    side = float(np.median([np.linalg.norm(found[k][1] - found[k][0]) for k in keys]))
+    _, mask = cv2.findHomography(src, dst, cv2.RANSAC, max(2.0, side / 3.0))
+    if mask is None:
+        return {}
+    inlier = mask.ravel().reshape(len(keys), 4).all(axis=1)
+    return {k: found[k] for k, ok in zip(keys, inlier) if ok} if inlier.sum() >= 0.5 * len(keys) else {}
+
+
+def _charuco_corners(gray: np.ndarray, spec) -> tuple[np.ndarray, np.ndarray] | None:
+    """ChArUco corners from the markers found (partial boards too): ids and image positions.
+
+    Each inner corner touches two white squares (diagonally); when the markers in
+    both were found, their 8 corners give a homography from the pattern frame to the
+    image that places the corner for the sub-pixel refinement (a corner with one of
+    them missing is left out: extrapolated from farther markers it lands pixels off).
+    """
+    board = charuco_board(spec)
+    detector = cv2.aruco.ArucoDetector(aruco_dictionary(spec), cv2.aruco.DetectorParameters())
+    m_corners, m_ids, _ = detector.detectMarkers(gray)
+    if m_ids is None or len(m_ids) == 0:
+        return None
+    obj = np.asarray(board.getObjPoints(), np.float64)[:, :, :2] - spec.pitch_mm   # pattern frame (x, y)
+    slot = {int(k): i for i, k in enumerate(np.asarray(board.getIds()).ravel())}
+    if sum(int(k) not in slot for k in m_ids.ravel()) >= 2:
+        return None                        # markers this board does not hold: another board
+    found = {slot[int(k)]: np.asarray(c, np.float64).reshape(4, 2) for k, c in zip(m_ids.ravel(), m_corners)
+             if int(k) in slot}
+    found = _markers_on_one_board(found, obj)
+    if len(found) < 2:
+        return None
+    centres = {k: obj[k].mean(axis=0) for k in found}
+    xy = spec.corners_mm()
+    ids, pts = [], []
+    for j, p in enumerate(xy):
+        near = [k for k, c in centres.items() if np.max(np.abs(c - p)) < 0.75 * spec.pitch_mm]
+        if len(near) < 2:            # both markers that touch the corner: no extrapolation
+            continue
+        src = np.concatenate([obj[k] for k in near])
+        dst = np.concatenate([found[k] for k in near])
+        h, _ = cv2.findHomography(src, dst, 0)
+        if h is None:
+            continue
+        q = h @ np.array([p[0], p[1], 1.0])
+        ids.append(j)
+        pts.append(q[:2] / q[2])
+    return (np.array(ids, np.int64), np.array(pts, np.float64)) if ids else None
+
+
+def _consistent_with_grid(spec, ids: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The corners a robust grid homography keeps (a misread marker places its corners elsewhere).
+
+    The threshold, a tenth of the median square side, passes the bending of a strongly distorting
+    lens across a board and rejects a corner one square (or more) off.
+    """
+    if len(ids) < 5:
+        return ids, corners
+    side = _neighbour_spacing(spec, ids, corners)
+    tol = max(2.0, 0.1 * float(np.nanmedian(side))) if np.isfinite(side).any() else 2.0
+    ij = spec.corner_ids()[ids].astype(np.float64)
+    _, mask = cv2.findHomography(ij, corners, cv2.RANSAC, tol)
+    keep = mask.ravel().astype(bool) if mask is not None else np.ones(len(ids), bool)
+    return ids[keep], corners[keep]
+
+
+def detect_pattern(frame: np.ndarray, spec, *, refine: str = "model", file: str = "") -> PatternDetection | None:
+    """Find a printed pattern's corners in one flood-lit frame (OpenCV's detectors, sub-pixel).
+
+    Chessboard: ``cv2.findChessboardCornersSB`` (exhaustive, accurate), else
+    ``cv2.findChessboardCorners``: the whole board or nothing (a chessboard has no
+    marks that tell which corner is which in a partial view).  ChArUco: the ArUco
+    markers found (any number ≥ 2; partly visible boards) place each inner corner
+    near them (:func:`_charuco_corners`).  Circles: ``cv2.findCirclesGrid`` (symmetric
+    grid; its blob centres, not refined).  Chessboard and ChArUco corners are then
+    refined by :func:`refine_corners_model` (``refine="model"``, the default: unbiased by
+    defocus; a corner it loses is dropped) or by ``cv2.cornerSubPix``
+    (``refine="subpix"``, :func:`refine_corners` with the window of :func:`corner_windows_px`).
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The frame [DN].
+    spec : PatternSpec
+        The pattern (:func:`scheimpflug.calibration.pattern.parse_pattern`).
+    refine : {"model", "subpix"}, default "model"
+        The sub-pixel refinement (above).
+    file : str, default ""
+        The frame's file, recorded.
+
+    Returns
+    -------
+    PatternDetection or None
+        The corners found, or None when the pattern is not found (or fewer than 4 corners remain).
+
+    Raises
+    ------
+    ValueError
+        An unknown ``refine``.
+    """
+    if refine not in ("model", "subpix"):
+        raise ValueError(f"refine must be 'model' or 'subpix', got {refine!r}")
+    gray = _to_uint8(frame)
+    if spec.kind == "circles":
+        ok, c = cv2.findCirclesGrid(gray, spec.grid_shape, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+        if not ok:
+            ok, c = cv2.findCirclesGrid(255 - gray, spec.grid_shape, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+        if not ok:
+            return None
+        n = len(spec.corner_ids())
+        return PatternDetection(np.arange(n), c.reshape(-1, 2).astype(np.float64), np.zeros(n, np.int64), file)
+    if spec.kind == "chessboard":
+        c = _chessboard_corners(gray, spec)
+        if c is None:
+            return None
+        ids = np.arange(len(c), dtype=np.int64)
+    else:
+        found = _charuco_corners(gray, spec)
+        if found is None:
+            return None
+        ids, c = found
+    inside = (c[:, 0] > 1) & (c[:, 1] > 1) & (c[:, 0] < gray.shape[1] - 2) & (c[:, 1] < gray.shape[0] - 2)
+    if spec.kind == "charuco":
+        ids, c = ids[inside], c[inside]
+    elif not inside.all():
+        return None
+    if spec.kind == "charuco":
+        ids, c = _consistent_with_grid(spec, ids, c)
+        if len(ids) < 4:
+            return None
+    win = corner_windows_px(spec, ids, c)
+    if refine == "subpix":
+        return PatternDetection(ids, refine_corners(frame, c, win), win, file)
+    fine = refine_corners_model(frame, spec, ids, c)
+    ok = np.isfinite(fine[:, 0])
+    if ok.sum() < 4:
+        return None
+    return PatternDetection(ids[ok], fine[ok], np.zeros(int(ok.sum()), np.int64), file)
+
+
+# ---------------------------------------------------------------- laser points on a pattern
+
+
+def stripe_points(frame: np.ndarray, *, background: np.ndarray | None = None, along: str = "columns",
+                  detector: str = "cog", saturation_dn: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The laser stripe's sub-pixel points of one frame, one per row (or per column).
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The laser frame [DN].
+    background : (rows, columns) ndarray, optional
+        The same view with the laser off (subtracted, clipped at 0) [DN].
+    along : {"columns", "rows"}, default "columns"
+        Which way the stripe runs in the image: "columns" (down the image, one point per
+        row: the Scheimpflug profiler's), "rows" (across it, one point per column).
+    detector : str, default "cog"
+        Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
+    saturation_dn : float, optional
+        Saturation level [DN].
+
+    Returns
+    -------
+    u_px, v_px : (n,) ndarray float64
+        The points [px].
+
+    Raises
+    ------
+    ValueError
+        ``along`` neither "rows" nor "columns", or a background of another shape.
+    """
+    if along not in ("rows", "columns"):
+        raise ValueError(f"along must be 'rows' or 'columns', got {along!r}")
+    img = np.asarray(frame)
+    if background is not None:
+        bg = np.asarray(background)
+        if bg.shape != img.shape:
+            raise ValueError(f"the background is {bg.shape}, the frame {img.shape}")
+        img = np.clip(img.astype(np.float64) - bg.astype(np.float64), 0.0, None)
+    if along == "rows":
+        img = img.T
+    prof = extract_stripes(img, detector, saturation_dn=saturation_dn, window_px="auto")
+    keep = ~prof.saturated
+    a, b = prof.u[keep], prof.rows[keep].astype(np.float64)
+    return (b, a) if along == "rows" else (a, b)

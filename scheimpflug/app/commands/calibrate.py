@@ -34,9 +34,10 @@ def add_parser(sub):
                    help="paper form (Eqs. 11–12), general model (homography + radial distortion), or "
                         "auto (default): the general model when an F-test on the residuals finds it "
                         "significantly better and it removes ≥ 20 %% of the residual sum of squares")
-    p.add_argument("--method", choices=("paper", "refined", "best", "general"), default="best",
+    p.add_argument("--method", choices=("paper", "refined", "best", "general", "target"), default="best",
                    help="paper form's estimate (default best: smaller standard error of u_h); general = "
-                        "--model general with the best estimate as its start")
+                        "--model general with the best estimate as its start; target = no stage: a printed "
+                        "pattern in several poses and the laser line on it (--pattern)")
     p.add_argument("--detector", choices=("gaussian3", "cog", "blais-rioux", "edge", "paper"),
                    default="cog",
                    help="stripe detector (default cog: windowed centre of gravity, unbiased on "
@@ -49,6 +50,34 @@ def add_parser(sub):
                    help="rig file for the lens focal length and pixel pitch (default: the manifest's "
                         "rig, else the paper's, assumed); they set the camera intrinsics of the "
                         "general model and of the OpenCV export")
+    t = p.add_argument_group("--method target (scheimpflug/calibration/target.py)")
+    t.add_argument("--pattern", metavar="SPEC",
+                   help="the printed pattern: chessboard:COLSxROWS:SQUARE_MM (inner corners), "
+                        "charuco:COLSxROWS:SQUARE_MM:MARKER_MM[:DICT] (squares; partly visible boards "
+                        "are used), circles:COLSxROWS:PITCH_MM[:DIAMETER_MM]")
+    t.add_argument("--tilt", choices=("auto", "focus", "rig", "none", "free"), default="auto",
+                   help="how the sensor tilt τx, τy is found: focus = the camera is focused on the laser "
+                        "sheet (Scheimpflug; needs the pixel pitch), rig = held at the manifest rig's design, "
+                        "none = τ = 0 (an ordinary camera), free = OpenCV fits it (told only by the "
+                        "distortion); auto (default): focus for a tilted rig in the manifest with laser "
+                        "frames, rig without them, else none")
+    t.add_argument("--distortion", choices=("none", "k1", "k1k2", "opencv5"), default="k1k2",
+                   help="distortion terms fitted (default k1k2; opencv5 = k1, k2, p1, p2, k3, OpenCV's "
+                        "default)")
+    t.add_argument("--pixel-pitch-um", type=number(0, 1e3, lo_open=True, unit="µm"), default=None,
+                   help="the sensor's pixel pitch [µm] for --tilt focus (default: --rig or the manifest's rig)")
+    t.add_argument("--refine", choices=("model", "subpix"), default="model",
+                   help="corner refinement: model = a blurred corner's model fitted (unbiased by defocus, "
+                        "default), subpix = cv2.cornerSubPix with a window of 0.2 × the square side")
+    t.add_argument("--on-table", metavar="DIR",
+                   help="frames of the pattern standing on the rotary table at several angles (render target "
+                        "--on-table): the rotary axis, in the same calibration ('axis'; reconstruct uses it)")
+    t.add_argument("--f-number", type=number(0, 1e3, lo_open=True, unit=""), default=None,
+                   help="the lens's f-number at the calibration (default: the manifest's rig): with --tilt focus "
+                        "it sizes the blur spots whose centroid shift on the tilted sensor is taken out")
+    t.add_argument("--stripe-along", choices=("columns", "rows"), default="columns",
+                   help="which way the laser line runs in the image (default columns: down the image, "
+                        "one point per row)")
     g = p.add_argument_group("stated accuracy (a warning when 2 standard errors exceed it)")
     g.add_argument("--accuracy-hinge-px", type=float, default=0.5, help="u_h and v_h [px] (default 0.5)")
     g.add_argument("--accuracy-relative", type=float, default=5e-4,
@@ -116,7 +145,77 @@ def _result_dict(res) -> dict:
     return d
 
 
+def _target_summary(res) -> str:
+    c = res.calibration
+    k, d = c.camera.camera_matrix, c.camera.dist_coeffs
+    se = c.stderr
+    pm = lambda key, scale=1.0: ("" if se.get(key) is None else f" ± {se[key] * scale:.3g}")  # noqa: E731
+    lines = [f"  camera   f = ({k[0, 0]:.2f}{pm('fx')}, {k[1, 1]:.2f}{pm('fy')}) px, principal point "
+             f"({k[0, 2]:.2f}{pm('cx')}, {k[1, 2]:.2f}{pm('cy')}) px, k1 = {d[0]:.4g}, k2 = {d[1]:.4g}",
+             f"  tilt     τx = {math.degrees(d[12]):.4f}{pm('tau_x_deg')}°, τy = {math.degrees(d[13]):.4f}"
+             f"{pm('tau_y_deg')}° ({c.tilt.get('mode')}"
+             + (f": lens f = {c.tilt['lens_focal_length_mm']:.3f} mm" if 'lens_focal_length_mm' in c.tilt else "")
+             + ")",
+             f"  poses    {len(c.poses_used)} used, {len(c.poses_skipped)} skipped; reprojection "
+             f"{c.reprojection_rms_px:.4f} px RMS"]
+    if c.laser_plane is None:
+        lines.append("  laser    none (no laser frames): a camera calibration only")
+    else:
+        pl = c.laser_plane
+        lines.append(f"  laser    plane [{pl[0]:.6f}, {pl[1]:.6f}, {pl[2]:.6f}, {pl[3]:.4f}] (camera frame, mm), "
+                     f"{c.laser_points} points, {c.laser_plane_rms_mm:.4f} mm RMS; σ normal "
+                     f"{pm('laser_plane_normal_deg')[3:] or '–'}°, "
+                     f"distance {pm('laser_plane_distance_mm')[3:] or '–'} mm")
+    if c.axis:
+        lines.append(f"  axis     axis_mm = {c.axis['axis_mm']:.3f} mm ({c.axis['poses']} table poses; "
+                     f"{c.axis['angle_to_sheet_deg']:.3f}° to the sheet, "
+                     f"{c.axis['distance_to_sheet_mm']:.3f} mm off it)")
+    return "\n".join(lines)
+
+
+def _run_target(args) -> int:
+    from scheimpflug.app.progress import Progress
+    from scheimpflug.calibration.target import calibrate_target_folder
+    from scheimpflug.errors import CalibrationError
+    from scheimpflug.io.atomic import write_json_atomic
+
+    if not args.pattern:
+        raise CalibrationError("--method target needs --pattern SPEC (e.g. chessboard:10x8:7)")
+    folders = [args.dir] + ([args.on_table] if args.on_table else [])
+    check_output(args.out, "--out", force=args.force, inputs=[args.rig], folders=folders)
+    check_output(args.opencv, "--opencv", force=args.force, inputs=[args.rig, args.out], folders=folders)
+    pitch = args.pixel_pitch_um
+    if pitch is None and args.rig:
+        from scheimpflug.model.rig import load_rig
+
+        pitch = load_rig(args.rig).sensor.pixel_pitch_um
+    with Progress(0, label="calibrate", quiet=args.quiet) as bar:
+        res = calibrate_target_folder(args.dir, args.pattern, tilt=args.tilt, pixel_pitch_um=pitch,
+                                      distortion=args.distortion, refine=args.refine, detector=args.detector,
+                                      stripe_along=args.stripe_along, table=args.on_table,
+                                      f_number=args.f_number, progress=bar)
+    for w in res.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    d = finite_json(res.calibration.to_json_dict())
+    d["warnings"] = list(res.warnings)
+    if args.out:
+        write_json_atomic(args.out, d)
+    if args.opencv:
+        if res.calibration.laser_plane is None:
+            raise CalibrationError("--opencv needs the laser plane: give laser frames of the pattern")
+        from scheimpflug.calibration.opencv import write_opencv
+
+        write_opencv(args.opencv, res.calibration, assumed=False)
+    if args.json:
+        print_json(d)
+    else:
+        print(_target_summary(res))
+    return 0
+
+
 def _run(args) -> int:
+    if args.method == "target":
+        return _run_target(args)
     from scheimpflug.app.progress import Progress
     from scheimpflug.calibration import CalibrationAccuracy
     from scheimpflug.io.atomic import write_json_atomic

@@ -40,7 +40,8 @@ def add_parser(sub):
                         "or '--opencv' (needed for a folder)")
     axis = p.add_mutually_exclusive_group()
     axis.add_argument("--axis-mm", type=number(-1e6, 1e6, unit="mm"), metavar="A",
-                      help="rotary axis position, stage coordinate [mm]")
+                      help="rotary axis position, stage coordinate [mm] (default: the calibration's, when a "
+                           "target calibration found it from table poses)")
     axis.add_argument("--axis-from", metavar="DIR", help="locate the axis from a blocker folder")
     p.add_argument("--out", metavar="CLOUD.ply", help="output point cloud (needed for a folder)")
     add_force_option(p)
@@ -64,7 +65,23 @@ def add_parser(sub):
     return p
 
 
+def _calibration_axis(path) -> float | None:
+    """The rotary axis a calibration file holds (a target calibration with table poses), or None."""
+    import json
+    import math
+
+    try:
+        axis = json.loads(open(path, encoding="utf-8").read()).get("axis")
+        value = float(axis["axis_mm"]) if isinstance(axis, dict) else None
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return None
+    return value if value is not None and math.isfinite(value) else None
+
+
 def _axis_mm(args, calibration, folder) -> tuple[float, str]:
+    if args.axis_mm is None and not args.axis_from:
+        value = getattr(calibration, "axis", None) or {}
+        return float(value["axis_mm"]), "the calibration's (table poses of the pattern)"
     if args.axis_mm is not None:
         _warn_axis_outside(args.axis_mm, calibration, folder)
         return float(args.axis_mm), "option"
@@ -126,7 +143,8 @@ def _check_args(args) -> bool:
         raise ScheimpflugError(f"{args.dir}: a point cloud as input needs --model (what to build from it)")
     if not is_cloud:
         missing = [name for name, v in (("--calibration", args.calibration), ("--out", args.out),
-                                        ("--axis-mm or --axis-from", args.axis_mm is not None or args.axis_from))
+                                        ("--axis-mm or --axis-from", args.axis_mm is not None or args.axis_from
+                                         or (args.calibration and _calibration_axis(args.calibration) is not None)))
                    if not v]
         if missing:
             raise ScheimpflugError(f"reconstructing the folder {args.dir} needs {', '.join(missing)}")

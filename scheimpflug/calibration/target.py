@@ -1,0 +1,1218 @@
+"""Calibration without a translation stage: a printed pattern in several poses and the laser line on it.
+
+What every open laser-line scanner and the industrial sheet-of-light tools do
+(Horus/Ciclop, FabScan, HALCON): the pattern's corners in the flood-lit frames
+give the camera (OpenCV's pinhole model with distortion, ``cv2.calibrateCamera``)
+and each pose's plane; the laser line on the pattern in the laser frames,
+lifted onto that pose's plane, gives 3-D points of the sheet; a robust plane
+fit gives the laser plane; pattern poses on the rotary table give its axis.
+The result is a sheet model (:class:`TargetCalibration`) that ``reconstruct``
+uses like any other.
+
+The frames (``scenario`` ``target``, :mod:`sim.target` or ``import --scenario target``)
+carry per frame ``pose`` (index) and ``light``: ``"flood"`` (the pattern lit, the
+laser off), ``"laser"`` or ``"both"`` (the laser line on the pattern), ``"background"``
+(that pose's laser view with the laser off: subtracted from its laser frame);
+table poses carry ``angle_deg``.
+
+The tilt of a Scheimpflug camera
+--------------------------------
+OpenCV's tilted-sensor terms τx, τy cannot be told from the pattern by a lens
+without distortion: ``K·T(τ)·R = K'·R'`` with ``K' = K·P_Z(τ)`` (upper triangular, the
+same square-pixel form) and ``R' = R_tilt(τ)·R`` — every τ reproduces the same image of
+every pose, only the principal point, the principal distance and a common rotation
+of the poses change.  (With distortion the distortion's centre breaks the tie, weakly.)
+A pinhole camera has no optical axis; a lens has one, and a camera focused on the
+sheet fixes it: the thin lens images the sensor plane S (normal ``n_s``, distance
+``d_s`` behind the centre) onto the plane ``(d_s·a − f·n_s)·X = d_s·f`` (``a`` the
+lens axis, ``f`` its focal length).  That plane is the laser plane (``n_L·X = D_L``)
+exactly when
+
+    a = f · (n_s / d_s + n_L / D_L),       1 / f = | n_s / d_s + n_L / D_L |
+
+(the Scheimpflug and hinge conditions in one line; for an untilted camera and sheet it
+is the lens equation 1/f = 1/d_s + 1/D).  With the pixel pitch (``d_s`` in mm) the
+calibration therefore finds the lens axis, τx, τy, the principal point and the lens's
+own focal length (``tilt="focus"``, the default when the frames' rig is a Scheimpflug
+rig): the pattern is fitted with τ held at a value (0 at first), the laser plane and the
+focus condition give the axis, the camera is re-expressed about it
+(:func:`scheimpflug.calibration.camera.camera_from_sensor_pose`) and fitted again with τ
+held there.  ``tilt="none"``: τ = 0 (an ordinary camera); ``tilt="free"``: OpenCV fits τ
+(identified only by the distortion).
+
+Accuracy statements
+-------------------
+Per-parameter standard errors of the camera are OpenCV's (``calibrateCameraExtended``:
+σ of the reprojection residuals through the Jacobian; null for a parameter held fixed);
+the laser plane's and the focus condition's are jackknife estimates over the poses (each
+pose's plane error moves all its laser points together, which a fit to the points alone
+would not show).  The reprojection RMS is over every corner used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from scheimpflug.calibration.camera import OpenCVCamera, camera_from_sensor_pose
+from scheimpflug.calibration.general import GeneralCalibration
+from scheimpflug.calibration.measure import detect_pattern, stripe_points
+from scheimpflug.calibration.model import check_laser_plane, sheet_frame_from_plane
+from scheimpflug.calibration.pattern import parse_pattern
+from scheimpflug.callbacks import ProgressCallback, report
+from scheimpflug.errors import CalibrationError
+from scheimpflug.io.frames import FrameFolder, open_frame_folder
+
+__all__ = [
+    "DISTORTION_MODELS",
+    "LIGHTS",
+    "TILT_MODES",
+    "TargetCalibration",
+    "TargetResult",
+    "blur_centroid_offsets",
+    "calibrate_target_folder",
+    "fit_laser_plane",
+    "focus_axis",
+    "rotary_axis_from_planes",
+]
+
+#: Frame lights of a target folder (module docstring).
+LIGHTS = ("flood", "laser", "both", "background")
+#: How τx, τy are found (module docstring): "rig" holds the manifest rig's design tilt.
+TILT_MODES = ("focus", "rig", "none", "free")
+#: Distortion terms fitted: OpenCV's coefficients left free.
+DISTORTION_MODELS = {"none": (), "k1": ("k1",), "k1k2": ("k1", "k2"), "opencv5": ("k1", "k2", "p1", "p2", "k3")}
+#: Fewer usable poses cannot calibrate a camera (Zhang: 2 constraints each, 4–5 unknowns) [-].
+MIN_POSES = 3
+#: Poses whose normals all lie within this angle of each other are parallel: no focal length [deg].
+PARALLEL_DEG = 2.0
+_STDERR_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6",
+                 "s1", "s2", "s3", "s4", "tau_x", "tau_y")
+_OUTLIER_PX = 1.0          # corners off by more than max(this, 5 robust σ) are dropped and refitted [px]
+_LASER_OUTLIER_SIGMAS = 4.0
+
+
+# ---------------------------------------------------------------- the sheet model
+
+
+@dataclass(frozen=True)
+class TargetCalibration(GeneralCalibration):
+    """A target calibration as a sheet model: OpenCV's camera, the laser plane and the sheet frame.
+
+    The mapping is :class:`~scheimpflug.calibration.general.GeneralCalibration`'s with the
+    metric homography ``G = [e_s, e_h, origin]`` of the laser plane's sheet frame
+    (:func:`scheimpflug.calibration.model.sheet_frame_from_plane`; ``e_h`` along the rotary
+    axis when one was measured).  Without laser frames it is a camera calibration only
+    (``laser_plane`` None): it maps no pixel to the sheet.
+
+    Parameters
+    ----------
+    camera : OpenCVCamera
+        The camera [px, -].
+    homography : (3, 3) float
+        ``[e_s, e_h, origin]`` (camera frame, mm), NaN without a laser plane.
+    columns, rows : int
+        Image size [px].
+    plate_height_mm : float
+        Unused (a plate calibration's; the interface of the general model).
+    n_frames : int
+        Frames in the folder [-].
+    residual_rms_px : float
+        The reprojection RMS again (the general model's name for its fit's residual) [px].
+    field_sigma_mm : dict
+        Unused (empty).
+    paper : None
+        No paper-form estimate (no stage).
+    selection : dict
+        Unused (empty).
+    laser_plane : (4,) float or None
+        ``[a, b, c, d]``, unit normal, d < 0, camera frame [mm].
+    pattern : str
+        The pattern spec.
+    reprojection_rms_px : float
+        RMS reprojection error over every corner used [px].
+    poses_used : tuple of dict
+        ``{"pose", "file", "corners"}`` per pose used.
+    poses_skipped : tuple of dict
+        ``{"pose", "file", "reason"}`` per pose left out.
+    stderr : dict
+        Standard errors: the camera's parameters (``fx`` … ``tau_y``; None when held fixed)
+        [px, -, rad], ``laser_plane_normal_deg``, ``laser_plane_distance_mm``; with the focus
+        condition ``tau_x_deg``, ``tau_y_deg``, ``lens_focal_length_mm`` (jackknife over poses).
+    laser_plane_rms_mm : float
+        RMS distance of the laser points used from the plane [mm].
+    laser_points : int
+        Laser points used [-].
+    axis : dict or None
+        The rotary axis (``point_mm``, ``direction``, ``axis_mm`` in sheet coordinates,
+        ``angle_to_sheet_deg``, ``distance_to_sheet_mm``, ``poses``), or None.
+    tilt : dict
+        How τ was found: ``mode`` and, for "focus", ``lens_focal_length_mm`` and ``pixel_pitch_um``.
+    """
+
+    laser_plane: np.ndarray | None = None
+    pattern: str = ""
+    reprojection_rms_px: float = math.nan
+    poses_used: tuple = ()
+    poses_skipped: tuple = ()
+    stderr: dict = field(default_factory=dict, compare=False)
+    laser_plane_rms_mm: float = math.nan
+    laser_points: int = 0
+    axis: dict | None = field(default=None, compare=False)
+    tilt: dict = field(default_factory=dict, compare=False)
+
+    method = "target"
+
+    def _need_plane(self) -> None:
+        if self.laser_plane is None:
+            raise CalibrationError("the target calibration has no laser plane (no laser frames: a camera "
+                                   "calibration only): it maps no pixel to the sheet")
+
+    def stage_from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
+        """Sheet coordinates of pixels (:class:`~scheimpflug.calibration.general.GeneralCalibration`'s).
+
+        Parameters
+        ----------
+        u, v : array_like float
+            Column and row [px], broadcast together.
+
+        Returns
+        -------
+        stage_mm, h_mm : ndarray float64
+            [mm].
+
+        Raises
+        ------
+        CalibrationError
+            Without a laser plane.
+        """
+        self._need_plane()
+        return super().stage_from_pixel(u, v)
+
+    def pixel_from_stage(self, stage_mm, h_mm) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel of sheet points.
+
+        Parameters
+        ----------
+        stage_mm, h_mm : array_like float
+            Sheet coordinates [mm], broadcast together.
+
+        Returns
+        -------
+        u_px, v_px : ndarray float64
+            [px].
+
+        Raises
+        ------
+        CalibrationError
+            Without a laser plane.
+        """
+        self._need_plane()
+        return super().pixel_from_stage(stage_mm, h_mm)
+
+    def problem(self, columns: int | None = None) -> str | None:
+        """What keeps this calibration from mapping frames to the sheet, or None.
+
+        Parameters
+        ----------
+        columns : int, optional
+            Unused (the interface of :meth:`scheimpflug.calibration.paper.Calibration.problem`).
+
+        Returns
+        -------
+        str or None
+            "no laser plane …" for a camera calibration only.
+        """
+        return None if self.laser_plane is not None else (
+            "the target calibration has no laser plane (made without laser frames): a camera calibration only")
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The calibration file (docs/reference/interface.md ``calibrate --method target`` fields).
+
+        Returns
+        -------
+        dict
+            ``model`` "target", ``camera_matrix``, ``dist_coeffs`` (14), ``image_size``,
+            ``reprojection_rms_px``, ``poses_used``, ``poses_skipped``, ``laser_plane``
+            (null without laser frames), ``laser_plane_rms_mm``, ``laser_points``, ``axis``,
+            ``sheet_frame``, ``stderr``, ``tilt``, ``pattern``, ``columns``, ``rows``.
+        """
+        d: dict[str, Any] = {"model": "target", "pattern": self.pattern, **self.camera.to_json_dict(),
+                             "image_size": [int(self.columns), int(self.rows)],
+                             "columns": int(self.columns), "rows": int(self.rows),
+                             "reprojection_rms_px": _num(self.reprojection_rms_px),
+                             "poses_used": [dict(p) for p in self.poses_used],
+                             "poses_skipped": [dict(p) for p in self.poses_skipped],
+                             "laser_plane": None if self.laser_plane is None else [float(x) for x in self.laser_plane],
+                             "laser_plane_rms_mm": _num(self.laser_plane_rms_mm),
+                             "laser_points": int(self.laser_points), "axis": self.axis,
+                             "stderr": {k: _num(v) for k, v in self.stderr.items()}, "tilt": self.tilt,
+                             "n_frames": int(self.n_frames)}
+        if self.laser_plane is not None:
+            o, e_s, e_h = self.sheet_frame()
+            d["sheet_frame"] = {"origin_mm": o.tolist(), "stage_axis": e_s.tolist(), "height_axis": e_h.tolist()}
+        return d
+
+    @classmethod
+    def from_json_dict(cls, d: dict) -> TargetCalibration:
+        """Read the form of :meth:`to_json_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            A target calibration file's content.
+
+        Returns
+        -------
+        TargetCalibration
+            The calibration.
+
+        Raises
+        ------
+        CalibrationError
+            A missing or malformed field, a laser plane with a non-unit normal, a sheet frame off it.
+        """
+        try:
+            camera = OpenCVCamera.from_json_dict(d)
+            plane = None if d.get("laser_plane") is None else check_laser_plane(d["laser_plane"])
+            g = _homography_of(d.get("sheet_frame"), plane)
+            return cls(camera=camera, homography=g, columns=int(d.get("columns", 0)), rows=int(d.get("rows", 0)),
+                       n_frames=int(d.get("n_frames", 0)), laser_plane=plane, pattern=str(d.get("pattern", "")),
+                       reprojection_rms_px=_float(d.get("reprojection_rms_px")),
+                       poses_used=tuple(d.get("poses_used") or ()), poses_skipped=tuple(d.get("poses_skipped") or ()),
+                       stderr=dict(d.get("stderr") or {}), laser_plane_rms_mm=_float(d.get("laser_plane_rms_mm")),
+                       laser_points=int(d.get("laser_points", 0)), axis=d.get("axis"), tilt=dict(d.get("tilt") or {}))
+        except CalibrationError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise CalibrationError(f"target calibration data lacks or garbles a field: {exc!r}") from None
+
+
+def _num(x):
+    return None if x is None or not math.isfinite(float(x)) else float(x)
+
+
+def _float(x) -> float:
+    return math.nan if x is None else float(x)
+
+
+def _homography_of(sheet_frame: dict | None, plane: np.ndarray | None) -> np.ndarray:
+    if plane is None:
+        return np.full((3, 3), np.nan)
+    if sheet_frame is None:
+        o, e_s, e_h = sheet_frame_from_plane(plane)
+    else:
+        o, e_s, e_h = (np.asarray(sheet_frame[k], np.float64) for k in ("origin_mm", "stage_axis", "height_axis"))
+        if abs(plane[:3] @ o + plane[3]) > 1e-6 * max(1.0, abs(plane[3])):
+            raise CalibrationError("the sheet frame's origin is not on the laser plane")
+    return np.column_stack([e_s, e_h, o])
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    """A target calibration and what it measured on the way.
+
+    Parameters
+    ----------
+    calibration : TargetCalibration
+        The sheet model.
+    detections : dict
+        Pose index → :class:`~scheimpflug.calibration.measure.PatternDetection` of its flood frame.
+    camera_from_pattern : dict
+        Pose index → (4, 4) pose of the pattern in the camera frame [mm].
+    laser_points_mm : dict
+        Pose index → (n, 3) laser points lifted onto that pose's plane, camera frame [mm].
+    warnings : tuple of str
+        What the user should know (poses skipped, the tilt held, …).
+    """
+
+    calibration: TargetCalibration
+    detections: dict = field(repr=False)
+    camera_from_pattern: dict = field(repr=False)
+    laser_points_mm: dict = field(repr=False)
+    warnings: tuple = ()
+
+    @property
+    def model(self) -> TargetCalibration:
+        """The sheet model this calibration gives: :attr:`calibration`."""
+        return self.calibration
+
+
+# ---------------------------------------------------------------- geometry
+
+
+def fit_laser_plane(points_mm: np.ndarray, n_sigma: float = _LASER_OUTLIER_SIGMAS) -> tuple[np.ndarray, np.ndarray]:
+    """A robust plane through 3-D points: total least squares, outliers beyond ``n_sigma`` robust σ dropped.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) array_like float
+        Points [mm] (n ≥ 3, not collinear).
+    n_sigma : float, default 4
+        Rejection threshold in robust σ (1.4826 × MAD of the distances) [-].
+
+    Returns
+    -------
+    plane : (4,) float64
+        ``[a, b, c, d]`` with a unit normal and d ≤ 0 [-, mm].
+    inliers : (n,) bool
+        The points kept.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 3 points, or points on a line (the laser seen on one pose only: no plane).
+    """
+    p = np.asarray(points_mm, np.float64).reshape(-1, 3)
+    keep = np.all(np.isfinite(p), axis=1)
+    if keep.sum() < 3:
+        raise CalibrationError(f"the laser plane needs at least 3 laser points on the pattern; {int(keep.sum())} found")
+    for _ in range(10):
+        c = p[keep].mean(axis=0)
+        _, sv, vt = np.linalg.svd(p[keep] - c, full_matrices=False)
+        if sv[1] < 1e-6 * max(sv[0], 1e-12):
+            raise CalibrationError("the laser points lie on a line (the laser seen on one pose only, or on parallel "
+                                   "poses along one line): they do not fix a plane")
+        n = vt[2]
+        r = (p - c) @ n
+        sigma = 1.4826 * np.median(np.abs(r[keep])) + 1e-9
+        new = np.all(np.isfinite(p), axis=1) & (np.abs(r) <= n_sigma * sigma)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    d = -float(n @ c)
+    if d > 0:
+        n, d = -n, -d
+    return np.array([*n, d]), keep
+
+
+def _sensor_plane(camera: OpenCVCamera, pitch_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera's virtual sensor plane: pixel (0, 0)'s point, and one column's and one row's step [mm].
+
+    The plane of :func:`camera_from_sensor_pose`: through the principal point's point
+    ``(0, 0, f·p)`` with OpenCV's tilted normal; pixel (u, v) is where its distortion-free
+    ray meets it.
+    """
+    bare = OpenCVCamera(camera.camera_matrix, np.r_[np.zeros(12), camera.dist_coeffs[12:]])
+    n = _rot_tilt(bare).T @ np.array([0.0, 0.0, 1.0])
+    x, y = bare.normalized_from_pixel(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    rays = np.stack([x, y, np.ones(3)], axis=1)
+    z0 = camera.focal_px * pitch_mm
+    pts = rays * (z0 * n[2] / (rays @ n))[:, None]
+    return pts[0], pts[1] - pts[0], pts[2] - pts[0]
+
+
+def _rot_tilt(camera: OpenCVCamera) -> np.ndarray:
+    """``R_Y(τy)·R_X(τx)`` of OpenCV's tilt (its sensor normal is ``Rᵀ e_z``)."""
+    cx, sx = math.cos(camera.tau_x_rad), math.sin(camera.tau_x_rad)
+    cy, sy = math.cos(camera.tau_y_rad), math.sin(camera.tau_y_rad)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, sx], [0.0, -sx, cx]])
+    ry = np.array([[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]])
+    return ry @ rx
+
+
+def focus_axis(camera: OpenCVCamera, plane: np.ndarray, pixel_pitch_um: float) -> tuple[np.ndarray, float]:
+    """The lens axis and focal length that focus the camera's sensor on the laser plane (module docstring).
+
+    Parameters
+    ----------
+    camera : OpenCVCamera
+        The camera (any τ: its sensor plane is :func:`_sensor_plane`'s).
+    plane : (4,) array_like float
+        The laser plane in the camera frame (unit normal, d < 0) [mm].
+    pixel_pitch_um : float
+        The sensor's pixel pitch [µm].
+
+    Returns
+    -------
+    axis : (3,) float64
+        Unit lens axis, camera frame [-] (``(0, 0, 1)`` when the camera's own axis focuses it).
+    focal_length_mm : float
+        The thin lens's focal length [mm].
+    """
+    origin, du, dv = _sensor_plane(camera, pixel_pitch_um * 1e-3)
+    n_s = np.cross(du, dv)
+    n_s /= np.linalg.norm(n_s)
+    d_s = float(n_s @ origin)
+    if d_s < 0:
+        n_s, d_s = -n_s, -d_s
+    p = check_laser_plane(plane)
+    v = n_s / d_s + p[:3] / (-p[3])
+    f = 1.0 / float(np.linalg.norm(v))
+    return v * f, f
+
+
+def _tilted_from_axis(camera: OpenCVCamera, axis: np.ndarray,
+                      pixel_pitch_um: float) -> tuple[OpenCVCamera, np.ndarray]:
+    """The camera re-expressed about a lens axis: OpenCV's tilted camera there, and new_from_old (3, 3).
+
+    The real sensor is the point reflection of the virtual one (:func:`_sensor_plane`);
+    its pose and the new optical axis give the tilted camera (:func:`camera_from_sensor_pose`);
+    the distortion terms are kept (the refit that follows moves them to the new centre).
+    """
+    p = pixel_pitch_um * 1e-3
+    origin, du, dv = _sensor_plane(camera, p)
+    z = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    rot = np.vstack([x, np.cross(z, x), z])
+    cam, new_from_old = camera_from_sensor_pose(-origin, -du / p, -dv / p, p, rot)
+    d = camera.dist_coeffs.copy()
+    d[12], d[13] = cam.tau_x_rad, cam.tau_y_rad
+    return OpenCVCamera(cam.camera_matrix, d), new_from_old
+
+
+def _aperture_quadrature(radius_mm: float, nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points (lens plane z = 0) and area weights of a disc quadrature: Gauss–Legendre in r², trapezoid in φ."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    r = radius_mm * np.sqrt(0.5 * (x + 1.0))
+    m = 4 * nodes
+    phi = (np.arange(m) + 0.5) * (2 * math.pi / m)
+    rr, pp = np.meshgrid(r, phi, indexing="ij")
+    weights = np.repeat(0.5 * w * math.pi * radius_mm ** 2 / m, m)
+    pts = np.stack([(rr * np.cos(pp)).ravel(), (rr * np.sin(pp)).ravel(), np.zeros(rr.size)], axis=1)
+    return pts, weights
+
+
+def blur_centroid_offsets(camera: OpenCVCamera, points_mm: np.ndarray, focal_length_mm: float, f_number: float,
+                          pixel_pitch_um: float, samples: int = 12) -> np.ndarray:
+    """Where a defocused point's light centroid lies on the tilted sensor, relative to its chief ray [px].
+
+    A thin lens at the origin with its axis along the camera's z (the focus condition's
+    frame) images a point X at ``X' = −f·X/(X_z − f)``; the rays from the aperture disc
+    (radius ``f/(2N)``, Fibonacci samples) through X' meet the real sensor in the blur spot,
+    each weighted by the étendue (``|d_z|·|d·n|/|d|⁴``, d the ray from the sensor point to the
+    aperture point), integrated over the disc by Gauss–Legendre in r² and the trapezoid rule in
+    the angle (exact to < 1e-6 px with the default samples; a Fibonacci set of 256 points is off by
+    0.05 px on a 30 px spot).  A tilted sensor cuts the light cone off its axis: the spot's centroid
+    is not the chief ray's pixel, by up to a few % of the blur — on the twin's paper rig up to
+    0.14 px for corners blurred over 30 px, enough to move the principal point by 20 px and
+    the laser plane's normal by 0.12° when left in the corners (benchmarks/RESULTS.md).  A
+    corner's detector (:func:`scheimpflug.calibration.measure.refine_corners_model`) sees the
+    spot's centroid (a point-symmetric corner blurred by a shifted spot is shifted by it).
+
+    Parameters
+    ----------
+    camera : OpenCVCamera
+        The camera, in the frame whose z is the lens axis (after the focus condition).
+    points_mm : (n, 3) array_like float
+        Object points in that frame [mm].
+    focal_length_mm : float
+        The thin lens's focal length [mm].
+    f_number : float
+        Its f-number [-].
+    pixel_pitch_um : float
+        The sensor's pixel pitch [µm].
+    samples : int, default 12
+        Gauss–Legendre nodes in r² (four times as many angles).
+
+    Returns
+    -------
+    (n, 2) float64
+        Centroid − chief-ray pixel (u, v) [px].
+    """
+    pitch = pixel_pitch_um * 1e-3
+    origin, du, dv = _sensor_plane(camera, pitch)
+    o, eu, ev = -origin, -du, -dv                                      # the real sensor behind the lens
+    normal = np.cross(eu, ev)
+    normal /= np.linalg.norm(normal)
+    x = np.asarray(points_mm, np.float64).reshape(-1, 3)
+    f = float(focal_length_mm)
+    img = -f * x / (x[:, 2:3] - f)
+    ap, area = _aperture_quadrature(0.5 * f / f_number, samples)
+
+    def pixel(q):
+        rel = q - o
+        a = np.array([[eu @ eu, eu @ ev], [eu @ ev, ev @ ev]])
+        return np.linalg.solve(a, np.stack([rel @ eu, rel @ ev], axis=-1)[..., None])[..., 0]
+
+    w = img[:, None, :] - ap[None]
+    lam = ((o - ap[None]) @ normal) / (w @ normal)
+    q = ap[None] + lam[..., None] * w
+    d = ap[None] - q
+    weight = area[None] * np.abs(d[..., 2]) * np.abs(d @ normal) / (d ** 2).sum(-1) ** 2
+    centroid = (pixel(q) * weight[..., None]).sum(1) / weight.sum(1)[:, None]
+    chief = pixel(img * ((o @ normal) / (img @ normal))[:, None])
+    return centroid - chief
+
+
+def rotary_axis_from_planes(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The axis about which planes turn: the poses' common rotation axis from their planes alone.
+
+    A plane turned about an axis keeps its angle to it and its distance from every point
+    of it: the normals lie on a circle of the unit sphere about the axis direction ω (the
+    smallest principal direction of the centred normals), and ``n_i·q + d_i = c`` for a point q
+    of the axis (linear least squares in q ⟂ ω and c).  The in-plane labelling of the corners
+    does not enter (a chessboard's half-turn ambiguity is harmless).
+
+    Parameters
+    ----------
+    planes : (k, 4) array_like float
+        ``[a, b, c, d]`` per pose (unit normals), camera frame; k ≥ 3 at distinct angles [mm].
+
+    Returns
+    -------
+    point_mm : (3,) float64
+        The axis point nearest the camera's centre [mm].
+    direction : (3,) float64
+        Unit direction (pointing up in the image: −y) [-].
+    rms_mm : float
+        RMS of ``n_i·q + d_i − c`` [mm].
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 3 planes, or normals that do not turn (parallel poses).
+    """
+    p = np.asarray(planes, np.float64).reshape(-1, 4)
+    if len(p) < 3:
+        raise CalibrationError(f"the rotary axis needs at least 3 table poses; {len(p)} found")
+    n = p[:, :3]
+    _, sv, vt = np.linalg.svd(n - n.mean(axis=0), full_matrices=False)
+    if sv[1] < 1e-3 * len(p) ** 0.5:
+        raise CalibrationError("the table poses do not turn (their planes are parallel): no rotary axis")
+    w = vt[2] if vt[2][1] < 0 else -vt[2]
+    b1 = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 1.0, 0.0])
+    b1 /= np.linalg.norm(b1)
+    b2 = np.cross(w, b1)
+    a = np.column_stack([n @ b1, n @ b2, -np.ones(len(p))])
+    sol, *_ = np.linalg.lstsq(a, -p[:, 3], rcond=None)
+    q = sol[0] * b1 + sol[1] * b2
+    r = a @ sol + p[:, 3]
+    return q, w, float(np.sqrt(np.mean(r ** 2)))
+
+
+# ---------------------------------------------------------------- the frames of a target folder
+
+
+@dataclass(frozen=True)
+class _Pose:
+    index: int
+    flood: int | None                  # frame index of the flood-lit frame
+    laser: tuple[int, ...] = ()        # laser frames
+    background: int | None = None      # laser-off frame of the laser view
+    angle_deg: float | None = None     # table angle, for table poses
+
+
+def _light(rec) -> str:
+    light = rec.extra.get("light", "flood")
+    if light not in LIGHTS:
+        raise CalibrationError(f"{rec.file}: light {light!r:.30} is not one of {', '.join(LIGHTS)}")
+    return light
+
+
+def _group_poses(ff: FrameFolder) -> list[_Pose]:
+    """The folder's frames by pose (manifest ``pose``; a frame without one is a flood frame of its own)."""
+    poses: dict[int, dict] = {}
+    auto = 0
+    for i, rec in enumerate(ff.frames):
+        light = _light(rec)
+        key = rec.extra.get("pose")
+        if key is None:
+            if light != "flood":
+                raise CalibrationError(f"{rec.file}: a {light} frame needs the 'pose' of its flood-lit frame in "
+                                       "the manifest")
+            key, auto = f"auto{auto}", auto + 1
+        slot = poses.setdefault(key, {"flood": None, "laser": [], "background": None, "angle": rec.angle_deg})
+        if light == "flood":
+            slot["flood"] = i if slot["flood"] is None else slot["flood"]
+        elif light == "background":
+            slot["background"] = i
+        else:
+            slot["laser"].append(i)
+        if rec.angle_deg is not None:
+            slot["angle"] = rec.angle_deg
+    out = [_Pose(k, v["flood"], tuple(v["laser"]), v["background"], v["angle"]) for k, v in enumerate(poses.values())]
+    orphans = [ff.frames[p.laser[0]].file for p in out if p.flood is None and p.laser]
+    if orphans:
+        raise CalibrationError(f"{len(orphans)} laser frame(s) without their flood-lit pose frame (the pattern "
+                               f"seen with the flood light; same 'pose' in the manifest): {', '.join(orphans[:3])}"
+                               + (" …" if len(orphans) > 3 else ""))
+    return [p for p in out if p.flood is not None]
+
+
+# ---------------------------------------------------------------- finding the pattern
+
+
+def _detect_all(ff: FrameFolder, poses, spec, refine: str, progress) -> tuple[dict, list]:
+    found, skipped = {}, []
+    for k, pose in enumerate(poses):
+        report(progress, k, len(poses))
+        rec = ff.frames[pose.flood]
+        det = detect_pattern(ff.read(pose.flood), spec, refine=refine, file=rec.file)
+        if det is None:
+            skipped.append({"pose": pose.index, "file": rec.file, "reason": f"pattern {spec.text} not found"})
+        elif len(det) < 6:
+            skipped.append({"pose": pose.index, "file": rec.file, "reason": f"only {len(det)} corners found"})
+        else:
+            found[pose.index] = det
+    report(progress, len(poses), len(poses))
+    return found, skipped
+
+
+def _size_hint(ff: FrameFolder, poses, spec) -> str:
+    """What pattern the first frames show when the spec's is found in none of them (chessboards, ChArUco)."""
+    frame = ff.read(poses[0].flood)
+    if spec.kind == "chessboard":
+        from scheimpflug.calibration.measure import _chessboard_corners, _to_uint8
+
+        gray = _to_uint8(frame)
+        c, r = spec.grid_shape
+        for dc, dr in sorted(((a, b) for a in range(-2, 3) for b in range(-2, 3) if a or b),
+                             key=lambda t: (abs(t[0]) + abs(t[1]), abs(t[0] - t[1]), -t[0] - t[1])):
+            size = (c + dc, r + dr)
+            if min(size) >= 2 and _chessboard_corners(gray, replace(spec, cols=size[0], rows=size[1])) is not None:
+                return f"; is the pattern {size[0]} × {size[1]} (inner corners)?"
+        return ""
+    if spec.kind == "charuco":
+        from scheimpflug.calibration.pattern import aruco_dictionary
+
+        _, ids, _ = cv2.aruco.ArucoDetector(aruco_dictionary(spec)).detectMarkers(
+            np.clip(frame.astype(np.float32) * (255.0 / max(float(frame.max()), 1.0)), 0, 255).astype(np.uint8))
+        n = 0 if ids is None else len(ids)
+        held = (spec.cols * spec.rows) // 2
+        if n and int(ids.max()) >= held:
+            return (f"; {n} {spec.dictionary} markers seen with ids up to {int(ids.max())}, a {spec.cols} × "
+                    f"{spec.rows} board holds {held} (ids 0–{held - 1}): is the board larger?")
+        if n:
+            return (f"; {n} {spec.dictionary} markers seen, not where a {spec.cols} × {spec.rows} board with "
+                    f"{spec.pitch_mm:g} mm squares puts them: is the board smaller or another layout?")
+    return ""
+
+
+def _check_not_parallel(dets: dict, spec, size) -> None:
+    """Refuse poses whose planes are all parallel (the vanishing lines agree: no focal length)."""
+    f = float(max(size))
+    k = np.array([[f, 0.0, 0.5 * size[0]], [0.0, f, 0.5 * size[1]], [0.0, 0.0, 1.0]])
+    normals = []
+    for d in dets.values():
+        h, _ = cv2.findHomography(spec.corners_mm()[d.ids], d.corners_px, 0)
+        if h is None:
+            continue
+        n = k.T @ np.linalg.inv(h).T @ np.array([0.0, 0.0, 1.0])      # the plane's normal (any K: parallel stays)
+        normals.append(n / np.linalg.norm(n))
+    if len(normals) < 2:
+        return
+    nn = np.array(normals)
+    spread = np.degrees(np.arccos(np.clip(np.abs(nn @ nn.T), -1.0, 1.0))).max()
+    if spread < PARALLEL_DEG:
+        raise CalibrationError(f"degenerate poses: all {len(normals)} poses of the pattern are parallel (their planes "
+                               f"within {spread:.2g}° of each other): the focal length is undetermined; tilt the "
+                               "pattern between poses (by 20° or more about both axes)")
+
+
+# ---------------------------------------------------------------- the camera
+
+
+def _rig_camera(ff: FrameFolder) -> OpenCVCamera | None:
+    """The design camera of the manifest's rig (the twin's, or a real rig's file), or None."""
+    if not isinstance(ff.rig, dict):
+        return None
+    try:
+        from scheimpflug.model.camera import lens_centre_mm, sensor_pose
+        from scheimpflug.model.rig import rig_from_dict
+
+        rig = rig_from_dict(ff.rig)
+        pose = sensor_pose(rig)
+        cam, _ = camera_from_sensor_pose(pose.origin_mm - lens_centre_mm(rig), pose.u_dir, pose.v_dir, pose.pitch_mm)
+    except (ValueError, TypeError, KeyError, ArithmeticError):
+        return None
+    d = np.zeros(14)
+    d[0], d[1], d[12], d[13] = rig.lens.k1, rig.lens.k2, cam.tau_x_rad, cam.tau_y_rad
+    return OpenCVCamera(cam.camera_matrix, d)
+
+
+def _centred(camera: OpenCVCamera, size) -> OpenCVCamera:
+    """The same images from the gauge whose principal point is the image's centre (module docstring).
+
+    ``K·T(τ)`` ≡ ``K'·T(0)`` with ``K' = K·P_Z(τ)`` (poses turned by ``R_tilt(τ)``); the τ₀ that
+    puts ``K'·P_Z(τ₀)⁻¹``'s principal point at the centre solves ``tan τy = (c'x − W/2)/f'`` and
+    ``sin τx / (cos τx cos τy) = (H/2 − c'y)/f'``.  OpenCV refuses a first guess whose principal
+    point lies outside the image, as a Scheimpflug camera's does at τ = 0; in this gauge it never
+    does.  The distortion is kept (the fit moves it).
+    """
+    r = _rot_tilt(camera)
+    pz = np.array([[r[2, 2], 0.0, -r[0, 2]], [0.0, r[2, 2], -r[1, 2]], [0.0, 0.0, 1.0]])
+    k = camera.camera_matrix @ pz
+    k = k / k[2, 2]
+    f, cx, cy = 0.5 * (k[0, 0] + k[1, 1]), k[0, 2], k[1, 2]
+    tau_y = math.atan((cx - 0.5 * size[0]) / f)
+    tau_x = math.atan((0.5 * size[1] - cy) / f * math.cos(tau_y))
+    r0 = _rot_tilt(OpenCVCamera(np.eye(3), np.r_[np.zeros(12), tau_x, tau_y]))
+    pz0 = np.array([[r0[2, 2], 0.0, -r0[0, 2]], [0.0, r0[2, 2], -r0[1, 2]], [0.0, 0.0, 1.0]])
+    k0 = k @ np.linalg.inv(pz0)
+    k0 = k0 / k0[2, 2]
+    d = camera.dist_coeffs.copy()
+    d[12], d[13] = tau_x, tau_y
+    return OpenCVCamera(np.array([[k0[0, 0], 0.0, k0[0, 2]], [0.0, k0[1, 1], k0[1, 2]], [0.0, 0.0, 1.0]]), d)
+
+
+def _zhang(homographies: list[np.ndarray], size) -> np.ndarray:
+    """Zhang's closed-form intrinsics (zero skew) from plane homographies; the image centre when it fails."""
+    def v(h, i, j):
+        return np.array([h[0, i] * h[0, j], h[0, i] * h[1, j] + h[1, i] * h[0, j], h[1, i] * h[1, j],
+                         h[2, i] * h[0, j] + h[0, i] * h[2, j], h[2, i] * h[1, j] + h[1, i] * h[2, j],
+                         h[2, i] * h[2, j]])
+    rows = []
+    for h in homographies:
+        h = h / np.linalg.norm(h)
+        rows += [v(h, 0, 1), v(h, 0, 0) - v(h, 1, 1)]
+    rows.append([0.0, 1.0, 0.0, 0.0, 0.0, 0.0])                       # zero skew: B12 = 0
+    b = np.linalg.svd(np.array(rows))[2][-1]
+    b11, b12, b22, b13, b23, b33 = b
+    try:
+        v0 = (b12 * b13 - b11 * b23) / (b11 * b22 - b12 ** 2)
+        lam = b33 - (b13 ** 2 + v0 * (b12 * b13 - b11 * b23)) / b11
+        alpha, beta = math.sqrt(lam / b11), math.sqrt(lam * b11 / (b11 * b22 - b12 ** 2))
+        u0 = -b13 * alpha ** 2 / lam
+    except (ValueError, ZeroDivisionError):
+        f = float(max(size))
+        return np.array([[f, 0.0, 0.5 * size[0]], [0.0, f, 0.5 * size[1]], [0.0, 0.0, 1.0]])
+    return np.array([[alpha, 0.0, u0], [0.0, beta, v0], [0.0, 0.0, 1.0]])
+
+
+def _flags(distortion: str, tilt_free: bool, square: bool) -> int:
+    free = DISTORTION_MODELS[distortion]
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_TILTED_MODEL | cv2.CALIB_FIX_S1_S2_S3_S4
+    flags |= 0 if tilt_free else cv2.CALIB_FIX_TAUX_TAUY
+    flags |= cv2.CALIB_FIX_ASPECT_RATIO if square else 0
+    for name, flag in (("k1", cv2.CALIB_FIX_K1), ("k2", cv2.CALIB_FIX_K2), ("k3", cv2.CALIB_FIX_K3)):
+        flags |= 0 if name in free else flag
+    flags |= cv2.CALIB_FIX_K4 | cv2.CALIB_FIX_K5 | cv2.CALIB_FIX_K6
+    flags |= 0 if "p1" in free else cv2.CALIB_ZERO_TANGENT_DIST
+    return flags
+
+
+@dataclass
+class _Fit:
+    camera: OpenCVCamera
+    poses: dict                        # pose index → (4, 4) camera_from_pattern
+    rms_px: float
+    stderr: dict
+    used: dict                         # pose index → corners used
+
+
+def _calibrate(dets: dict, spec, size, start: OpenCVCamera, flags: int) -> _Fit:
+    """``cv2.calibrateCameraExtended`` from ``start`` (τ held where it is, if the flags hold it).
+
+    OpenCV refuses a first guess whose principal point lies outside the image; such a camera is
+    fitted in the centred gauge and turned back to ``start``'s τ (exact without distortion:
+    ``K = K₀·P_Z(τ₀)·P_Z(τ)⁻¹``, poses turned by ``R_tilt(τ)ᵀ·R_tilt(τ₀)``).
+    """
+    inside = 0 <= start.principal_px[0] < size[0] and 0 <= start.principal_px[1] < size[1]
+    if inside or not flags & cv2.CALIB_FIX_TAUX_TAUY:
+        return _calibrate_once(dets, spec, size, start, flags)
+    fit = _calibrate_once(dets, spec, size, _centred(start, size), flags)
+    return _regauged(fit, start)
+
+
+def _pz(camera: OpenCVCamera) -> np.ndarray:
+    r = _rot_tilt(camera)
+    return np.array([[r[2, 2], 0.0, -r[0, 2]], [0.0, r[2, 2], -r[1, 2]], [0.0, 0.0, 1.0]])
+
+
+def _regauged(fit: _Fit, target: OpenCVCamera) -> _Fit:
+    """The fit expressed with ``target``'s τ (the gauge change of :func:`_calibrate`)."""
+    k = fit.camera.camera_matrix @ _pz(fit.camera) @ np.linalg.inv(_pz(target))
+    k = k / k[2, 2]
+    d = fit.camera.dist_coeffs.copy()
+    d[12:] = target.dist_coeffs[12:]
+    cam = OpenCVCamera(np.array([[k[0, 0], 0.0, k[0, 2]], [0.0, k[1, 1], k[1, 2]], [0.0, 0.0, 1.0]]), d)
+    turn = np.eye(4)
+    turn[:3, :3] = _rot_tilt(target).T @ _rot_tilt(fit.camera)
+    poses = {key: turn @ m for key, m in fit.poses.items()}
+    stderr = {**fit.stderr, "cx": None, "cy": None}
+    return _Fit(cam, poses, fit.rms_px, stderr, fit.used)
+
+
+def _reprojection(obj, img, keys, rvecs, tvecs, kk, dd) -> dict:
+    out = {}
+    for k, rv, tv in zip(keys, rvecs, tvecs):
+        proj, _ = cv2.projectPoints(obj[k], rv, tv, kk, dd)
+        out[k] = np.linalg.norm(proj.reshape(-1, 2) - img[k], axis=1)
+    return out
+
+
+def _calibrate_once(dets: dict, spec, size, start: OpenCVCamera, flags: int) -> _Fit:
+    """One ``cv2.calibrateCameraExtended``; corners beyond max(1 px, 5 robust σ) dropped and refitted."""
+    keys = sorted(dets)
+    obj = {k: spec.object_points()[dets[k].ids] for k in keys}
+    img = {k: dets[k].corners_px.astype(np.float32) for k in keys}
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 300, 1e-12)
+    for attempt in range(3):
+        out = cv2.calibrateCameraExtended([obj[k] for k in keys], [img[k] for k in keys], tuple(size),
+                                          start.camera_matrix.copy(), start.dist_coeffs.copy(), flags=flags,
+                                          criteria=crit)
+        rms, kk, dd, rvecs, tvecs, sd_int = out[:6]
+        res = _reprojection(obj, img, keys, rvecs, tvecs, kk, dd)
+        allr = np.concatenate(list(res.values()))
+        limit = max(_OUTLIER_PX, 5.0 * 1.4826 * float(np.median(allr)))
+        if allr.max() <= limit or attempt == 2:
+            break
+        for k in keys:
+            keep = res[k] <= limit
+            obj[k], img[k] = obj[k][keep], img[k][keep]
+        keys = [k for k in keys if len(obj[k]) >= 6]
+        start = OpenCVCamera(kk, dd.ravel())
+    poses = {}
+    for k, rv, tv in zip(keys, rvecs, tvecs):
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = cv2.Rodrigues(rv)[0], tv.ravel()
+        poses[k] = m
+    sd = np.asarray(sd_int, np.float64).ravel()
+    stderr = {name: (float(x) if x > 0 else None) for name, x in zip(_STDERR_NAMES, sd)}
+    return _Fit(OpenCVCamera(kk, dd.ravel()), poses, float(rms), stderr, {k: len(obj[k]) for k in keys})
+
+
+# ---------------------------------------------------------------- the laser
+
+
+def _lift(camera: OpenCVCamera, pose: np.ndarray, u, v, spec) -> np.ndarray:
+    """Laser pixels lifted onto a pose's plane, kept where they fall on the printed pattern [mm]."""
+    x, y = camera.normalized_from_pixel(u, v)
+    ray = np.stack([x, y, np.ones_like(x)], axis=-1)
+    n, o = pose[:3, 2], pose[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (n @ o) / (ray @ n)
+    pts = ray * t[:, None]
+    local = (pts - o) @ pose[:3, :3]
+    x0, y0, x1, y1 = spec.extent_mm()
+    on = (local[:, 0] >= x0) & (local[:, 0] <= x1) & (local[:, 1] >= y0) & (local[:, 1] <= y1) & (t > 0)
+    return pts[on & np.isfinite(t)]
+
+
+def _laser_points(ff: FrameFolder, poses, fit: _Fit, spec, along: str, detector: str) -> dict:
+    out = {}
+    for pose in poses:
+        if pose.index not in fit.poses or not pose.laser:
+            continue
+        bg = ff.read(pose.background) if pose.background is not None else None
+        pts = []
+        for i in pose.laser:
+            frame = ff.read(i)
+            u, v = stripe_points(frame, background=bg, along=along, detector=detector,
+                                 saturation_dn=ff.saturation_dn(frame))
+            if len(u):
+                pts.append(_lift(fit.camera, fit.poses[pose.index], u, v, spec))
+        if pts and sum(len(p) for p in pts) >= 3:
+            out[pose.index] = np.concatenate(pts)
+    return out
+
+
+def _plane_and_spread(points: dict) -> tuple[np.ndarray, float, int, dict]:
+    """The laser plane, its RMS [mm], the points used, and the jackknife σ over poses."""
+    if len(points) < 2:
+        raise CalibrationError(f"the laser plane needs the laser line on at least 2 poses of the pattern; "
+                               f"{len(points)} pose(s) show it")
+    allp = np.concatenate(list(points.values()))
+    plane, keep = fit_laser_plane(allp)
+    r = allp[keep] @ plane[:3] + plane[3]
+    sigma = {}
+    if len(points) >= 3:
+        jack = []
+        for k in points:
+            rest = np.concatenate([v for j, v in points.items() if j != k])
+            try:
+                jack.append(fit_laser_plane(rest)[0])
+            except CalibrationError:
+                continue
+        if len(jack) >= 3:
+            jack = np.array([j if j[:3] @ plane[:3] > 0 else -j for j in jack])
+            m = len(jack)
+            ang = np.degrees(np.arccos(np.clip(jack[:, :3] @ plane[:3], -1.0, 1.0)))
+            spread_d = np.sum((jack[:, 3] - jack[:, 3].mean()) ** 2)
+            sigma = {"laser_plane_normal_deg": float(math.sqrt((m - 1) / m * np.sum(ang ** 2))),
+                     "laser_plane_distance_mm": float(math.sqrt((m - 1) / m * spread_d))}
+    return plane, float(np.sqrt(np.mean(r ** 2))), int(keep.sum()), sigma
+
+
+# ---------------------------------------------------------------- the tilt, the axis, the result
+
+
+def _pose_plane(m: np.ndarray) -> np.ndarray:
+    n = m[:3, 2]
+    d = -float(n @ m[:3, 3])
+    return np.array([*n, d]) if d < 0 else -np.array([*n, d])
+
+
+def _refocus(ff, poses, dets, spec, size, fit: _Fit, plane, pitch_um, flags, along, detector):
+    """Iterate the focus condition (module docstring): axis → tilted camera → refit → laser plane."""
+    for _ in range(4):
+        axis, _ = focus_axis(fit.camera, plane, pitch_um)
+        if np.degrees(math.acos(min(1.0, abs(axis[2]) / np.linalg.norm(axis)))) < 1e-5:
+            break
+        start, _ = _tilted_from_axis(fit.camera, axis, pitch_um)
+        fit = _calibrate(dets, spec, size, start, flags)
+        points = _laser_points(ff, poses, fit, spec, along, detector)
+        plane = _plane_and_spread(points)[0]
+    return fit, plane
+
+
+def _add_frame_sigma(sigma: dict, fit: _Fit, plane: np.ndarray) -> None:
+    """The laser plane's normal σ with the camera frame's own: the principal point's error turns it.
+
+    A principal point off by δc turns the camera frame (and every pose and the laser plane in
+    it) by δc/f about the other image axis; the jackknife over poses, made with the camera
+    held, does not see that.  σ_n² = σ_jack² + Σ (σ_c/f)²·|n × axis|².
+    """
+    if "laser_plane_normal_deg" not in sigma:
+        return
+    f = fit.camera.focal_px
+    n = plane[:3]
+    total = math.radians(sigma["laser_plane_normal_deg"]) ** 2
+    for key, axis in (("cx", (0.0, 1.0, 0.0)), ("cy", (1.0, 0.0, 0.0))):
+        if fit.stderr.get(key):
+            total += (fit.stderr[key] / f) ** 2 * float(np.linalg.norm(np.cross(n, axis))) ** 2
+    sigma["laser_plane_normal_deg"] = math.degrees(math.sqrt(total))
+
+
+def _deblur(ff, poses, dets, spec, size, fit: _Fit, plane, pitch_um, flags, along, detector, f_number):
+    """Take the blur spots' centroid shift out of the corners, refit, refocus (twice: it converges)."""
+    for _ in range(2):
+        _, f_lens = focus_axis(fit.camera, plane, pitch_um)
+        fixed = {}
+        for k, det in dets.items():
+            if k not in fit.poses:
+                continue
+            m = fit.poses[k]
+            x = spec.object_points()[det.ids].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+            shift = blur_centroid_offsets(fit.camera, x, f_lens, f_number, pitch_um)
+            fixed[k] = replace(det, corners_px=det.corners_px - shift)
+        fit = _calibrate(fixed, spec, size, fit.camera, flags)
+        plane = _plane_and_spread(_laser_points(ff, poses, fit, spec, along, detector))[0]
+        fit, plane = _refocus(ff, poses, fixed, spec, size, fit, plane, pitch_um, flags, along, detector)
+    return fit, plane
+
+
+def _focus_spread(camera: OpenCVCamera, points: dict, pitch_um: float) -> dict:
+    """Jackknife σ of τx, τy and the lens focal length over the laser poses."""
+    if len(points) < 3:
+        return {}
+    rows = []
+    for k in points:
+        rest = {j: v for j, v in points.items() if j != k}
+        try:
+            plane = _plane_and_spread(rest)[0]
+        except CalibrationError:
+            continue
+        a, f = focus_axis(camera, plane, pitch_um)
+        rows.append((math.degrees(-a[1]), math.degrees(a[0]), f))
+    if len(rows) < 3:
+        return {}
+    r = np.array(rows)
+    m = len(r)
+    sd = np.sqrt((m - 1) / m * np.sum((r - r.mean(axis=0)) ** 2, axis=0))
+    return {"tau_x_deg": float(sd[0]), "tau_y_deg": float(sd[1]), "lens_focal_length_mm": float(sd[2])}
+
+
+def _table_axis(table_planes: list, plane, e_s, e_h, origin) -> dict | None:
+    """The rotary axis of the table poses' planes, in the camera frame and in sheet coordinates."""
+    if len(table_planes) < 3:
+        return None
+    q, w, rms = rotary_axis_from_planes(np.array(table_planes))
+    n, d = plane[:3], plane[3]
+    qp = q - (n @ q + d) * n
+    wp = w - (n @ w) * n
+    lam = -((qp - origin) @ e_h) / (wp @ e_h) if abs(wp @ e_h) > 1e-12 else 0.0
+    foot = qp + lam * wp
+    on_axis = q + lam * w
+    return {"axis_mm": float((foot - origin) @ e_s), "point_mm": q.tolist(), "direction": w.tolist(),
+            "angle_to_sheet_deg": float(math.degrees(math.asin(min(1.0, abs(n @ w))))),
+            "distance_to_sheet_mm": float(n @ on_axis + d), "poses": len(table_planes), "plane_rms_mm": rms}
+
+
+def _table_planes(poses, fit: _Fit, table: FrameFolder | None, spec, refine: str, notes: list) -> list:
+    """Planes of the table poses: this folder's (``angle_deg``) and those of a table folder (solvePnP)."""
+    planes = [_pose_plane(fit.poses[p.index]) for p in poses if p.angle_deg is not None and p.index in fit.poses]
+    if table is None:
+        return planes
+    k, d = fit.camera.camera_matrix, fit.camera.dist_coeffs
+    for pose in _group_poses(table):
+        rec = table.frames[pose.flood]
+        det = detect_pattern(table.read(pose.flood), spec, refine=refine, file=rec.file)
+        if det is None or len(det) < 6:
+            notes.append(f"table {rec.file}: skipped: pattern {spec.text} not found")
+            continue
+        ok, rv, tv = cv2.solvePnP(spec.object_points()[det.ids], det.corners_px.astype(np.float32), k, d)
+        if ok:
+            m = np.eye(4)
+            m[:3, :3], m[:3, 3] = cv2.Rodrigues(rv)[0], tv.ravel()
+            planes.append(_pose_plane(m))
+    return planes
+
+
+def _tilt_mode(tilt: str, rig_cam: OpenCVCamera | None, has_laser: bool, pitch_um: float | None) -> str:
+    if tilt not in (*TILT_MODES, "auto"):
+        raise CalibrationError(f"unknown tilt mode {tilt!r} (known: auto, {', '.join(TILT_MODES)})")
+    tilted = rig_cam is not None and abs(rig_cam.tau_y_rad) + abs(rig_cam.tau_x_rad) > math.radians(0.5)
+    if tilt == "auto":
+        tilt = ("focus" if has_laser and pitch_um else "rig") if tilted else "none"
+    if tilt == "rig" and rig_cam is None:
+        raise CalibrationError("--tilt rig holds the manifest rig's design tilt: the manifest has no rig")
+    if tilt == "focus" and not pitch_um:
+        raise CalibrationError("--tilt focus needs the pixel pitch (the manifest's rig, --rig or --pixel-pitch-um): "
+                               "the focus condition is in millimetres")
+    return tilt
+
+
+def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, tilt: str = "auto",
+                            pixel_pitch_um: float | None = None, f_number: float | None = None,
+                            distortion: str = "k1k2", refine: str = "model",
+                            detector: str = "cog", stripe_along: str = "columns", table=None,
+                            progress: ProgressCallback | None = None) -> TargetResult:
+    """Calibrate the camera and the laser plane from a folder of pattern frames (module docstring).
+
+    Parameters
+    ----------
+    folder : path or FrameFolder
+        The target frames (``pose``, ``light`` and, on the table, ``angle_deg`` per frame).
+    pattern : str
+        The pattern spec (:func:`scheimpflug.calibration.pattern.parse_pattern`).
+    tilt : {"auto", "focus", "rig", "none", "free"}, default "auto"
+        How τx, τy are found; "rig": held at the manifest rig's design (a gauge: module docstring);
+        "auto": "focus" for a tilted rig (the manifest's) with laser frames and a known pixel pitch,
+        "rig" for one without laser frames, else "none".
+    pixel_pitch_um : float, optional
+        The sensor's pixel pitch [µm]; default the manifest's rig's.
+    f_number : float, optional
+        The lens's f-number at the calibration [-]; default the manifest's rig's.  With the focus
+        condition it sizes the blur spots whose centroid shift is taken out of the corners
+        (:func:`blur_centroid_offsets`); without it the shift stays (and biases the principal point).
+    distortion : str, default "k1k2"
+        The distortion terms fitted (a key of :data:`DISTORTION_MODELS`).
+    refine : {"model", "subpix"}, default "model"
+        The corners' sub-pixel refinement (:func:`scheimpflug.calibration.measure.detect_pattern`).
+    detector : str, default "cog"
+        Stripe centre method of the laser frames.
+    stripe_along : {"columns", "rows"}, default "columns"
+        Which way the laser line runs in the image (:func:`scheimpflug.calibration.measure.stripe_points`).
+    table : path or FrameFolder, optional
+        A folder of the pattern standing on the rotary table (``render target --on-table``): its poses,
+        found with the calibrated camera, give the rotary axis (:func:`rotary_axis_from_planes`).
+        Table poses (``angle_deg``) in ``folder`` itself count too.
+    progress : ProgressCallback, optional
+        ``progress(done, total)`` over the flood frames.
+
+    Returns
+    -------
+    TargetResult
+        The calibration (:class:`TargetCalibration`) and its measurements.
+
+    Raises
+    ------
+    CalibrationError
+        One line naming the problem: the pattern found in no frame (with the size it seems to
+        have), fewer than 3 usable poses, parallel poses, laser frames without their flood-lit
+        frame, the laser on fewer than 2 poses, an unknown tilt or distortion mode.
+    MeshError
+        A bad pattern spec.
+    """
+    ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
+    spec = parse_pattern(pattern)
+    if distortion not in DISTORTION_MODELS:
+        raise CalibrationError(f"unknown distortion model {distortion!r} (known: {', '.join(DISTORTION_MODELS)})")
+    poses = _group_poses(ff)
+    if not poses:
+        raise CalibrationError(f"{str(ff.path)!r} holds no flood-lit frame of the pattern (light 'flood')")
+    dets, skipped = _detect_all(ff, poses, spec, refine, progress)
+    if not dets:
+        raise CalibrationError(f"pattern {spec.text} found in 0 of {len(poses)} flood-lit frames"
+                               + _size_hint(ff, poses, spec))
+    if len(dets) < MIN_POSES:
+        raise CalibrationError(f"only {len(dets)} usable pose(s) of {len(poses)} (the pattern found); need at least "
+                               f"{MIN_POSES}: " + "; ".join(f"{s['file']}: {s['reason']}" for s in skipped[:3]))
+    size = (ff.columns, ff.rows)
+    _check_not_parallel(dets, spec, size)
+    rig_cam = _rig_camera(ff)
+    pitch = pixel_pitch_um or ff.rig_value("sensor", "pixel_pitch_um")
+    has_laser = any(p.laser and p.index in dets for p in poses)
+    mode = _tilt_mode(tilt, rig_cam, has_laser, pitch)
+    notes = [f"{s['file']}: skipped: {s['reason']}" for s in skipped]
+    f_number = f_number or ff.rig_value("lens", "f_number")
+    table_ff = None if table is None else (table if isinstance(table, FrameFolder) else open_frame_folder(table))
+    return _calibrate_found(ff, poses, dets, skipped, spec, size, rig_cam, pitch, mode, distortion,
+                            detector, stripe_along, notes, f_number, table_ff, refine)
+
+
+def _untilted(camera: OpenCVCamera) -> OpenCVCamera:
+    """The same images with τ = 0: ``K' = K·P_Z(τ)`` (module docstring; the distortion dropped)."""
+    k = camera.camera_matrix @ _pz(camera)
+    k = k / k[2, 2]
+    return OpenCVCamera(np.array([[k[0, 0], 0.0, k[0, 2]], [0.0, k[1, 1], k[1, 2]], [0.0, 0.0, 1.0]]), np.zeros(14))
+
+
+def _start_camera(dets: dict, spec, size, rig_cam: OpenCVCamera | None, mode: str) -> OpenCVCamera:
+    """The fit's first guess: the rig's design camera, else Zhang's closed form (τ = 0); no distortion."""
+    if rig_cam is not None:
+        cam = _untilted(rig_cam) if mode == "none" else rig_cam
+    else:
+        hs = [cv2.findHomography(spec.corners_mm()[d.ids], d.corners_px, 0)[0] for d in dets.values()]
+        cam = OpenCVCamera(_zhang([h for h in hs if h is not None], size), np.zeros(14))
+    inside = 0 <= cam.principal_px[0] < size[0] and 0 <= cam.principal_px[1] < size[1]
+    if mode == "free" and not inside:
+        cam = _centred(cam, size)
+    d = np.zeros(14)
+    d[12:] = cam.dist_coeffs[12:]
+    return OpenCVCamera(cam.camera_matrix, d)
+
+
+def _calibrate_found(ff, poses, dets, skipped, spec, size, rig_cam, pitch, mode, distortion, detector, along,
+                     notes, f_number, table=None, refine="model") -> TargetResult:
+    flags = _flags(distortion, mode == "free", square=mode in ("focus", "rig"))
+    fit = _calibrate(dets, spec, size, _start_camera(dets, spec, size, rig_cam, mode), flags)
+    points = _laser_points(ff, poses, fit, spec, along, detector)
+    plane, plane_rms, n_laser, plane_sigma, tilt_info = None, math.nan, 0, {}, {"mode": mode}
+    if not points and any(p.laser for p in poses):
+        notes.append("no laser point on the pattern in any laser frame: a camera calibration only")
+    if points:
+        plane = _plane_and_spread(points)[0]
+        if mode == "focus":
+            fit, plane = _refocus(ff, poses, dets, spec, size, fit, plane, pitch, flags, along, detector)
+            if f_number:
+                fit, plane = _deblur(ff, poses, dets, spec, size, fit, plane, pitch, flags, along, detector,
+                                     f_number)
+            points = _laser_points(ff, poses, fit, spec, along, detector)
+        plane, plane_rms, n_laser, plane_sigma = _plane_and_spread(points)
+        if mode == "focus":
+            _, f_lens = focus_axis(fit.camera, plane, pitch)
+            tilt_info.update(lens_focal_length_mm=f_lens, pixel_pitch_um=pitch, f_number=f_number,
+                             blur_centroids_corrected=bool(f_number))
+            plane_sigma.update(_focus_spread(fit.camera, points, pitch))
+            if not f_number:
+                notes.append("no f-number (the manifest's rig or --f-number): the blur spots' centroid shift on "
+                             "the tilted sensor is left in the corners")
+        _add_frame_sigma(plane_sigma, fit, plane)
+    elif mode == "focus":
+        notes.append("no laser frames: τ is held where the fit started (without the laser plane the focus "
+                     "condition cannot fix it; the tilt and the principal point are then a gauge)")
+    used = [{"pose": k, "file": dets[k].file, "corners": n} for k, n in sorted(fit.used.items())]
+    lost = [{"pose": k, "file": dets[k].file, "reason": "too few corners after dropping outliers"}
+            for k in sorted(dets) if k not in fit.used]
+    planes = _table_planes(poses, fit, table, spec, refine, notes)
+    if 0 < len(planes) < 3:
+        notes.append(f"{len(planes)} table pose(s) found: the rotary axis needs at least 3")
+    cal = _calibration(fit, plane, planes, spec, size, skipped + lost, used, plane_rms, n_laser,
+                       {**fit.stderr, **plane_sigma}, tilt_info, len(ff))
+    return TargetResult(cal, dets, fit.poses, points, tuple(notes))
+
+
+def _calibration(fit: _Fit, plane, table_planes, spec, size, skipped, used, plane_rms, n_laser, stderr, tilt_info,
+                 n_frames) -> TargetCalibration:
+    g, axis = np.full((3, 3), np.nan), None
+    if plane is not None:
+        o, e_s, e_h = sheet_frame_from_plane(plane)
+        axis = _table_axis(table_planes, plane, e_s, e_h, o)
+        if axis is not None:
+            o, e_s, e_h = sheet_frame_from_plane(plane, np.asarray(axis["direction"]))
+            axis = _table_axis(table_planes, plane, e_s, e_h, o)
+        g = np.column_stack([e_s, e_h, o])
+    return TargetCalibration(camera=fit.camera, homography=g, columns=int(size[0]), rows=int(size[1]),
+                             n_frames=n_frames, residual_rms_px=fit.rms_px, laser_plane=plane, pattern=spec.text,
+                             reprojection_rms_px=fit.rms_px, poses_used=tuple(used), poses_skipped=tuple(skipped),
+                             stderr=stderr, laser_plane_rms_mm=plane_rms, laser_points=n_laser, axis=axis,
+                             tilt=tilt_info)
