@@ -275,24 +275,21 @@ def _cylinder_metrics(scan: dict, rig: Rig) -> dict:
 
 def _box_side_plane(rig: Rig, box: dict) -> tuple[np.ndarray, float, np.ndarray]:
     """The long side facing +y of the box with analytic description ``box``, in the stage
-    frame: unit normal, offset (n·x = offset) [mm] and the box's mesh_from_part (4, 4)."""
-    m = np.asarray(box["mesh_from_part"], dtype=np.float64)
-    plane = next(p for p in box["planes"] if p["normal"] == [0.0, 1.0, 0.0])
-    n = m[:3, :3] @ np.asarray(plane["normal"], dtype=np.float64)
-    t = m[:3, 3] + np.array([0.0, 0.0, rig.stage.rotary_table_z_mm])
-    return n, float(n @ t + plane["offset_mm"]), m
+    frame: unit normal, offset (n·x = offset) [mm] and the box's mesh_from_part (4, 4)
+    (:func:`sim.identify.figures.box_side_plane`, which ``identify`` measures with too)."""
+    from sim.identify.figures import box_side_plane
+
+    return box_side_plane(rig.stage.rotary_table_z_mm, box)
 
 
 def _box_side_points(xyz: np.ndarray, rig: Rig, box: dict, inset_mm: float = 5.0,
                      band_mm: float = 3.0) -> np.ndarray:
     """Points within ``band_mm`` of the box's +y side and ``inset_mm`` inside its edges
-    (the paper's hand-drawn region of interest, Fig. 8), as a boolean mask."""
-    n, off, m = _box_side_plane(rig, box)
-    t = m[:3, 3] + np.array([0.0, 0.0, rig.stage.rotary_table_z_mm])
-    local = (xyz - t) @ m[:3, :3]  # box frame: x along the length, z up from its bottom
-    half_len = 0.5 * box["length_mm"] - inset_mm
-    return ((np.abs(xyz @ n - off) < band_mm) & (np.abs(local[:, 0]) < half_len)
-            & (local[:, 2] > inset_mm) & (local[:, 2] < box["height_mm"] - inset_mm))
+    (the paper's hand-drawn region of interest, Fig. 8), as a boolean mask
+    (:func:`sim.identify.figures.box_side_mask`)."""
+    from sim.identify.figures import box_side_mask
+
+    return box_side_mask(xyz, rig.stage.rotary_table_z_mm, box, inset_mm, band_mm)
 
 
 def _pile_metrics(scan: dict, rig: Rig) -> dict:
