@@ -60,7 +60,9 @@ IDENTIFIED_FILE = "identified.toml"
 IDENTIFY_JOB = JobKind(error=StudyError, meta_file=META_FILE, noun="identification",
                        folder_noun="identification folder", owner="run",
                        what={"format": "another version of this program", "spec": "a different spec",
-                             "inputs": "another rig file"})
+                             "inputs": "another rig file"},
+                       differs=("output folder {out!r} holds an {noun} made with {what} ({where!r} differs); "
+                                "choose another --out or delete the folder"))
 
 
 @dataclass

@@ -68,6 +68,8 @@ def _run(args) -> int:
     spec = load_identify_spec(args.spec)
     if args.retries < 0:
         raise StudyError(f"--retries {args.retries}: must be >= 0")
+    if args.workers < 1:
+        raise StudyError(f"--workers {args.workers}: must be an integer >= 1")
     with Progress(0, label="identify", quiet=args.quiet) as bar:
         result = run_identify(spec, args.out, workers=args.workers, scheduler=args.scheduler, retries=args.retries,
                               connect_timeout_s=args.connect_timeout, progress=bar, warn=_warn)
