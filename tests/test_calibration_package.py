@@ -121,8 +121,13 @@ def test_paper_and_general_give_the_numbers_of_before_the_move(quick_frames, cap
                     f"{sha[:12]}… ≠ {QUICK_FRAMES_SHA256[:12]}…): the stored numbers belong to other frames")
     got, want = _cli_json(capsys, folder, *args), BEFORE[case]
     assert got["model"] == want["model"]
-    for key in ("hinge_px", "F2_px_mm", "d0_mm", "C_mm"):   # same frames, same code path: to rounding
-        np.testing.assert_allclose(got[key], want[key], rtol=1e-12, err_msg=key)
+    # Same frames, same code.  The paper method is closed-form: to rounding.  The general model iterates a
+    # least-squares fit through LAPACK/OpenBLAS, whose kernels differ by CPU: on an AMD EPYC (Zen 4) its
+    # hinge moved by 1.4e-11 relative against the machine that stored these numbers; 1e-9 is 1e-4 of
+    # the hinge's standard error (0.008 px), so any change of the method still fails.
+    rtol = 1e-12 if want["model"] == "paper" else 1e-9
+    for key in ("hinge_px", "F2_px_mm", "d0_mm", "C_mm"):
+        np.testing.assert_allclose(got[key], want[key], rtol=rtol, err_msg=key)
     if "camera" in want:
         cam = got["general"]["camera"]
         for key, value in want["camera"].items():

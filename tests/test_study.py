@@ -321,13 +321,34 @@ def test_latin_hypercube_sweep_fills_every_stratum_once(tmp_path):
         _spec(tmp_path, text.replace("designs = 5\n", ""), "sweep")
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "studies" / "examples").glob("*.toml")), ids=lambda p: p.stem)
+_EXAMPLES = sorted((ROOT / "studies" / "examples").glob("*.toml"))
+
+
+def test_every_example_spec_is_checked():
+    # each example is parsed below by its own loader: a new kind of spec needs its test
+    assert _EXAMPLES and all(p.stem.split("-")[0].split("_")[0] in ("sweep", "tolerance", "identify")
+                             for p in _EXAMPLES)
+
+
+@pytest.mark.parametrize("path", [p for p in _EXAMPLES if not p.stem.startswith("identify")], ids=lambda p: p.stem)
 def test_example_study_specs_parse_and_plan(path):
     from sim.study import load_study_spec, plan_draws
 
     kind = "sweep" if path.stem.startswith("sweep") else "tolerance"
     plans = plan_draws(load_study_spec(path, kind))
     assert plans and all(p.artefacts.material == "metal" for p in plans)
+
+
+@pytest.mark.parametrize("path", [p for p in _EXAMPLES if p.stem.startswith("identify")], ids=lambda p: p.stem)
+def test_example_identify_specs_parse_and_plan(path):
+    from sim.identify.spec import load_identify_spec, plan_design
+
+    spec = load_identify_spec(path)
+    plans = plan_design(spec)
+    assert spec.parameters and spec.fitted and spec.held_out
+    assert len(plans) == spec.runs and [p.index for p in plans] == list(range(spec.runs))
+    for p in plans:     # every run's values inside its parameter's prior range
+        assert all(q.lo <= p.values[q.key] <= q.hi for q in spec.parameters)
 
 
 def test_a_study_folder_being_written_is_refused(tmp_path):
