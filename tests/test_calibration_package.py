@@ -129,9 +129,18 @@ def test_paper_and_general_give_the_numbers_of_before_the_move(quick_frames, cap
     for key in ("hinge_px", "F2_px_mm", "d0_mm", "C_mm"):
         np.testing.assert_allclose(got[key], want[key], rtol=rtol, err_msg=key)
     if "camera" in want:
+        # The general model's camera is a decomposition of the sheet homography with a near-gauge: its
+        # principal distance and principal point slide together at one mapping (between the storing machine
+        # and an AMD EPYC: focal 0.24 px, cx 1.35 px apart, the mapping within 3e-6 mm).  So the mapping is
+        # what must not move (to 1e-5 mm over a 224 mm range), and the camera only to its gauge's slack.
+        model = GeneralCalibration.from_json_dict(got)
+        s, h = model.stage_from_pixel(*PIXELS)
+        np.testing.assert_allclose(s, OLD_MAPPING["general"][0], rtol=0, atol=1e-5)
+        np.testing.assert_allclose(h, OLD_MAPPING["general"][1], rtol=0, atol=1e-5)
         cam = got["general"]["camera"]
-        for key, value in want["camera"].items():
-            np.testing.assert_allclose(cam[key], value, rtol=1e-9, atol=1e-12, err_msg=key)
+        np.testing.assert_allclose(cam["tau_deg"], want["camera"]["tau_deg"], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(cam["focal_px"], want["camera"]["focal_px"], rtol=1e-3)
+        np.testing.assert_allclose(cam["principal_px"], want["camera"]["principal_px"], rtol=0, atol=5.0)
 
 
 @pytest.mark.parametrize("name, content", [("paper", {k: v for k, v in OLD_GENERAL_FILE.items()
