@@ -40,7 +40,7 @@ from scipy import optimize
 from scheimpflug.calibration import Calibration, applicability_problem
 from scheimpflug.errors import CalibrationError, FrameError
 from scheimpflug.io.frames import FrameFolder, check_distinct_frames, open_frame_folder
-from scheimpflug.stripe import extract_stripes, saturated_fraction
+from scheimpflug.stripe import extract_stripes, image_pixels, oriented, saturated_fraction
 
 __all__ = [
     "AxisResult",
@@ -163,8 +163,12 @@ class CylinderAxisFit:
                 "n_frames": self.n_frames}
 
 
-def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector, with_rows=False):
-    """Stage coordinates [mm] of the stripe in every lit row, the columns [px] (and the rows)."""
+def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector, with_rows=False, along="columns"):
+    """Stage coordinates [mm] of the stripe in every lit line, its positions across them [px] (and the lines).
+
+    Lines are rows (columns for a stripe along the rows: :func:`scheimpflug.stripe.oriented`).
+    """
+    frame = oriented(frame, along)
     prof = extract_stripes(frame, detector, saturation_dn=saturation_dn, window_px="auto")
     if len(prof) < _MIN_ROWS:
         sat = saturated_fraction(frame, saturation_dn)
@@ -172,7 +176,7 @@ def _stage_of_rows(frame, calibration: Calibration, saturation_dn, detector, wit
             raise CalibrationError(f"frame saturated ({100 * sat:.0f} % of the pixels at the saturation "
                                    "level): lower the exposure or the laser power")
         raise CalibrationError(f"no stripe ({len(prof)} lit rows < {_MIN_ROWS})")
-    s, _ = calibration.stage_from_pixel(prof.u, prof.rows)
+    s, _ = calibration.stage_from_pixel(*image_pixels(prof.rows, prof.u, along))
     return (s, prof.u, prof.rows) if with_rows else (s, prof.u)
 
 
@@ -266,7 +270,8 @@ def locate_axis(folder: str | Path | FrameFolder, calibration: Calibration, *,
             continue
         frame = ff.read(i)
         try:
-            s, u, rows = _stage_of_rows(frame, calibration, ff.saturation_dn(frame), detector, True)
+            s, u, rows = _stage_of_rows(frame, calibration, ff.saturation_dn(frame), detector, True,
+                                        ff.stripe_along)
         except CalibrationError as exc:
             skipped.append((rec.file, str(exc)))
             continue
@@ -437,7 +442,7 @@ def cylinder_near_positions(folder: str | Path | FrameFolder, calibration: Calib
             raise FrameError(f"cylinder scan frame {rec.file!r} has no 'angle_deg' in the manifest")
         frame = ff.read(i)
         try:
-            s, _ = _stage_of_rows(frame, calibration, ff.saturation_dn(frame), detector)
+            s, _ = _stage_of_rows(frame, calibration, ff.saturation_dn(frame), detector, along=ff.stripe_along)
         except CalibrationError:
             continue
         angles.append(rec.angle_deg)

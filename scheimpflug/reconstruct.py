@@ -33,7 +33,9 @@ from scheimpflug.point_quality import stripe_widths_px
 from scheimpflug.stripe import (
     DEFAULT_WINDOW_PX,
     extract_stripes,
+    image_pixels,
     measured_stripe_sigma_px,
+    oriented,
     saturated_fraction,
     stripe_window_px,
 )
@@ -46,6 +48,7 @@ __all__ = [
     "extract_folder",
     "extract_folder_stripes",
     "isolated_rows",
+    "part_from_camera",
     "part_from_sheet",
     "points_from_pixels",
     "reconstruct_profiles",
@@ -115,7 +118,8 @@ class PointCloud:
     angle_deg : (n,) ndarray float
         Rotary stage angle of the frame the point came from [deg].
     row : (n,) ndarray int
-        Sensor row v of the stripe sample [px].
+        Sensor row v of the stripe sample [px] (its column when the stripe runs along the
+        rows: the line of the scan grid).
     intensity : (n,) ndarray float
         Stripe peak height above background [DN].
     frame : (n,) ndarray int or None
@@ -211,7 +215,59 @@ def part_from_sheet(stage_mm, h_mm, angle_deg, axis_mm: float) -> np.ndarray:
     return np.stack([r * np.cos(th), -r * np.sin(th), h], axis=-1).reshape(-1, 3)
 
 
-def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float) -> np.ndarray:
+def part_from_camera(points_mm, angle_deg, axis: dict, e_s) -> np.ndarray:
+    """Part-frame points of camera-frame points seen at rotary angle θ, about an axis measured in 3-D.
+
+    A calibration that measured the rotary axis (a pattern on the table, a foreign
+    calibration's turntable pose) knows it as a line of the camera frame, which
+    need not lie in the sheet.  The part frame is then the axis's own: ``z`` along
+    the axis (``direction``, turned to the sheet's height axis), ``x`` the
+    sheet's stage axis ``e_s`` made perpendicular to it, ``y = z × x``, the origin
+    at ``origin_mm`` (the axis point at the sheet's h = 0), turned by ``R_z(−θ)``.
+    For an axis in the sheet this is :func:`part_from_sheet` exactly.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) array_like float
+        Camera-frame points [mm].
+    angle_deg : array_like float
+        Rotary angle θ of each point's frame [deg] (broadcast to n).
+    axis : dict
+        ``direction`` (3,) and ``origin_mm`` (3,) (or ``point_mm``) of the axis, camera frame
+        (:func:`scheimpflug.calibration.target.axis_in_sheet`).
+    e_s : (3,) array_like float
+        The sheet's stage axis, camera frame [-].
+
+    Returns
+    -------
+    (n, 3) ndarray float64
+        Points in the part frame [mm].
+    """
+    x = np.asarray(points_mm, np.float64).reshape(-1, 3)
+    z = np.asarray(axis["direction"], np.float64)
+    z = z / np.linalg.norm(z)
+    e = np.asarray(e_s, np.float64)
+    xa = e - (e @ z) * z
+    xa /= np.linalg.norm(xa)
+    ya = np.cross(z, xa)
+    rel = x - np.asarray(axis.get("origin_mm", axis["point_mm"]), np.float64)
+    a, b, c = rel @ xa, rel @ ya, rel @ z
+    th = np.radians(np.broadcast_to(np.asarray(angle_deg, np.float64), a.shape))
+    cos, sin = np.cos(th), np.sin(th)
+    return np.stack([a * cos + b * sin, -a * sin + b * cos, c], axis=-1)
+
+
+def _axis_3d(calibration) -> tuple[dict, np.ndarray] | None:
+    """The calibration's 3-D axis (turned so that it points along the sheet's height) and e_s, or None."""
+    axis = getattr(calibration, "axis", None)
+    if not isinstance(axis, dict) or "direction" not in axis or not hasattr(calibration, "sheet_frame"):
+        return None
+    _, e_s, e_h = calibration.sheet_frame()
+    w = np.asarray(axis["direction"], np.float64)
+    return {**axis, "direction": (w if w @ e_h >= 0 else -w).tolist()}, e_s
+
+
+def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float | None) -> np.ndarray:
     """Part-frame points of stripe pixels seen at rotary angles (the sheet mapping, then the stage).
 
     Parameters
@@ -223,8 +279,10 @@ def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float) -> np.ndarr
         ``angle_deg`` broadcast together.
     calibration : SheetModel or SheetCalibration
         Paper form or general model (:func:`sheet_from_pixels`).
-    axis_mm : float
-        Stage coordinate of the rotary axis [mm].
+    axis_mm : float or None
+        Stage coordinate of the rotary axis [mm] (the axis in the sheet: :func:`part_from_sheet`);
+        None: the calibration's own axis, measured in 3-D (:func:`part_from_camera`; a target
+        calibration with table poses, FabScan's turntable).
 
     Returns
     -------
@@ -234,8 +292,16 @@ def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float) -> np.ndarr
     Raises
     ------
     ValueError
-        If ``u`` and ``v`` do not broadcast together.
+        If ``u`` and ``v`` do not broadcast together, or ``axis_mm`` is None for a calibration
+        without a 3-D axis.
     """
+    if axis_mm is None:
+        found = _axis_3d(calibration)
+        if found is None:
+            raise ValueError("axis_mm is None but the calibration holds no rotary axis")
+        uu, vv, aa = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64),
+                                         np.asarray(angle_deg, np.float64))
+        return part_from_camera(calibration.camera_from_pixel(uu.ravel(), vv.ravel()), aa.ravel(), *found)
     s, h = sheet_from_pixels(u, v, calibration)
     return part_from_sheet(s, h, angle_deg, axis_mm)
 
@@ -244,33 +310,37 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
                          angles_deg: Iterable[float], calibration,
                          axis_mm: float, intensity: Sequence[np.ndarray] | None = None,
                          snr: Sequence[np.ndarray] | None = None,
-                         stripe_width_px: Sequence[np.ndarray] | None = None) -> PointCloud:
+                         stripe_width_px: Sequence[np.ndarray] | None = None,
+                         along: str = "columns") -> PointCloud:
     """Point cloud of a rotary scan from per-frame stripe samples.
 
     Parameters
     ----------
     rows : sequence of (n_i,) int
-        Rows of the stripe samples of each frame [px].
+        Rows of the stripe samples of each frame (columns for ``along="rows"``) [px].
     u : sequence of (n_i,) float
-        Stripe columns of each frame [px].
+        Stripe columns of each frame (rows for ``along="rows"``) [px].
     angles_deg : iterable of float
         Rotary angle of each frame [deg].
     calibration : SheetModel or SheetCalibration
         Paper form or general model (``scheimpflug.sheet_model.load_sheet_model(...)``).
-    axis_mm : float
-        Stage coordinate of the rotary axis [mm].
+    axis_mm : float or None
+        Stage coordinate of the rotary axis [mm]; None: the calibration's 3-D axis
+        (:func:`points_from_pixels`).
     intensity : sequence of (n_i,) float, optional
         Per-sample intensity [DN] (default NaN).
     snr, stripe_width_px : sequence of (n_i,) float, optional
         Per-sample peak SNR [-] and stripe RMS width [px] (:class:`FolderStripes`;
         default: the cloud has none).
+    along : {"columns", "rows"}, default "columns"
+        The frames' stripe orientation (:func:`scheimpflug.stripe.image_pixels`).
 
     Returns
     -------
     PointCloud
         Points in the part frame; samples with a non-finite u (or u = u_h)
-        are dropped.  Every point keeps its frame index and row (its place on
-        the scan's grid).
+        are dropped.  Every point keeps its frame index and line (``row``: its
+        place on the scan's grid).
 
     Raises
     ------
@@ -295,7 +365,7 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     ii = cat(intensity) if intensity is not None else np.full(uu.size, np.nan)
     aa = np.repeat(angles, sizes)
     ff = np.repeat(np.arange(len(angles), dtype=np.int64), sizes)
-    xyz = points_from_pixels(uu, vv, aa, calibration, axis_mm)
+    xyz = points_from_pixels(*image_pixels(vv, uu, along), aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
     extra = {}
     for name, per_frame in (("snr", snr), ("stripe_width_px", stripe_width_px)):
@@ -345,12 +415,16 @@ def isolated_rows(rows: np.ndarray, u: np.ndarray, max_gap_px: float = ISOLATION
 class FolderStripes:
     """The stripe samples of every frame of a folder, with their measured quality.
 
+    A sample is a *line* of the frame (a row; a column when the stripe runs along the
+    rows, ``along="rows"``: :func:`scheimpflug.stripe.oriented`) and the stripe's sub-pixel
+    position across it; :func:`scheimpflug.stripe.image_pixels` gives the frame pixel.
+
     Parameters
     ----------
     rows : list of (n_i,) ndarray int64
-        Rows of each frame's samples [px], in manifest order.
+        Lines of each frame's samples (rows, or columns for ``along="rows"``) [px], in manifest order.
     u : list of (n_i,) ndarray float64
-        Stripe columns [px].
+        Stripe positions across the lines (columns, or rows for ``along="rows"``) [px].
     peak : list of (n_i,) ndarray float64
         Peak height above the local background [DN].
     snr : list of (n_i,) ndarray float64
@@ -359,6 +433,8 @@ class FolderStripes:
         RMS width of the stripe in each row [px] (:func:`scheimpflug.point_quality.stripe_widths_px`).
     stats : dict
         Counters of :func:`extract_folder`.
+    along : {"columns", "rows"}, optional
+        The folder's stripe orientation (default "columns").
     """
 
     rows: list
@@ -367,6 +443,7 @@ class FolderStripes:
     snr: list
     stripe_width_px: list
     stats: dict
+    along: str = "columns"
 
 
 def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
@@ -406,7 +483,10 @@ def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
     ValueError
         For an unknown ``method`` or a bad ``min_snr``.
     """
+    along = getattr(folder, "stripe_along", "columns")
+
     def one(rec, frame):
+        frame = oriented(frame, along)
         sat = folder.saturation_dn(frame)
         prof = extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
                                saturation_dn=sat, window_px=window_px)
@@ -416,7 +496,7 @@ def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
             saturated_fraction(frame, sat) > 0.5
 
     out = FolderStripes([], [], [], [], [], {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0,
-                                            "saturated_frames": 0})
+                                            "saturated_frames": 0}, along)
     stats = out.stats
     for prof, width, blown in folder.map_frames(one):
         keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated

@@ -107,7 +107,9 @@ __all__ = [
     "StripeProfile",
     "extract_stripes",
     "extract_stripes_batch",
+    "image_pixels",
     "measured_stripe_sigma_px",
+    "oriented",
     "peak_choices",
     "saturated_fraction",
     "stripe_window_px",
@@ -118,6 +120,69 @@ METHODS = ("blais-rioux", "cog", "edge", "gaussian3", "paper")
 MULTI_PEAK_RULES = ("nearest", "strongest", "track")
 """Rules for rows with several peaks (module docstring, step 4)."""
 _METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3, "paper": 4}
+
+
+def oriented(frame, along: str = "columns") -> np.ndarray:
+    """The frame as the extraction reads it: the stripe running down the columns.
+
+    The detector finds one stripe point per row.  A camera whose stripe runs
+    across the image (``along="rows"``, e.g. a turntable scanner's camera turned
+    by 90°) is read transposed, so that its *lines* (the rows of the returned
+    array) are the frame's columns; :func:`image_pixels` turns the points back.
+
+    Parameters
+    ----------
+    frame : (rows, columns) ndarray
+        The frame as stored.
+    along : {"columns", "rows"}, default "columns"
+        Which way the stripe runs in ``frame`` (a frame folder's ``stripe_along``).
+
+    Returns
+    -------
+    ndarray
+        ``frame`` itself, or its transpose (C-contiguous) for "rows".
+
+    Raises
+    ------
+    ValueError
+        ``along`` neither "columns" nor "rows".
+    """
+    if along == "columns":
+        return frame
+    if along == "rows":
+        return np.ascontiguousarray(np.asarray(frame).T)
+    raise ValueError(f"along must be 'columns' or 'rows', got {along!r}")
+
+
+def image_pixels(lines, across, along: str = "columns") -> tuple[np.ndarray, np.ndarray]:
+    """Frame pixels ``(u, v)`` of stripe points found in the :func:`oriented` frame.
+
+    Parameters
+    ----------
+    lines : array_like
+        Line index of each point (a :class:`StripeProfile`'s ``rows``) [px].
+    across : array_like float
+        Its sub-pixel position across the line (the profile's ``u``) [px].
+    along : {"columns", "rows"}, default "columns"
+        The frame's stripe orientation.
+
+    Returns
+    -------
+    u_px, v_px : ndarray float64
+        Column and row in the frame as stored [px]: ``(across, lines)``, or
+        ``(lines, across)`` for a stripe along the rows.
+
+    Raises
+    ------
+    ValueError
+        ``along`` neither "columns" nor "rows".
+    """
+    a, b = np.asarray(across, np.float64), np.asarray(lines, np.float64)
+    if along == "columns":
+        return a, b
+    if along == "rows":
+        return b, a
+    raise ValueError(f"along must be 'columns' or 'rows', got {along!r}")
 
 
 @dataclass(frozen=True)

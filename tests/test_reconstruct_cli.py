@@ -205,3 +205,43 @@ def test_evaluate_regions_from_object_ids(tmp_path, capsys):
                  "--region", "4"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["n_points"] == 1 and res["max_mm"] == pytest.approx(0.5, abs=1e-6)
+
+
+class _Turned:
+    """A calibration of frames turned by 90° (transpose, then flip left–right): pixel (u', v') is (v', ROWS−1−u')."""
+
+    def __init__(self, cal):
+        self.cal = cal
+
+    def stage_from_pixel(self, u, v):
+        return self.cal.stage_from_pixel(np.asarray(v, float), ROWS - 1 - np.asarray(u, float))
+
+
+def test_a_stripe_along_the_rows_gives_the_cloud_of_the_same_frames_unturned(tmp_path, rng, cal_file):
+    from scheimpflug.calibration import load_calibration
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.reconstruct import extract_folder_stripes, reconstruct_profiles
+
+    scan, _ = _cylinder_scan(tmp_path, rng, n_frames=6)
+    turned = tmp_path / "turned"
+    (turned / "frames").mkdir(parents=True)
+    manifest = json.loads((scan / "manifest.json").read_text())
+    for e in manifest["frames"]:
+        img = cv2.imread(str(scan / e["file"]), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(turned / e["file"]), cv2.flip(cv2.transpose(img), 1))     # a camera turned by 90°
+    manifest.pop("rig")
+    manifest["stripe_along"] = "rows"
+    (turned / "manifest.json").write_text(json.dumps(manifest))
+    cal = load_calibration(cal_file)
+    clouds = []
+    for folder, model in ((scan, cal), (turned, _Turned(cal))):
+        ff = open_frame_folder(folder)
+        st = extract_folder_stripes(ff, "gaussian3", min_snr=12)
+        clouds.append(reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in ff.frames], model, AXIS,
+                                           along=st.along))
+    assert len(clouds[0]) == len(clouds[1]) > 6 * 50
+    # the turned frames' lines are their columns: the unturned rows, upside down
+    lines = np.sort(ROWS - 1 - np.unique(clouds[0].row))
+    np.testing.assert_array_equal(np.unique(clouds[1].row), lines)                  # exact: integers
+    order = [np.lexsort((c.xyz_mm[:, 2], c.frame)) for c in clouds]
+    np.testing.assert_allclose(clouds[1].xyz_mm[order[1]], clouds[0].xyz_mm[order[0]], atol=1e-9)

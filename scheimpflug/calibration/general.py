@@ -101,7 +101,12 @@ from scheimpflug.calibration.camera import (
     camera_from_json,
     ideal_camera,
 )
-from scheimpflug.calibration.measure import CalibrationTolerances, PlateMeasurement, measure_plate_frame
+from scheimpflug.calibration.measure import (
+    CalibrationTolerances,
+    PlateMeasurement,
+    check_plate_orientation,
+    measure_plate_frame,
+)
 from scheimpflug.calibration.paper import (
     Calibration,
     CalibrationAccuracy,
@@ -915,6 +920,7 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
         raise CalibrationError(f"unknown calibration model {model!r} (paper, general, auto)")
     tol = tol or CalibrationTolerances()
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
+    check_plate_orientation(ff)
     if plate_height_mm is None:
         plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]

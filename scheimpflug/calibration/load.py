@@ -3,7 +3,9 @@
 :func:`load_sheet_model` reads what ``scheimpflug calibrate`` writes — the
 paper form, the general model, the target calibration — and an OpenCV calibration (our ``--opencv``
 export, or any JSON/YAML with ``camera_matrix``, ``dist_coeffs`` and
-``laser_plane``: :func:`scheimpflug.calibration.opencv.read_opencv`).  Calibration
+``laser_plane``: :func:`scheimpflug.calibration.opencv.read_opencv`) and FabScan's
+``config.json`` (its first laser, its points as FabScan makes them:
+:func:`scheimpflug.calibration.fabscan.read_fabscan`).  Calibration
 files written before the calibration became a package (``model`` absent or
 ``"paper"``, ``"general"``) read as they always did.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from scheimpflug.calibration.fabscan import is_fabscan_config, read_fabscan
 from scheimpflug.calibration.general import GeneralCalibration
 from scheimpflug.calibration.model import MODELS
 from scheimpflug.calibration.opencv import YAML_SUFFIXES, read_opencv
@@ -56,8 +59,9 @@ def load_sheet_model(path: str | Path):
     Parameters
     ----------
     path : str or Path
-        A calibration JSON of ``scheimpflug calibrate`` (paper form, general model), or an OpenCV
-        calibration (JSON with ``camera_matrix``, or ``.yml``/``.yaml``/``.xml``).
+        A calibration JSON of ``scheimpflug calibrate`` (paper form, general model, target), an OpenCV
+        calibration (JSON with ``camera_matrix``, or ``.yml``/``.yaml``/``.xml``) or FabScan's
+        ``config.json``.
 
     Returns
     -------
@@ -76,6 +80,8 @@ def load_sheet_model(path: str | Path):
     if p.suffix.lower() in YAML_SUFFIXES:
         return read_opencv(p)
     d = _read_json(p)
+    if is_fabscan_config(d):
+        return read_fabscan(p)
     if "camera_matrix" in d and d.get("model") != "target":
         return read_opencv(p)
     return _from_dict(p, d)

@@ -43,7 +43,7 @@ from scipy.ndimage import uniform_filter1d
 
 from scheimpflug.calibration.pattern import aruco_dictionary, charuco_board, charuco_layout
 from scheimpflug.errors import CalibrationError
-from scheimpflug.stripe import extract_stripes, saturated_fraction
+from scheimpflug.stripe import extract_stripes, image_pixels, oriented, saturated_fraction
 
 __all__ = [
     "MAX_WINDOW_PX",
@@ -52,6 +52,7 @@ __all__ = [
     "CalibrationTolerances",
     "PatternDetection",
     "PlateMeasurement",
+    "check_plate_orientation",
     "corner_windows_px",
     "detect_pattern",
     "double_stripe_rows",
@@ -970,17 +971,37 @@ def stripe_points(frame: np.ndarray, *, background: np.ndarray | None = None, al
     ValueError
         ``along`` neither "rows" nor "columns", or a background of another shape.
     """
-    if along not in ("rows", "columns"):
-        raise ValueError(f"along must be 'rows' or 'columns', got {along!r}")
     img = np.asarray(frame)
     if background is not None:
         bg = np.asarray(background)
         if bg.shape != img.shape:
             raise ValueError(f"the background is {bg.shape}, the frame {img.shape}")
         img = np.clip(img.astype(np.float64) - bg.astype(np.float64), 0.0, None)
-    if along == "rows":
-        img = img.T
-    prof = extract_stripes(img, detector, saturation_dn=saturation_dn, window_px="auto")
+    prof = extract_stripes(oriented(img, along), detector, saturation_dn=saturation_dn, window_px="auto")
     keep = ~prof.saturated
-    a, b = prof.u[keep], prof.rows[keep].astype(np.float64)
-    return (b, a) if along == "rows" else (a, b)
+    return image_pixels(prof.rows[keep], prof.u[keep], along)
+
+
+def check_plate_orientation(folder) -> None:
+    """Refuse plate frames whose stripe runs along the rows (the plate methods measure one point per row).
+
+    The paper's method and the general model measure the plate's stripe row by row and its two
+    ends as the first and last lit rows (the hinge geometry of a sensor whose columns are
+    distances).  A camera turned by 90° (``stripe_along = "rows"`` in the manifest) would need
+    its frames turned back first.
+
+    Parameters
+    ----------
+    folder : scheimpflug.io.frames.FrameFolder
+        The plate frames.
+
+    Raises
+    ------
+    CalibrationError
+        For a folder whose manifest says ``stripe_along = "rows"``.
+    """
+    if getattr(folder, "stripe_along", "columns") == "rows":
+        raise CalibrationError(f"{str(folder.path)!r}: the stripe runs along the rows (manifest stripe_along): "
+                               "the plate methods (paper, general) need it down the columns, one point per row; "
+                               "turn the frames by 90° before importing them, or calibrate with a pattern "
+                               "(--method target)")

@@ -194,7 +194,7 @@ def plane_from_sheet_frame(origin_mm, e_s, e_h) -> np.ndarray:
     return np.array([*n, -float(n @ o)])
 
 
-def sheet_frame_from_plane(plane, axis_dir=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sheet_frame_from_plane(plane, axis_dir=None, *, axis_up: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sheet frame of a laser plane by the module docstring's rule.
 
     Parameters
@@ -204,6 +204,9 @@ def sheet_frame_from_plane(plane, axis_dir=None) -> tuple[np.ndarray, np.ndarray
     axis_dir : (3,) array_like float, optional
         The rotary axis's direction in the camera frame (either sign: the one pointing up in the
         image is taken); default none: the image's up direction (−y).
+    axis_up : bool, default False
+        ``axis_dir`` points up (e.g. a turntable's z axis from its calibration): its sign is kept,
+        whatever the image's orientation (a camera turned by 90° sees the axis along its rows).
 
     Returns
     -------
@@ -228,7 +231,7 @@ def sheet_frame_from_plane(plane, axis_dir=None) -> tuple[np.ndarray, np.ndarray
     if np.linalg.norm(up) < 1e-6:
         raise CalibrationError("the up direction (rotary axis or image rows) is perpendicular to the laser plane")
     e_h = up / np.linalg.norm(up)
-    if e_h[1] > 0:                      # up in the image: −y
+    if e_h[1] > 0 and not (axis_up and axis_dir is not None):     # up in the image: −y
         e_h = -e_h
     e_s = np.cross(e_h, n)
     if e_s[2] < 0:

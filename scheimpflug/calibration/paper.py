@@ -70,7 +70,12 @@ import numpy as np
 from scipy import optimize
 
 from scheimpflug.calibration.camera import DEFAULT_FOCAL_LENGTH_MM, DEFAULT_PIXEL_PITCH_UM, ideal_camera
-from scheimpflug.calibration.measure import CalibrationTolerances, PlateMeasurement, measure_plate_frame
+from scheimpflug.calibration.measure import (
+    CalibrationTolerances,
+    PlateMeasurement,
+    check_plate_orientation,
+    measure_plate_frame,
+)
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
@@ -1234,6 +1239,7 @@ def calibrate_folder(folder: str | Path | FrameFolder, plate_height_mm: float | 
         (:func:`calibrate_measurements`).
     """
     ff = folder if isinstance(folder, FrameFolder) else open_frame_folder(folder)
+    check_plate_orientation(ff)
     if plate_height_mm is None:
         plate_height_mm = scenario_number(ff, "plate_height_mm", 89.0, 0.0, 1e4)
     missing = [r.file for r in ff.frames if r.stage_mm is None]

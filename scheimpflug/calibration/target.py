@@ -74,6 +74,7 @@ __all__ = [
     "TILT_MODES",
     "TargetCalibration",
     "TargetResult",
+    "axis_in_sheet",
     "blur_centroid_offsets",
     "calibrate_target_folder",
     "fit_laser_plane",
@@ -1010,20 +1011,52 @@ def _focus_spread(camera: OpenCVCamera, points: dict, pitch_um: float) -> dict:
     return {"tau_x_deg": float(sd[0]), "tau_y_deg": float(sd[1]), "lens_focal_length_mm": float(sd[2])}
 
 
-def _table_axis(table_planes: list, plane, e_s, e_h, origin) -> dict | None:
-    """The rotary axis of the table poses' planes, in the camera frame and in sheet coordinates."""
-    if len(table_planes) < 3:
-        return None
-    q, w, rms = rotary_axis_from_planes(np.array(table_planes))
-    n, d = plane[:3], plane[3]
+def axis_in_sheet(point_mm, direction, plane, e_s, e_h, origin) -> dict:
+    """A rotary axis of the camera frame as the pipeline holds it: its stage coordinate in the sheet.
+
+    The pipeline's part frame has the axis in the sheet, along ``e_h``
+    (:func:`scheimpflug.reconstruct.part_from_sheet`).  A measured axis is projected into the
+    laser plane; ``axis_mm`` is the stage coordinate of the projection at ``h = 0``; how far the
+    axis is from lying in the sheet is kept beside it.
+
+    Parameters
+    ----------
+    point_mm, direction : (3,) array_like float
+        A point of the axis [mm] and its direction, camera frame.
+    plane : (4,) array_like float
+        The laser plane ``[a, b, c, d]`` (unit normal).
+    e_s, e_h, origin : (3,) array_like float
+        The sheet frame (:func:`scheimpflug.calibration.model.sheet_frame_from_plane`).
+
+    Returns
+    -------
+    dict
+        ``axis_mm`` [mm], ``point_mm``, ``direction``, ``origin_mm`` (the axis point whose
+        projection into the sheet is at h = 0: the part frame's origin,
+        :func:`scheimpflug.reconstruct.part_from_camera`), ``angle_to_sheet_deg`` [deg] and
+        ``distance_to_sheet_mm`` (of that point) [mm].
+    """
+    q, w = np.asarray(point_mm, np.float64), np.asarray(direction, np.float64)
+    w = w / np.linalg.norm(w)
+    n, d = np.asarray(plane[:3], np.float64), float(plane[3])
+    e_s, e_h, origin = (np.asarray(x, np.float64) for x in (e_s, e_h, origin))
     qp = q - (n @ q + d) * n
     wp = w - (n @ w) * n
     lam = -((qp - origin) @ e_h) / (wp @ e_h) if abs(wp @ e_h) > 1e-12 else 0.0
     foot = qp + lam * wp
     on_axis = q + lam * w
     return {"axis_mm": float((foot - origin) @ e_s), "point_mm": q.tolist(), "direction": w.tolist(),
+            "origin_mm": on_axis.tolist(),
             "angle_to_sheet_deg": float(math.degrees(math.asin(min(1.0, abs(n @ w))))),
-            "distance_to_sheet_mm": float(n @ on_axis + d), "poses": len(table_planes), "plane_rms_mm": rms}
+            "distance_to_sheet_mm": float(n @ on_axis + d)}
+
+
+def _table_axis(table_planes: list, plane, e_s, e_h, origin) -> dict | None:
+    """The rotary axis of the table poses' planes, in the camera frame and in sheet coordinates."""
+    if len(table_planes) < 3:
+        return None
+    q, w, rms = rotary_axis_from_planes(np.array(table_planes))
+    return {**axis_in_sheet(q, w, plane, e_s, e_h, origin), "poses": len(table_planes), "plane_rms_mm": rms}
 
 
 def _table_planes(poses, fit: _Fit, table: FrameFolder | None, spec, refine: str, notes: list) -> list:
@@ -1063,7 +1096,7 @@ def _tilt_mode(tilt: str, rig_cam: OpenCVCamera | None, has_laser: bool, pitch_u
 def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, tilt: str = "auto",
                             pixel_pitch_um: float | None = None, f_number: float | None = None,
                             distortion: str = "k1k2", refine: str = "model",
-                            detector: str = "cog", stripe_along: str = "columns", table=None,
+                            detector: str = "cog", stripe_along: str | None = None, table=None,
                             progress: ProgressCallback | None = None) -> TargetResult:
     """Calibrate the camera and the laser plane from a folder of pattern frames (module docstring).
 
@@ -1089,8 +1122,9 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
         The corners' sub-pixel refinement (:func:`scheimpflug.calibration.measure.detect_pattern`).
     detector : str, default "cog"
         Stripe centre method of the laser frames.
-    stripe_along : {"columns", "rows"}, default "columns"
-        Which way the laser line runs in the image (:func:`scheimpflug.calibration.measure.stripe_points`).
+    stripe_along : {"columns", "rows"}, optional
+        Which way the laser line runs in the image (:func:`scheimpflug.calibration.measure.stripe_points`);
+        default the folder's (its manifest's ``stripe_along``, else "columns").
     table : path or FrameFolder, optional
         A folder of the pattern standing on the rotary table (``render target --on-table``): its poses,
         found with the calibrated camera, give the rotary axis (:func:`rotary_axis_from_planes`).
@@ -1136,7 +1170,7 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
     f_number = f_number or ff.rig_value("lens", "f_number")
     table_ff = None if table is None else (table if isinstance(table, FrameFolder) else open_frame_folder(table))
     return _calibrate_found(ff, poses, dets, skipped, spec, size, rig_cam, pitch, mode, distortion,
-                            detector, stripe_along, notes, f_number, table_ff, refine)
+                            detector, stripe_along or ff.stripe_along, notes, f_number, table_ff, refine)
 
 
 def _untilted(camera: OpenCVCamera) -> OpenCVCamera:

@@ -33,11 +33,13 @@ import numpy as np
 from scheimpflug.errors import FrameError
 from scheimpflug.model.rig import KEY_RANGES, key_in_range
 
-__all__ = ["MAX_SIDE_PX", "FrameFolder", "FrameRecord", "check_distinct_frames", "open_frame_folder",
+__all__ = ["MAX_SIDE_PX", "STRIPE_ALONG", "FrameFolder", "FrameRecord", "check_distinct_frames", "open_frame_folder",
            "radians_note", "read_frame", "scenario_number"]
 
 MAX_SIDE_PX = 65535
 """Largest frame side a manifest may declare (the rig's ``sensor.rows``/``columns`` range) [px]."""
+STRIPE_ALONG = ("columns", "rows")
+"""Values of a manifest's ``stripe_along``: the stripe runs down the image (one point per row) or across it."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,10 @@ class FrameFolder:
         The expected frame shape [px].
     adc_bits : int or None, optional
         ADC depth from the rig (None if unknown) [bit].
+    stripe_along : {"columns", "rows"}, optional
+        Which way the laser stripe runs in the frames (the manifest's ``stripe_along``,
+        default "columns": down the image, one stripe point per row; "rows": across it,
+        one point per column — :func:`scheimpflug.stripe.oriented`).
     """
 
     path: Path
@@ -101,6 +107,7 @@ class FrameFolder:
     rows: int
     columns: int
     adc_bits: int | None = None
+    stripe_along: str = "columns"
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -492,9 +499,12 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     bits = shape[2] if shape else None
     if bits is None and data.get("adc_bits") is not None:   # real frames imported without a rig
         bits = _whole(mpath, data, "adc_bits", 1, 16, True, where="")
+    along = data.get("stripe_along", "columns")
+    if along not in STRIPE_ALONG:
+        raise FrameError(f"{str(mpath)!r}: stripe_along = {along!r:.40} must be one of {', '.join(STRIPE_ALONG)}")
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
-                       adc_bits=bits)
+                       adc_bits=bits, stripe_along=along)
 
 
 def scenario_number(folder: FrameFolder, key: str, default: float, lo: float, hi: float) -> float:

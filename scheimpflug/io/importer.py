@@ -6,11 +6,30 @@ from a camera's files, so that ``calibrate``, ``axis`` and ``reconstruct`` read
 real frames the same way as the twin's.
 
 Frames
-    PNG or TIFF, grayscale, 8 or 16 bit (a 12-bit camera's frames are 16-bit
+    PNG, TIFF or JPEG, 8 or 16 bit (a 12-bit camera's frames are 16-bit
     files; give ``adc_bits = 12`` so that saturation is found at 4095), read
     with OpenCV (``tifffile``, when installed, is tried for TIFFs OpenCV cannot
-    decode).  Every frame must have the first frame's size and bit depth.  They
-    are copied losslessly to 16-bit (or 8-bit) PNG, ordered by position.
+    decode); grey, or colour with ``channel`` — ``"r"``, ``"g"``, ``"b"`` (a red
+    laser: ``"r"``), ``"gray"`` (OpenCV's luminance, 0.299 R + 0.587 G + 0.114 B)
+    or a weighting ``"wr,wg,wb"`` (rounded to the file's depth; a colour file
+    without ``channel`` is refused).  Every frame must have the first frame's
+    size and bit depth.  They are copied losslessly to 16-bit (or 8-bit) PNG,
+    ordered by position.
+Backgrounds
+    laser-off frames of the same views (``backgrounds``, one per frame, in the
+    frames' order): subtracted on import (clipped at 0), so that ambient light
+    and lit surroundings leave the stripe alone; the manifest names each
+    frame's background.
+Frames without positions
+    a pattern set (``scenario="target"``, :func:`target_frames`): each frame a
+    pose (``pose``, ``light``: flood), or from a CSV with ``file``, ``pose``,
+    ``light`` (and ``angle_deg`` for table poses); a scan with rotary angles
+    given as ``START:STEP`` or a list (:func:`frames_with_angles`).
+Stripe orientation
+    ``stripe_along`` ``"columns"`` (the stripe runs down the image: one point
+    per row, the Scheimpflug profiler's) or ``"rows"`` (across it: one point per
+    column, e.g. FabScan's frames); recorded in the manifest, where the
+    pipeline's extraction follows it.
 Positions
     a CSV with a header naming ``file`` and ``stage_mm`` (translation stage,
     calibration plates) or ``angle_deg`` (rotary stage); ``file`` is matched
@@ -55,10 +74,14 @@ import numpy as np
 from scheimpflug.errors import FrameError
 from scheimpflug.io.frames import radians_note
 
-__all__ = ["ImportedFrame", "import_frames", "positions_from_csv", "positions_from_names", "read_image"]
+__all__ = ["CHANNELS", "ImportedFrame", "frames_with_angles", "import_frames", "parse_angles", "positions_from_csv",
+           "positions_from_names", "read_image", "target_frames"]
 
 FORMAT = "scheimpflug-frames/1"
 _KEYS = ("stage_mm", "angle_deg")
+#: Colour channels a colour frame can be read as (``read_image``), besides a weighting "wr,wg,wb".
+CHANNELS = ("r", "g", "b", "gray")
+_LIGHTS = ("flood", "laser", "both", "background")
 _NUMBER = r"[-+]?(?:\d+(?:[.p]\d*)?|[.p]\d+)(?:[eE][-+]?\d+)?"
 
 
@@ -71,23 +94,28 @@ class ImportedFrame:
     path : Path
         The source file.
     key : str
-        "stage_mm" or "angle_deg".
+        "stage_mm", "angle_deg", or "pose" (a pattern set's frame: ``value`` its order).
     value : float
-        The position [mm] or angle [deg].
+        The position [mm] or angle [deg] (pose: the frame's place in the given order).
+    extra : dict, optional
+        More manifest keys of the frame (``pose``, ``light``, ``angle_deg`` of a table pose).
     """
 
     path: Path
     key: str
     value: float
+    extra: dict | None = None
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read a grayscale 8- or 16-bit PNG or TIFF unchanged.
+def read_image(path: str | Path, channel: str | None = None) -> np.ndarray:
+    """Read an 8- or 16-bit PNG, TIFF or JPEG as one grey frame (module docstring).
 
     Parameters
     ----------
     path : str or Path
         The file.
+    channel : str, optional
+        For a colour file: "r", "g", "b", "gray" or "wr,wg,wb" (weights of red, green, blue).
 
     Returns
     -------
@@ -97,7 +125,8 @@ def read_image(path: str | Path) -> np.ndarray:
     Raises
     ------
     FrameError
-        Missing, unreadable, colour or of another depth, naming the file.
+        Missing, unreadable, colour without ``channel`` or of another depth, naming the file;
+        a bad ``channel``.
     """
     p = Path(path)
     if not p.is_file():
@@ -109,11 +138,41 @@ def read_image(path: str | Path) -> np.ndarray:
         raise FrameError(f"frame {str(p)!r} is unreadable or corrupt (not a PNG or TIFF OpenCV can decode)")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
-    if img.ndim != 2:
-        raise FrameError(f"frame {str(p)!r} has {img.shape[2]} channels: frames must be grayscale")
     if img.dtype not in (np.uint8, np.uint16):
         raise FrameError(f"frame {str(p)!r} has dtype {img.dtype}: frames must be 8- or 16-bit integers")
+    if img.ndim == 3:
+        if channel is None:
+            raise FrameError(f"frame {str(p)!r} has {img.shape[2]} channels (colour): give --channel r|g|b|gray "
+                             "or a weighting wr,wg,wb (a red laser: r)")
+        img = _one_channel(img, channel, p)
+    elif img.ndim != 2:
+        raise FrameError(f"frame {str(p)!r} has shape {img.shape}: not an image")
     return img
+
+
+def _weights(channel: str) -> np.ndarray:
+    """(w_b, w_g, w_r) of a channel name or a weighting "wr,wg,wb" (OpenCV stores BGR)."""
+    named = {"r": (0.0, 0.0, 1.0), "g": (0.0, 1.0, 0.0), "b": (1.0, 0.0, 0.0), "gray": (0.114, 0.587, 0.299)}
+    if channel in named:
+        return np.array(named[channel])
+    try:
+        w = [float(x) for x in channel.split(",")]
+    except ValueError:
+        w = []
+    if len(w) != 3 or not all(math.isfinite(x) and x >= 0 for x in w) or sum(w) <= 0:
+        raise FrameError(f"--channel {channel!r}: one of {', '.join(CHANNELS)} or three weights wr,wg,wb >= 0")
+    return np.array(w[::-1])
+
+
+def _one_channel(img: np.ndarray, channel: str, p: Path) -> np.ndarray:
+    w = _weights(channel)
+    if img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.shape[2] != 3:
+        raise FrameError(f"frame {str(p)!r} has {img.shape[2]} channels: neither grey nor colour")
+    top = float(np.iinfo(img.dtype).max)
+    grey = img.astype(np.float64) @ w
+    return np.clip(np.rint(grey), 0, top).astype(img.dtype)
 
 
 def _read_tifffile(p: Path):
@@ -251,6 +310,110 @@ def positions_from_names(frames, pattern: str) -> list[ImportedFrame]:
     return out
 
 
+def parse_angles(text: str, n: int) -> list[float]:
+    """Rotary angles of n frames: ``START:STEP`` or a comma-separated list [deg].
+
+    Parameters
+    ----------
+    text : str
+        ``"START:STEP"`` (frame k at START + k·STEP) or ``"a,b,c,…"`` (one per frame).
+    n : int
+        Number of frames.
+
+    Returns
+    -------
+    list of float
+        n angles [deg].
+
+    Raises
+    ------
+    FrameError
+        Not numbers, a list of another length, a zero step.
+    """
+    step = None
+    try:
+        if ":" in text:
+            start, step = (float(x) for x in text.split(":"))
+            values = [round(start + k * step, 10) for k in range(n)]      # 1.8 · 199: no 358.20000000000005
+        else:
+            values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise FrameError(f"--angles-deg {text!r}: START:STEP or a list of numbers [deg]") from None
+    if step == 0:
+        raise FrameError(f"--angles-deg {text!r}: the step must not be 0")
+    if len(values) != n:
+        raise FrameError(f"--angles-deg lists {len(values)} angles for {n} frames")
+    if not all(math.isfinite(v) for v in values):
+        raise FrameError(f"--angles-deg {text!r}: angles must be finite")
+    return values
+
+
+def frames_with_angles(frames, angles_deg) -> list[ImportedFrame]:
+    """Frames of a rotary scan with their angles, in the given order.
+
+    Parameters
+    ----------
+    frames : sequence of path
+        The source frames.
+    angles_deg : sequence of float
+        One angle per frame [deg] (:func:`parse_angles`).
+
+    Returns
+    -------
+    list of ImportedFrame
+        ``angle_deg`` frames.
+    """
+    return [ImportedFrame(Path(f), "angle_deg", float(a)) for f, a in zip(frames, angles_deg)]
+
+
+def target_frames(frames, csv_path: str | Path | None = None) -> list[ImportedFrame]:
+    """Frames of a pattern set (scenario ``target``): each its own flood-lit pose, or as a CSV says.
+
+    Parameters
+    ----------
+    frames : sequence of path
+        The source frames.
+    csv_path : str or Path, optional
+        CSV with ``file``, ``pose`` (an integer), ``light`` (flood, laser, both, background) and,
+        for table poses, ``angle_deg``.
+
+    Returns
+    -------
+    list of ImportedFrame
+        Key "pose", in the given order.
+
+    Raises
+    ------
+    FrameError
+        A CSV without those columns, a frame without a row, a bad pose or light.
+    """
+    frames = [Path(f) for f in frames]
+    if csv_path is None:
+        return [ImportedFrame(f, "pose", float(k), {"pose": k, "light": "flood"}) for k, f in enumerate(frames)]
+    p = Path(csv_path)
+    header, rows = _csv_table(p)
+    if not {"file", "pose", "light"} <= set(header):
+        raise FrameError(f"positions file {str(p)!r} for a target set needs a header with file, pose, light "
+                         f"(and angle_deg for table poses); got {', '.join(header) or 'nothing'}")
+    table = {r[header.index("file")].strip(): (line, r) for line, r in rows}
+    out = []
+    for k, f in enumerate(frames):
+        name = str(f) if str(f) in table else f.name
+        if name not in table:
+            raise FrameError(f"frame {str(f)!r} has no row in {str(p)!r}")
+        line, row = table[name]
+        cell = lambda key, row=row: row[header.index(key)].strip() if header.index(key) < len(row) else ""  # noqa: E731
+        light = cell("light")
+        if light not in _LIGHTS or not re.fullmatch(r"\d+", cell("pose")):
+            raise FrameError(f"{str(p)!r} line {line}: pose must be an integer >= 0 and light one of "
+                             f"{', '.join(_LIGHTS)} (got {cell('pose')!r}, {light!r})")
+        extra = {"pose": int(cell("pose")), "light": light}
+        if "angle_deg" in header and cell("angle_deg"):
+            extra["angle_deg"] = _number(cell("angle_deg"), f"{str(p)!r} line {line}")
+        out.append(ImportedFrame(f, "pose", float(k), extra))
+    return out
+
+
 def _check_rig(rig: dict | None, shape: tuple[int, int]) -> None:
     if rig is None:
         return
@@ -260,10 +423,18 @@ def _check_rig(rig: dict | None, shape: tuple[int, int]) -> None:
                          f"frames are {shape[0]} × {shape[1]}")
 
 
-def _load_all(frames: list[ImportedFrame]) -> list[np.ndarray]:
+def _load_all(frames: list[ImportedFrame], channel: str | None = None,
+              backgrounds: dict | None = None) -> list[np.ndarray]:
     images, first = [], None
     for fr in frames:
-        img = read_image(fr.path)
+        img = read_image(fr.path, channel)
+        bg = (backgrounds or {}).get(fr.path)
+        if bg is not None:
+            back = read_image(bg, channel)
+            if back.shape != img.shape or back.dtype != img.dtype:
+                raise FrameError(f"background {str(bg)!r} is {back.shape[0]} × {back.shape[1]} ({back.dtype}), its "
+                                 f"frame {str(fr.path)!r} {img.shape[0]} × {img.shape[1]} ({img.dtype})")
+            img = np.clip(img.astype(np.int64) - back, 0, None).astype(img.dtype)
         if first is None:
             first = (img.shape, img.dtype, fr.path)
         elif img.shape != first[0]:
@@ -276,7 +447,17 @@ def _load_all(frames: list[ImportedFrame]) -> list[np.ndarray]:
     return images
 
 
-def _check_distinct(frames: list[ImportedFrame], images: list[np.ndarray]) -> None:
+def _pair_backgrounds(frames: list[ImportedFrame], backgrounds) -> dict:
+    """Frame path → its background path (one per frame, same order), checked."""
+    if backgrounds is None:
+        return {}
+    bgs = [Path(b) for b in backgrounds]
+    if len(bgs) != len(frames):
+        raise FrameError(f"{len(bgs)} background frame(s) for {len(frames)} frames: give one laser-off frame per frame")
+    return {fr.path: b for fr, b in zip(frames, bgs)}
+
+
+def _check_distinct(frames: list[ImportedFrame], images: list[np.ndarray], warn_equal: bool = True) -> None:
     """Refuse a file given twice or one image under two names; warn of two frames at one position."""
     seen: dict = {}
     for fr in frames:
@@ -293,7 +474,7 @@ def _check_distinct(frames: list[ImportedFrame], images: list[np.ndarray]) -> No
             raise FrameError(f"frames {str(by_content[digest])!r} and {str(fr.path)!r} hold the same image: "
                              "one measurement under two names; import it once")
         by_content[digest] = fr.path
-    for a, b in zip(frames, frames[1:]):
+    for a, b in zip(frames, frames[1:]) if warn_equal else ():
         if a.value == b.value:
             warnings.warn(f"frames {str(a.path)!r} and {str(b.path)!r} are at the same {a.key} = {a.value:g}: "
                           "repeated frames count as independent measurements", stacklevel=3)
@@ -334,7 +515,8 @@ def _adc_hint(images: list[np.ndarray], bits: int, depth: int, peak: int) -> str
 
 def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | None = None,
                   adc_bits: int | None = None, scenario: str | None = None,
-                  scenario_params: dict | None = None, msb_aligned: bool = False) -> Path:
+                  scenario_params: dict | None = None, msb_aligned: bool = False, channel: str | None = None,
+                  backgrounds=None, stripe_along: str = "columns") -> Path:
     """Write a frame folder (manifest + PNG frames) from source frames with positions.
 
     Parameters
@@ -356,6 +538,12 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         The files hold ``adc_bits`` codes shifted left to the top of the word (a 12-bit
         camera's 16-bit files with values × 16): they are shifted back (the lowest bits
         must be 0).
+    channel : str, optional
+        How a colour file becomes one frame (:func:`read_image`).
+    backgrounds : sequence of path, optional
+        One laser-off frame per frame, in the order of ``frames`` (subtracted).
+    stripe_along : {"columns", "rows"}, default "columns"
+        Which way the stripe runs in the frames (recorded; module docstring).
 
     Returns
     -------
@@ -379,9 +567,12 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         raise FrameError("no frames to import")
     if len({f.key for f in frames}) != 1:
         raise FrameError("frames mix stage positions and angles")
+    if stripe_along not in ("rows", "columns"):
+        raise FrameError(f"--stripe-along {stripe_along!r}: rows or columns")
+    bgs = _pair_backgrounds(frames, backgrounds)
     frames = sorted(frames, key=lambda f: f.value)        # stable: equal positions keep their order
-    images = _load_all(frames)
-    _check_distinct(frames, images)
+    images = _load_all(frames, channel, bgs)
+    _check_distinct(frames, images, warn_equal=frames[0].key != "pose")
     _check_rig(rig, images[0].shape)
     depth = 8 * images[0].itemsize
     bits = depth if adc_bits is None else int(adc_bits)
@@ -392,13 +583,15 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise FrameError(f"output folder {str(out)!r} exists and is not empty")
-    manifest = {"format": FORMAT, "complete": True,
-                "scenario": scenario or ("calibration" if frames[0].key == "stage_mm" else "rotary"),
-                "scenario_params": scenario_params or {}, "adc_bits": bits,
+    default = {"stage_mm": "calibration", "angle_deg": "rotary", "pose": "target"}[frames[0].key]
+    manifest = {"format": FORMAT, "complete": True, "scenario": scenario or default,
+                "scenario_params": scenario_params or {}, "adc_bits": bits, "stripe_along": stripe_along,
                 "source": "scheimpflug import", "frames": []}
+    if channel is not None:
+        manifest["channel"] = channel
     if rig is not None:
         manifest["rig"] = rig
-    _write(out, manifest, frames, images)
+    _write(out, manifest, frames, images, bgs)
     return out
 
 
@@ -409,7 +602,8 @@ def _warn_radians(frames: list[ImportedFrame]) -> None:
         warnings.warn(note, stacklevel=3)
 
 
-def _write(out: Path, manifest: dict, frames: list[ImportedFrame], images: list[np.ndarray]) -> None:
+def _write(out: Path, manifest: dict, frames: list[ImportedFrame], images: list[np.ndarray],
+           bgs: dict) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
@@ -418,7 +612,12 @@ def _write(out: Path, manifest: dict, frames: list[ImportedFrame], images: list[
             name = f"frames/{i:05d}.png"
             if not cv2.imwrite(str(tmp / name), img):
                 raise FrameError(f"cannot write {str(out / name)!r}")
-            manifest["frames"].append({"file": name, fr.key: fr.value, "source_file": str(fr.path)})
+            entry = {"file": name} if fr.key == "pose" else {"file": name, fr.key: fr.value}
+            entry.update(fr.extra or {})
+            entry["source_file"] = str(fr.path)
+            if bgs.get(fr.path) is not None:
+                entry["background_file"] = str(bgs[fr.path])
+            manifest["frames"].append(entry)
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1), "utf-8")
         _move_into_place(tmp, out)
     except BaseException:

@@ -115,7 +115,8 @@ class Likelihood:
         x = np.atleast_2d(x)
         pred = [m.predict(x) for m in self.models]
         mu = np.stack([p[0] for p in pred], axis=1)
-        cov = self.fixed[None, :, :] + np.stack([np.diag(v) for v in np.stack([p[1] for p in pred], axis=1)])
+        var = np.stack([p[1] for p in pred], axis=1)
+        cov = self.fixed[None, :, :] + np.eye(len(self.models))[None, :, :] * var[:, None, :]
         chol = np.linalg.cholesky(cov)
         r = (self.observed[None, :] - mu)[..., None]
         w = np.linalg.solve(chol, r)[..., 0]
@@ -303,10 +304,9 @@ def summarise(parameters, samples: np.ndarray, weights: np.ndarray | None = None
                     "prior": {"lo": p.lo, "hi": p.hi, "form": p.describe()}})
     corr = np.ones((1, 1))
     if samples.shape[1] > 1:
-        mean_u = np.average(samples, axis=0, weights=w)
-        dev = samples - mean_u
-        cov = np.einsum("ni,nj->ij", dev * (np.ones(len(dev)) if w is None else w / w.sum() * len(dev))[:, None],
-                        dev) / len(dev)
+        ww = np.full(len(samples), 1.0 / len(samples)) if w is None else w / w.sum()
+        dev = samples - ww @ samples
+        cov = (dev * ww[:, None]).T @ dev
         sd = np.sqrt(np.diag(cov))
         with np.errstate(invalid="ignore", divide="ignore"):      # a parameter without spread: no correlation
             corr = np.where(np.outer(sd, sd) > 0, cov / np.outer(sd, sd), np.nan)

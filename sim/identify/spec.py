@@ -651,8 +651,6 @@ def _uncertainty(where: str, name: str, value, scale: str) -> dict:
 
 
 def _parse_figure(where: str, section: str, name: str, value, need_uncertainty: bool):
-    from .figures import to_scale
-
     label = f"{section}.{name!r}"
     if name not in FIGURES:
         raise _fail(where, f"{label}: unknown figure (known: {', '.join(FIGURES)})")
@@ -662,8 +660,7 @@ def _parse_figure(where: str, section: str, name: str, value, need_uncertainty: 
     _known(where, label, value, {"measured", "uncertainty"})
     y = value["measured"]
     scale = FIGURES[name].scale
-    if not _num(y) or not math.isfinite(to_scale(scale, y) if (scale == "linear" or (
-            scale == "log" and y > 0) or (scale == "log1m" and y < 1)) else math.nan):
+    if not (_num(y) and (scale == "linear" or (scale == "log" and y > 0) or (scale == "log1m" and y < 1))):
         need = {"log": "a number > 0", "log1m": "a number < 1", "linear": "a finite number"}[scale]
         raise _fail(where, f"{label}.measured = {y!r}: must be {need}")
     if "uncertainty" not in value:

@@ -75,9 +75,10 @@ def add_parser(sub):
     t.add_argument("--f-number", type=number(0, 1e3, lo_open=True, unit=""), default=None,
                    help="the lens's f-number at the calibration (default: the manifest's rig): with --tilt focus "
                         "it sizes the blur spots whose centroid shift on the tilted sensor is taken out")
-    t.add_argument("--stripe-along", choices=("columns", "rows"), default="columns",
-                   help="which way the laser line runs in the image (default columns: down the image, "
-                        "one point per row)")
+    t.add_argument("--stripe-along", choices=("columns", "rows"), default=None,
+                   help="which way the laser line runs in the image: columns (down the image, one point per "
+                        "row) or rows (default: the frame folder's, as import --stripe-along recorded it; "
+                        "else columns)")
     g = p.add_argument_group("stated accuracy (a warning when 2 standard errors exceed it)")
     g.add_argument("--accuracy-hinge-px", type=float, default=0.5, help="u_h and v_h [px] (default 0.5)")
     g.add_argument("--accuracy-relative", type=float, default=5e-4,

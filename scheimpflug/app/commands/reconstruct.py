@@ -66,14 +66,16 @@ def add_parser(sub):
 
 
 def _calibration_axis(path) -> float | None:
-    """The rotary axis a calibration file holds (a target calibration with table poses), or None."""
-    import json
+    """The rotary axis a calibration file holds (a target calibration with table poses, FabScan's), or None."""
     import math
 
+    from scheimpflug.calibration import load_calibration
+    from scheimpflug.errors import ScheimpflugError
+
     try:
-        axis = json.loads(open(path, encoding="utf-8").read()).get("axis")
+        axis = getattr(load_calibration(path), "axis", None)
         value = float(axis["axis_mm"]) if isinstance(axis, dict) else None
-    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+    except (ScheimpflugError, OSError, ValueError, TypeError, KeyError):
         return None
     return value if value is not None and math.isfinite(value) else None
 
@@ -81,7 +83,9 @@ def _calibration_axis(path) -> float | None:
 def _axis_mm(args, calibration, folder) -> tuple[float, str]:
     if args.axis_mm is None and not args.axis_from:
         value = getattr(calibration, "axis", None) or {}
-        return float(value["axis_mm"]), "the calibration's (table poses of the pattern)"
+        off = (f": {value['angle_to_sheet_deg']:.2f}° and {abs(value['distance_to_sheet_mm']):.2f} mm from the sheet"
+               if "angle_to_sheet_deg" in value and "distance_to_sheet_mm" in value else "")
+        return float(value["axis_mm"]), f"the calibration's, measured in 3-D{off}"
     if args.axis_mm is not None:
         _warn_axis_outside(args.axis_mm, calibration, folder)
         return float(args.axis_mm), "option"
@@ -181,8 +185,10 @@ def _from_folder(args, t0: float):
 
     check_distinct_frames(folder, [i for i, r in enumerate(st.rows) if len(r)])   # a frame listed twice
     stats = st.stats
+    own_axis = args.axis_mm is None and not args.axis_from     # the calibration's, a line in 3-D
     cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in folder.frames], calibration,
-                                 axis_mm, intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px)
+                                 None if own_axis else axis_mm, intensity=st.peak, snr=st.snr,
+                                 stripe_width_px=st.stripe_width_px, along=st.along)
     if len(cloud):
         cloud, quality = _apply_quality(args, cloud, calibration, folder, axis_mm)
         if len(cloud) == 0:
