@@ -70,6 +70,28 @@ autosummary_imported_members = False
 autodoc_default_options = {"members": True, "show-inheritance": True}
 autodoc_member_order = "bysource"
 autodoc_typehints = "none"            # the numpydoc docstrings carry the types and units
+
+
+def _shared_exports() -> dict:
+    """Per subpackage, the names of its ``__all__`` that its top-level package exports too: the
+    subpackage's page leaves them to the top-level page (two alias pages of one object would both
+    claim its canonical name: Sphinx's duplicate-description warning)."""
+    import importlib
+    import pkgutil
+
+    out = {}
+    for top in ("scheimpflug", "sim", "scenes"):
+        pkg = importlib.import_module(top)
+        curated = set(getattr(pkg, "__all__", []))
+        for info in pkgutil.walk_packages(pkg.__path__, top + "."):
+            if info.ispkg:
+                shared = curated & set(getattr(importlib.import_module(info.name), "__all__", []))
+                if shared:
+                    out[info.name] = sorted(shared)
+    return out
+
+
+autosummary_context = {"shared_exports": _shared_exports()}
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False

@@ -1,15 +1,15 @@
 """One folder driver for every calibration method: :func:`calibrate_folder`.
 
-========  ==========================================================  ==========================
-method    what the frames show                                        result
-========  ==========================================================  ==========================
-best      a plate moved along the sheet on a translation stage        :class:`CalibrationResult`
-paper     (the same) — the paper's endpoint estimate                  :class:`CalibrationResult`
-refined   (the same) — the refined joint fit                          :class:`CalibrationResult`
-general   (the same) — homography ∘ radial distortion                 :class:`SheetModelResult`
-auto      (the same) — general or paper form by the F-test            :class:`SheetModelResult`
+========  ===========================================================  ==========================
+method    what the frames show                                         result
+========  ===========================================================  ==========================
+best      a plate moved along the sheet on a translation stage         :class:`CalibrationResult`
+paper     (the same) — the paper's endpoint estimate                   :class:`CalibrationResult`
+refined   (the same) — the refined joint fit                           :class:`CalibrationResult`
+general   (the same) — homography ∘ radial distortion                  :class:`SheetModelResult`
+auto      (the same) — general or paper form by the F-test             :class:`SheetModelResult`
 target    a printed pattern in poses, the laser line on it (no stage)  :class:`TargetResult`
-========  ==========================================================  ==========================
+========  ===========================================================  ==========================
 
 Every result's ``model`` is the sheet model it gives
 (:class:`scheimpflug.calibration.model.SheetModel`).
