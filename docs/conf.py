@@ -73,9 +73,11 @@ autodoc_typehints = "none"            # the numpydoc docstrings carry the types 
 
 
 def _shared_exports() -> dict:
-    """Per subpackage, the names of its ``__all__`` that its top-level package exports too: the
-    subpackage's page leaves them to the top-level page (two alias pages of one object would both
-    claim its canonical name: Sphinx's duplicate-description warning)."""
+    """Per subpackage, the names of its ``__all__`` that its top-level package exports too.
+
+    The subpackage's page leaves them to the top-level page: two alias pages of one object would
+    both claim its canonical name (Sphinx's duplicate-description warning).
+    """
     import importlib
     import pkgutil
 
