@@ -119,3 +119,14 @@ def test_frames_measured_as_the_paper_measured(quick_demo):
     assert "## Measured as the paper measured" in report
     assert "| figure | paper | as built, paper's processing |" in report
     assert "**Where σ(C) comes from.**" in report and "| paper (residuals from its R²) |" in report
+
+
+def test_which_calibration_section(quick_demo):
+    """The report compares the paper's, the general and the pattern calibration of the same scans (issue 24)."""
+    out, s = quick_demo
+    methods = s["calibration_choice"]["ideal"]["methods"]
+    assert set(methods) == {"paper", "general", "target", "target+blocker"}
+    assert methods["paper"]["sheet_rms_mm"] < 0.005 and abs(methods["paper"]["cylinder_diameter_error_mm"]) < 0.05
+    assert methods["target"]["sheet_rms_mm"] < 0.15 and methods["target"]["frames"] >= 5
+    report = (out / "report" / "report.md").read_text()
+    assert "## Which calibration for this rig?" in report and "| ideal | target+blocker |" in report

@@ -197,7 +197,9 @@ def test_opencv_finds_in_focus_corners_where_the_truth_puts_them(variant, which)
     backdrop = Backdrop(sc.frames[0].rig_from_part)             # a dark wall behind: the board on black
     scene = SimScene([*sc.assembly.parts, backdrop])
     lit = rig.replace(environment={"flood_irradiance_w_m2": 0.0, "ambient_irradiance_w_m2": 30.0})
-    twin_err, exact_err, between, done, missed = [], [], [], 0, 0
+    from scheimpflug.calibration.measure import refine_corners_model
+
+    twin_err, exact_err, between, model_err, done, missed = [], [], [], [], 0, 0
     for f in sc.frames:
         poses = np.stack([f.rig_from_part, f.rig_from_part, sc.frames[0].rig_from_part])
         scene.set_pose(poses)
@@ -219,6 +221,10 @@ def test_opencv_finds_in_focus_corners_where_the_truth_puts_them(variant, which)
         order = np.linalg.norm(start[:, None] - truth[None], axis=2).argmin(1)
         exact = _exact_board_image(spec, truth, img.shape)
         ours, ref = _subpix(img, start), _subpix(exact, start)
+        fitted = refine_corners_model(img, spec, order, start)      # this project's refinement (issue 24)
+        refined = np.isfinite(fitted).all(1)                         # NaN: a patch leaves the window
+        assert refined.mean() > 0.8, refined.mean()
+        model_err.append(_rms(fitted[refined], truth[order][refined]))
         twin_err.append(_rms(ours, truth[order]))
         exact_err.append(_rms(ref, truth[order]))
         between.append(_rms(ours, ref))
@@ -233,7 +239,11 @@ def test_opencv_finds_in_focus_corners_where_the_truth_puts_them(variant, which)
         if done == 2:
             break
     assert done == 2 and missed <= 2, (done, missed)
-    print(f"{which}: twin {np.round(twin_err, 4)} exact image {np.round(exact_err, 4)} between {np.round(between, 4)}")
+    print(f"{which}: twin {np.round(twin_err, 4)} exact image {np.round(exact_err, 4)} between {np.round(between, 4)} "
+          f"model fit {np.round(model_err, 4)}")
+    # the issue's 0.05 px: OpenCV's detector cannot (0.055–0.062 px off on an exact image of the board, its
+    # pixel-locking on sharp edges); the blurred-corner model fit of the calibration does, on the twin's frames
+    assert np.sqrt(np.mean(np.square(model_err))) < 0.05, model_err
     # the twin's frame gives the detector the corners an exact image gives it (its own pixel-locking bias)
     assert max(between) < 0.02, between
     assert np.sqrt(np.mean(np.square(twin_err))) <= np.sqrt(np.mean(np.square(exact_err))) + 0.01
@@ -264,3 +274,23 @@ def test_walls_stand_still_behind_the_turning_part(tmp_path, variant):
     rig = load_preset("paper")
     plain = rotary_scenario(rig, part="tape", step_deg=90.0, frames=2)
     assert plain.background == () and plain.frame_truth is None and "background" not in plain.params
+
+
+def test_a_box_housing_stands_still_and_is_lit_around_the_part(tmp_path, variant):
+    """--background box: the part in a housing; the laser meets its walls at the same place in every frame."""
+    out = tmp_path / "box"
+    assert main(["render", "rotary", "--preset", "paper", "--part", "tape", "--step-deg", "90", "--frames", "2",
+                 "--background", "box", "--flood-w-m2", "1", "--camera-spp", "1", "--binning", "8",
+                 "--truth-pixels", "none", "--out", str(out), "--quiet"]) == 0
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["scenario_params"]["background"]["kind"] == "box" and (out / "truth" / "background.ply").exists()
+    z = [np.load(out / "truth" / f"{i:05d}.npz") for i in range(2)]
+    housing = [(t["stripe_object_id"] >= 101) for t in z]
+    both = housing[0] & housing[1]
+    assert both.sum() >= 5, [h.sum() for h in housing]
+    np.testing.assert_allclose(z[0]["stripe_u"][both], z[1]["stripe_u"][both], atol=1e-6)
+    from sim.writer import read_png
+
+    img = read_png(out / "frames" / "00000.png").astype(float)
+    rows = np.nonzero(both)[0]
+    assert np.median(img[rows, np.round(z[0]["stripe_u"][rows]).astype(int)]) > 2 * np.median(img)

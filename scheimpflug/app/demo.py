@@ -388,6 +388,10 @@ def run_demo(out: str | Path, *, quick: bool = False, rig: Rig | None = None, se
                                                             timer, label="as built: ")
         summary["source_budget"] = _source_budget(rig, as_built, budget_plan_for(quick), out / "budget",
                                                   seed, quiet, timer)
+    if rig == paper:
+        rigs = {"ideal": rig, **({"as built": as_built} if as_built and not quick else {})}
+        summary["calibration_choice"] = timer.run("which calibration (paper, general, pattern)",
+                                                  _calibration_choice, rigs, quick, out / "choice", seed)
     summary["seconds"] = dict(timer.seconds)
     timer.run("figures + report", _write_report, out, report, summary, ideal)
     summary["seconds"]["total"] = time.perf_counter() - t_start
@@ -563,6 +567,33 @@ def _source_budget(ideal: Rig, as_built: Rig, plan: DemoPlan, out: Path, seed: i
         rows[name] = _budget_figures(res, plan.binning)
     return {"plan": plan.__dict__, "sources": sources, "rows": rows,
             "dominant": _dominant(rows, sources)}
+
+
+def choice_plan_for(quick: bool):
+    """The plan of the report's "which calibration" section (:mod:`sim.calibration_choice`).
+
+    4 × 4 binned, like the error budget: the paper's 27 plate frames, 20 hand-held board poses,
+    the board on the table every 30°, the cylinder and the pile at 10°; no subsets and no print
+    errors (those are ``benchmarks/bench_calibration_choice.py``'s).  Quick: 9 plate frames,
+    10 poses, the table every 45°, the cylinder at 20° and no pile.
+    """
+    from sim.calibration_choice import ChoicePlan
+
+    if quick:
+        return ChoicePlan(binning=4, plate_steps=9, plate_step_mm=26.0, plate_start_mm=31.0, plate_subsets=(),
+                          poses=10, pose_subsets=(), table_step_deg=45.0, bow_mm=0.0, scale=1.0,
+                          cylinder_step_deg=20.0, pile_step_deg=0.0, camera_spp=4)
+    return ChoicePlan(binning=4, plate_subsets=(), pose_subsets=(), bow_mm=0.0, scale=1.0, camera_spp=8)
+
+
+def _calibration_choice(rigs: dict, quick: bool, out: Path, seed: int) -> dict:
+    """:func:`sim.calibration_choice.compare_calibrations` of each rig (name → rig), JSON-ready."""
+    from sim.calibration_choice import compare_calibrations
+
+    plan = choice_plan_for(quick)
+    return {name: compare_calibrations(rig, plan, out / name.replace(" ", "-"), seed=seed,
+                                       log=lambda msg, n=name: _log(f"   {n}: {msg}"))
+            for name, rig in rigs.items()}
 
 
 def _source_name(group: str, as_built: Rig) -> str:

@@ -384,6 +384,40 @@ def _source_budget_lines(s: dict) -> list[str]:
     return lines
 
 
+_CHOICE_LABELS = (("sheet_rms_mm", "sheet RMS [mm]"), ("plane_normal_deg", "plane normal [°]"),
+                  ("axis_offset_mm", "axis offset [mm]"), ("cylinder_diameter_error_mm", "cylinder Ø error [mm]"),
+                  ("cylinder_form_rms_mm", "cylinder form RMS [mm]"), ("box_plane_rmse_mm", "box-side RMSE [mm]"),
+                  ("ring_diameter_error_mm", "ring Ø error [mm]"))
+
+
+def _choice_lines(s: dict) -> list[str]:
+    c = s.get("calibration_choice")
+    if not c:
+        return []
+    first = next(iter(c.values()))
+    plan = first["plan"]
+    lines = ["## Which calibration for this rig?", "",
+             f"The same scans calibrated by three methods (`sim.calibration_choice`, on a {plan['binning']} × "
+             f"{plan['binning']} binned sensor): the paper's method from {plan['plate_steps']} plate frames on "
+             "the translation stage and the rotary axis from the blocker; the general model from the same frames; "
+             f"the pattern calibration from a ChArUco board (`{plan['pattern']}`) in {plan['poses']} hand-held "
+             f"poses with the laser line on each, and on the rotary table every {plan['table_step_deg']:g}° for "
+             "the axis — no stage, no blocker (*target*), or its camera and plane with the blocker's axis "
+             "(*target+blocker*). *Sheet RMS*: the exact stripe pixels of the scans through the "
+             "calibration against their true points after the best rigid motion (the mapping itself, detection "
+             "excluded); *plane normal*: the laser plane in the calibration's own camera frame against the "
+             "rig's; *axis offset*: the rotary axis's distance from the true one at the sheet; the scan figures "
+             "from the same detected stripes, each calibration's points fitted (`benchmarks/RESULTS.md` has the "
+             "full-resolution figures, fewer frames and poses, and print errors).", ""]
+    head = "| rig | calibration | " + " | ".join(label for _, label in _CHOICE_LABELS) + " |"
+    lines += [head, "|---|---|" + "---|" * len(_CHOICE_LABELS)]
+    for rig_name, res in c.items():
+        for name, m in res["methods"].items():
+            lines.append(f"| {rig_name} | {name} | " + " | ".join(_f(m.get(k)) for k, _ in _CHOICE_LABELS) + " |")
+    lines.append("")
+    return lines
+
+
 def _score_table(s: dict) -> list[str]:
     out = ["| point set | points | RMS [mm] | mean abs [mm] | p95 [mm] | max [mm] |", "|---|---|---|---|---|---|"]
     sets = [("cylinder, all", s["cylinder"]["all"]), ("cylinder, smooth part", s["cylinder"]["smooth"]),
@@ -450,6 +484,7 @@ def write_report(out: Path, report: Path, s: dict, cyl, cyl_m, pile, pile_m) -> 
         *_as_built_lines(s),
         *_as_the_paper_lines(s),
         *_source_budget_lines(s),
+        *_choice_lines(s),
         "## Scores against the rendered meshes",
         "",
         *_score_table(s),
