@@ -43,6 +43,14 @@ def table(name: str, res: dict) -> str:
             cells.append("–" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
                          (f"{v:d}" if isinstance(v, int) else f"{v:.4g}"))
         rows.append(f"| {method} | " + " | ".join(cells) + " |")
+    if any("vdi" in m for m in res["methods"].values()):
+        rows += ["", "VDI/VDE 2634-2, the acceptance test's quick plan (artefacts rendered once) [mm]",
+                 "| calibration | PF | PS | SD | F | not measured |", "|---|---|---|---|---|---|"]
+        for method, m in res["methods"].items():
+            v = m.get("vdi") or {}
+            rows.append(f"| {method} | " + " | ".join("–" if v.get(k) is None else f"{v[k]:.4g}"
+                                                       for k in ("PF_mm", "PS_mm", "SD_mm", "F_mm"))
+                        + f" | {len(v.get('failed') or [])} |")
     return "\n".join(rows)
 
 
@@ -55,8 +63,9 @@ def main() -> None:
     ap.add_argument("--rigs", nargs="+", default=["paper", "paper-as-built"])
     ap.add_argument("--out", type=Path, default=Path("/tmp/bench_choice"))
     ap.add_argument("--json", type=Path, default=None, help="write every figure here")
+    ap.add_argument("--no-vdi", action="store_true", help="leave the VDI/VDE 2634-2 figures out")
     args = ap.parse_args()
-    plan = ChoicePlan(binning=args.binning)
+    plan = ChoicePlan(binning=args.binning, acceptance=not args.no_vdi)
     report = {}
     for name in args.rigs:
         t0 = time.perf_counter()

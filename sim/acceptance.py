@@ -81,6 +81,7 @@ _MATERIAL = "cardboard"
 
 __all__ = [
     "ArtefactPosition",
+    "acceptance_by_calibration",
     "acceptance_plan",
     "calibration_constants",
     "measured_cloud",
@@ -411,7 +412,76 @@ def score_position(rig: Rig, position: ArtefactPosition, cloud, exclude_fraction
     return {"name": position.name, "kind": position.kind, **_evaluate(position, pts, exclude_fraction)}, pts
 
 
-def measured_cloud(ff, cal, axis_mm: float, geometry: SheetGeometry):
+def acceptance_by_calibration(rig: Rig, out, calibrations: dict, *, binning: int = 1, quick: bool = True,
+                              frames: int | None = None, seed: int = 0,
+                              exclude_fraction: float = vdi.EXCLUDE_FRACTION,
+                              quality: QualityFilter | None = DEFAULT_FILTER,
+                              log: Callable[[str], None] | None = None) -> dict:
+    """The acceptance test's figures of several given calibrations, on one rendering of the artefacts.
+
+    Each position (:func:`acceptance_plan`) is rendered once and reconstructed with every
+    calibration; no calibration frames are rendered (``sim.calibration_choice`` makes them).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (full size; binned here).
+    out : path
+        Working folder: one frame folder per position.
+    calibrations : dict
+        Name → ``(sheet model, axis_mm)``; ``axis_mm`` None: the calibration's own 3-D axis
+        (:func:`scheimpflug.reconstruct.points_from_pixels`).
+    binning : int, default 1
+        k × k binned sensor.
+    quick : bool, default True
+        The reduced plan.
+    frames : int, optional
+        Frames per crossing.
+    seed : int, default 0
+        Run seed.
+    exclude_fraction : float
+        Outlier fraction excluded per measurement [-].
+    quality : QualityFilter or None
+        The point-quality filter (default the pipeline's); None: every point.
+    log : callable, optional
+        Receives one line per position.
+
+    Returns
+    -------
+    dict
+        Name → ``PF_mm``, ``PS_mm``, ``SD_mm``, ``F_mm`` (the system's figures, with the filter),
+        ``L0_mm`` and ``positions`` (per position's figures); a position a calibration could not
+        measure (too few points on the artefact) is named under ``failed``.
+    """
+    from scheimpflug.errors import ScheimpflugError
+
+    out = Path(out)
+    rig_b = binned_rig(rig, binning)
+    vol, plan = acceptance_plan(rig_b, quick, frames)
+    rows = {name: {"sphere": [], "ball_bar": [], "plane": [], "failed": []} for name in calibrations}
+    for pos in plan:
+        if log:
+            log(f"acceptance: {pos.name}")
+        _render(rig_b, position_scenario(rig_b, pos, seed, _MATERIAL), out / pos.name, seed, None,
+                lambda msg: None)
+        ff = open_frame_folder(out / pos.name)
+        for name, (model, axis_mm) in calibrations.items():
+            geometry = _geometry(model, rig_b, lambda msg: None)
+            cloud, _ = measured_cloud(ff, model, axis_mm, geometry)
+            if quality is not None:
+                cloud = cloud.select(quality_mask(cloud, quality))
+            try:
+                res, _ = score_position(rig_b, pos, cloud, exclude_fraction)
+            except ScheimpflugError as exc:
+                rows[name]["failed"].append(f"{pos.name}: {exc}")
+                continue
+            rows[name][pos.kind].append(res)
+    return {name: {**vdi.summarize(r["sphere"], r["ball_bar"], r["plane"], vol["L0_mm"]),
+                   "positions": {k: r[k] for k in ("sphere", "ball_bar", "plane")}, "failed": r["failed"]}
+            for name, r in rows.items()}
+
+
+def measured_cloud(ff, cal, axis_mm: float | None, geometry: SheetGeometry):
     """The cloud of a rotary scan folder with every point's measured quality (frames and calibration only).
 
     Parameters
@@ -420,8 +490,9 @@ def measured_cloud(ff, cal, axis_mm: float, geometry: SheetGeometry):
         The scan.
     cal : SheetModel
         The calibration.
-    axis_mm : float
-        Stage coordinate of the rotary axis [mm].
+    axis_mm : float or None
+        Stage coordinate of the rotary axis [mm]; None: the calibration's own 3-D axis (its
+        ``axis_mm`` places it for the incidence angles).
     geometry : scheimpflug.point_quality.SheetGeometry or None
         Laser origin and camera centre (:func:`scheimpflug.point_quality.sheet_geometry`);
         None: the incidences stay unknown (NaN), the sweep edges are still measured.
@@ -439,7 +510,8 @@ def measured_cloud(ff, cal, axis_mm: float, geometry: SheetGeometry):
     if geometry is None:
         edge = sweep_edges(cloud.frame, cloud.row, len(ff), cloud.intensity)
         return dataclasses.replace(cloud, sweep_edge=edge), st
-    return assess_points(cloud, geometry, axis_mm, len(ff)), st
+    in_sheet = axis_mm if axis_mm is not None else float(cal.axis["axis_mm"])
+    return assess_points(cloud, geometry, in_sheet, len(ff)), st
 
 
 def _geometry(calibration, rig_b: Rig, warn) -> SheetGeometry | None:

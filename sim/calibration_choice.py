@@ -42,6 +42,9 @@ scans
     ``box_plane_rmse_mm``) and the knurled ring's fitted diameter error
     (``ring_diameter_error_mm``).  Detection is the same for every calibration:
     the stripes are extracted once.
+VDI/VDE 2634-2 (``vdi``, with ``ChoicePlan.acceptance``)
+    PF, PS, SD, F of the acceptance test's quick plan, its artefacts rendered once and
+    reconstructed with each calibration.
 
 Run from :func:`compare_calibrations`; ``benchmarks/bench_calibration_choice.py``
 prints the table, the demo report has a short version.
@@ -96,6 +99,9 @@ class ChoicePlan:
         The scans' rotary steps [deg] (0: left out).
     camera_spp : int, default 16
         The camera pass's samples per pixel for the board's flood-lit frames.
+    acceptance : bool, default False
+        Also the VDI/VDE 2634-2 figures of every calibration (:func:`sim.acceptance.acceptance_by_calibration`,
+        the quick plan of spheres, ball bars and planes, rendered once).
     """
 
     binning: int = 1
@@ -112,6 +118,7 @@ class ChoicePlan:
     cylinder_step_deg: float = 10.0
     pile_step_deg: float = 10.0
     camera_spp: int = 16
+    acceptance: bool = False
 
 
 def _log_to(log):
@@ -428,5 +435,12 @@ def compare_calibrations(rig: Rig, plan: ChoicePlan, out, *, seed: int = 0,
         figures = _calibration_figures(model, axis_mm, truth, pixels, rig_b)
         figures.update(_scan_figures(model, axis_mm, scans, rig_b))
         methods[name] = {**figures, "calibrate_s": round(secs, 2), "frames": n}
+    if plan.acceptance:
+        from sim.acceptance import acceptance_by_calibration
+
+        vdi = timed("VDI/VDE 2634-2", acceptance_by_calibration, rig, out / "acceptance",
+                    {k: (m[0], m[1]) for k, m in models.items()}, binning=plan.binning, seed=seed, log=say)
+        for name, v in vdi.items():
+            methods[name]["vdi"] = {k: v.get(k) for k in ("PF_mm", "PS_mm", "SD_mm", "F_mm", "failed")}
     seconds["total"] = round(time.perf_counter() - t_all, 1)
     return {"methods": methods, "plan": dataclasses.asdict(plan), "binning": plan.binning, "seconds": seconds}
