@@ -17,7 +17,7 @@ from sim.calibration_choice import CHOICE_FIGURES, ChoicePlan, compare_calibrati
 def choice(tmp_path_factory):
     plan = ChoicePlan(binning=4, plate_steps=9, plate_step_mm=26.0, plate_start_mm=31.0, plate_subsets=(5,),
                       poses=12, pose_subsets=(), table_step_deg=45.0, cylinder_step_deg=20.0, pile_step_deg=20.0,
-                      camera_spp=4, scale=1.0)
+                      camera_spp=4, scale=1.0, acceptance=True)
     return compare_calibrations(load_preset("paper"), plan, tmp_path_factory.mktemp("choice"))
 
 
@@ -46,3 +46,15 @@ def test_the_pattern_calibration_and_what_weakens_it(choice, variant):
     assert abs(tb["cylinder_diameter_error_mm"]) < abs(t["cylinder_diameter_error_mm"])
     # a print bowed by 0.5 mm that the calibration takes for flat bends the sheet it finds
     assert bow["sheet_rms_mm"] > 2 * t["sheet_rms_mm"]
+
+
+@pytest.mark.render
+def test_vdi_figures_of_every_calibration_from_one_rendering(choice, variant):
+    for name, m in choice["methods"].items():
+        v = m["vdi"]
+        assert not v["failed"] and all(math.isfinite(v[k]) for k in ("PF_mm", "PS_mm", "SD_mm", "F_mm")), name
+    paper = choice["methods"]["paper"]["vdi"]
+    assert abs(paper["PS_mm"]) < 0.05 and abs(paper["SD_mm"]) < 0.05          # the ideal rig, binned
+    # the pattern's sizes carry its axis error: SD grows with the axis offset
+    t, tb = (choice["methods"][k]["vdi"] for k in ("target", "target+blocker"))
+    assert abs(tb["SD_mm"]) < abs(t["SD_mm"])
