@@ -17,7 +17,8 @@ twin rendered (issue 24 item 5):
     line on each pose, and the board standing on the rotary table for the axis
     (no stage, no blocker).
 ``target+blocker``
-    The pattern calibration's camera and plane with the rotary axis from the blocker frames.
+    The pattern calibration's camera and plane with the rotary axis from the blocker frames:
+    its position and its direction in the sheet (the blocker face's stripe line), no table poses.
 ``target-bow``, ``target-scale``
     The pattern calibration with a print error the calibration does not know of: the board bowed
     by ``bow_mm`` toward the camera, or printed ``scale`` times its nominal size.
@@ -146,6 +147,34 @@ def _scaled_pattern(pattern: str, scale: float) -> str:
     parts = lengths.split(":")
     scaled = [f"{float(x) * scale:.6g}" if x.replace(".", "", 1).isdigit() else x for x in parts]
     return ":".join([head, grid, *scaled])
+
+
+def _with_blocker_axis(calibration, blocker: Path):
+    """A target calibration's camera and plane with the rotary axis of the blocker frames, direction included.
+
+    The blocker's face stands parallel to the rotary axis: its stripe is a line of the sheet
+    along the axis.  The sheet's height axis is turned onto that line (fitted to every frame's
+    stripe, s = a + b·h), then the axis's stage coordinate is located as for any calibration.
+    """
+    from scheimpflug.axis import locate_axis
+    from scheimpflug.calibration.model import sheet_frame_from_plane
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.stripe import extract_stripes
+
+    origin, e_s, e_h = sheet_frame_from_plane(calibration.laser_plane)
+    up = dataclasses.replace(calibration, homography=np.column_stack([e_s, e_h, origin]), axis=None)
+    ff = open_frame_folder(blocker)
+    s, h = [], []
+    for i in range(len(ff)):
+        prof = extract_stripes(ff.read(i), "cog", window_px="auto")
+        si, hi = up.stage_from_pixel(prof.u, prof.rows)
+        s.append(si)
+        h.append(hi)
+    slope = np.polyfit(np.concatenate(h), np.concatenate(s), 1)[0]      # ds/dh of the face's line
+    new_h = (e_h + slope * e_s) / math.hypot(1.0, slope)
+    new_s = (e_s - slope * e_h) / math.hypot(1.0, slope)
+    model = dataclasses.replace(up, homography=np.column_stack([new_s, new_h, origin]))
+    return model, float(locate_axis(blocker, model).axis_mm)
 
 
 def _subset(folder, keep) -> object:
@@ -420,9 +449,8 @@ def compare_calibrations(rig: Rig, plan: ChoicePlan, out, *, seed: int = 0,
         models[name] = (res.calibration, None, time.perf_counter() - t0, len(res.calibration.poses_used))
         if name == "target":          # the same camera and plane, the axis from the blocker instead
             t0 = time.perf_counter()
-            axis = locate_axis(blocker, res.calibration).axis_mm
-            models["target+blocker"] = (res.calibration, float(axis), models[name][2] + time.perf_counter() - t0,
-                                        models[name][3])
+            model, axis = _with_blocker_axis(res.calibration, blocker)
+            models["target+blocker"] = (model, axis, models[name][2] + time.perf_counter() - t0, models[name][3])
 
     for name, n, general in (("paper", n_plate, False), ("general", n_plate, True),
                              *((f"paper-{k}", k, False) for k in plan.plate_subsets if k < n_plate)):
