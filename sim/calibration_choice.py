@@ -378,6 +378,13 @@ def compare_calibrations(rig: Rig, plan: ChoicePlan, out, *, seed: int = 0,
     dict
         ``methods``: name → figures (:data:`CHOICE_FIGURES`, plus ``seconds`` to calibrate and
         ``frames`` used), ``plan``, ``binning``, ``seconds`` (per render and in all).
+
+    Raises
+    ------
+    ValueError
+        A plan that scans no part (both rotary steps 0).
+    CalibrationError
+        A calibration that fails on the rendered frames (too few poses found, …).
     """
     from scheimpflug.axis import locate_axis
     from scheimpflug.calibration import calibrate_folder

@@ -14,6 +14,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+from fabscan_formulae import fabscan_points, rigid_rms
 
 from scheimpflug.calibration import load_sheet_model
 from scheimpflug.calibration.fabscan import fabscan_angles_deg, pixel_map, read_fabscan
@@ -78,25 +79,8 @@ def test_the_stored_frames_camera_projects_as_fabscans_camera_does(tmp_path, fla
     np.testing.assert_allclose(ours[:, 0], stored, atol=1e-9)
 
 
-def _fabscan_points(u, v, angle_fabscan_deg, cfg):
-    """FabScan's FSImageProcessor.compute_point_cloud, from its source (rotate + hflip frames)."""
-    c = cfg["calibration"]
-    k = np.array(c["camera_matrix"])
-    n, d = np.array(c["laser_planes"][0]["normal"]), c["laser_planes"][0]["distance"]
-    r, t = np.array(c["platform_rotation"]), np.array(c["platform_translation"])
-    u2, v2 = (H - 1) - v, u                                  # transpose, then flip left–right
-    x = np.stack([(u2 - k[0, 2]) / k[0, 0], (v2 - k[1, 2]) / k[1, 1], np.ones_like(u2)])
-    xp = r.T @ (d / (n @ x) * x - t[:, None])
-    th = np.radians(angle_fabscan_deg)
-    return np.stack([np.cos(th) * xp[0] - np.sin(th) * xp[1], np.sin(th) * xp[0] + np.cos(th) * xp[1], xp[2]], 1)
 
 
-def _rigid(a, b, mirror=False):
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    s = np.sign(np.linalg.det(vt.T @ u.T)) * (-1 if mirror else 1)
-    rm = vt.T @ np.diag([1, 1, s]) @ u.T
-    return float(np.sqrt(np.mean(np.sum(((rm @ (a - ca).T).T + cb - b) ** 2, axis=1))))
 
 
 def test_a_scan_reconstructs_to_fabscans_own_points(tmp_path):
@@ -107,10 +91,9 @@ def test_a_scan_reconstructs_to_fabscans_own_points(tmp_path):
     lines = [np.arange(5, W - 5) for _ in angles]            # one stripe point per column
     across = [rng.uniform(10, H - 10, W - 10) for _ in angles]
     ours = reconstruct_profiles(lines, across, angles, model, None, along="rows").xyz_mm
-    theirs = np.concatenate([_fabscan_points(ln.astype(float), ac, -a, cfg)
-                             for ln, ac, a in zip(lines, across, angles)])
-    assert _rigid(ours, theirs) < 1e-9                       # the same points, up to the part frame's pose
-    assert _rigid(ours, theirs, mirror=True) > 1.0           # … and not their mirror image
+    theirs = fabscan_points(lines, across, angles, cfg)
+    assert rigid_rms(ours, theirs) < 1e-9                    # the same points, up to the part frame's pose
+    assert rigid_rms(ours, theirs, mirror=True) > 1.0        # … and not their mirror image
     assert model.axis["angle_to_sheet_deg"] < 5 and model.tilt["distortion"] == "as-fabscan"
 
 

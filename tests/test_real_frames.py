@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from fabscan_formulae import fabscan_points, rigid_rms
 
 from scheimpflug.app.cli import main
 from scheimpflug.calibration.fabscan import fabscan_angles_deg, read_fabscan
@@ -25,30 +26,8 @@ REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real frames absent ({REAL}): see its README")
 
 
-def _fabscan_points(lines, across, angles_deg, cfg):
-    """FabScan's FSImageProcessor.compute_point_cloud on the turned frames (rotate, hflip), from its source."""
-    c = cfg["calibration"]
-    k = np.array(c["camera_matrix"])
-    n, d = np.array(c["laser_planes"][0]["normal"]), c["laser_planes"][0]["distance"]
-    r, t = np.array(c["platform_rotation"]), np.array(c["platform_translation"])
-    width = cfg["camera"]["resolution"]["height"]
-    out = []
-    for ln, ac, a in zip(lines, across, angles_deg):
-        u2, v2 = (width - 1) - np.asarray(ac, float), np.asarray(ln, float)
-        x = np.stack([(u2 - k[0, 2]) / k[0, 0], (v2 - k[1, 2]) / k[1, 1], np.ones_like(u2)])
-        xp = r.T @ (d / (n @ x) * x - t[:, None])
-        th = np.radians(-a)
-        out.append(np.stack([np.cos(th) * xp[0] - np.sin(th) * xp[1], np.sin(th) * xp[0] + np.cos(th) * xp[1],
-                             xp[2]], 1))
-    return np.concatenate(out)
 
 
-def _rigid(a, b, mirror=False):
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    s = np.sign(np.linalg.det(vt.T @ u.T)) * (-1 if mirror else 1)
-    rm = vt.T @ np.diag([1, 1, s]) @ u.T
-    return float(np.sqrt(np.mean(np.sum(((rm @ (a - ca).T).T + cb - b) ** 2, axis=1))))
 
 
 @pytest.fixture(scope="module")
@@ -75,10 +54,10 @@ def test_fabscan_frames_reconstruct_to_fabscans_own_points(fabscan_scan, tmp_pat
     st = extract_folder_stripes(ff, "cog", keep_saturated=True)
     angles = [r.angle_deg for r in ff.frames]
     ours = reconstruct_profiles(st.rows, st.u, angles, read_fabscan(config), None, along=st.along).xyz_mm
-    theirs = _fabscan_points(st.rows, st.u, angles, json.loads(config.read_text()))
+    theirs = fabscan_points(st.rows, st.u, angles, json.loads(config.read_text()))
     assert len(ours) == summary["n_points"] == len(theirs)
-    assert _rigid(ours, theirs) < 1e-6                       # FabScan's points, in our part frame
-    assert _rigid(ours, theirs, mirror=True) > 10.0          # not mirrored (a bust: 48 mm)
+    assert rigid_rms(ours, theirs) < 1e-6                    # FabScan's points, in our part frame
+    assert rigid_rms(ours, theirs, mirror=True) > 10.0       # not mirrored (a bust: 48 mm)
 
 
 @needs_real
