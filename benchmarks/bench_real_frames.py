@@ -73,14 +73,9 @@ def fabscan_points(rows, across, angles_deg, config: dict) -> np.ndarray:
 
 def rigid_rms(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """RMS after the best proper rigid motion a → b, and after the best mirror one [mm]."""
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    out = []
-    for sign in (1.0, -1.0):
-        dd = np.diag([1.0, 1.0, sign * np.sign(np.linalg.det(vt.T @ u.T))])
-        rm = vt.T @ dd @ u.T
-        out.append(float(np.sqrt(np.mean(np.sum(((rm @ (a - ca).T).T + cb - b) ** 2, axis=1)))))
-    return out[0], out[1]
+    from scheimpflug.fitting import fit_rigid
+
+    return fit_rigid(a, b)[2], fit_rigid(a, b, mirror=True)[2]
 
 
 def fabscan(realdata: Path, out: Path, name: str, picture: Path | None) -> dict:

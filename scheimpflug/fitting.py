@@ -13,6 +13,8 @@ RMS.  ``to_dict()`` gives the JSON form used by ``scheimpflug evaluate``.
   by Gauss–Newton on the orthogonal distance to the surface.
 - :func:`fit_circle` / :func:`fit_circle_top_view` — Pratt's algebraic fit
   (or Kåsa's) refined by geometric least squares; diameter and mean |error|.
+- :func:`fit_rigid` — the rigid motion between two corresponding point sets
+  (Kabsch), to compare a measurement with its truth up to where its frame is.
 
 References
 ----------
@@ -39,6 +41,7 @@ __all__ = [
     "fit_cylinder",
     "fit_plane",
     "fit_plane_paper",
+    "fit_rigid",
 ]
 
 
@@ -478,3 +481,39 @@ def fit_cylinder(points: np.ndarray, axis_guess: np.ndarray | None = None) -> Cy
     return CylinderFit(axis=direction, centre_mm=centre, radius_mm=radius, diameter_mm=2 * radius,
                        height_mm=float(t.max() - t.min()), residuals_mm=res,
                        rms_mm=float(np.sqrt(np.mean(res ** 2))))
+
+
+def fit_rigid(a, b, *, mirror: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """The rigid motion that best maps point set ``a`` onto ``b`` (Kabsch): ``b ≈ R·a + t``.
+
+    Parameters
+    ----------
+    a, b : (n, 3) array_like float
+        Corresponding points [mm], n ≥ 3.
+    mirror : bool, default False
+        Fit the best *improper* motion (det R = −1) instead: how far ``a`` is from ``b``'s mirror
+        image (a frame turned the wrong way shows as a small RMS here).
+
+    Returns
+    -------
+    R : (3, 3) float64
+        Rotation (det +1; −1 with ``mirror``).
+    t : (3,) float64
+        Translation [mm].
+    rms_mm : float
+        RMS of ``b − (R·a + t)`` [mm].
+
+    Raises
+    ------
+    ValueError
+        Point sets of other shapes, or fewer than 3 points.
+    """
+    p, q = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or p.shape != q.shape or len(p) < 3:
+        raise ValueError(f"fit_rigid needs two (n, 3) point sets of one size, n >= 3; got {p.shape}, {q.shape}")
+    cp, cq = p.mean(axis=0), q.mean(axis=0)
+    u, _, vt = np.linalg.svd((p - cp).T @ (q - cq))
+    sign = np.sign(np.linalg.det(vt.T @ u.T)) * (-1.0 if mirror else 1.0)
+    r = vt.T @ np.diag([1.0, 1.0, sign]) @ u.T
+    t = cq - r @ cp
+    return r, t, float(np.sqrt(np.mean(np.sum((p @ r.T + t - q) ** 2, axis=1))))

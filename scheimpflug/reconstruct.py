@@ -45,6 +45,7 @@ __all__ = [
     "FolderStripes",
     "PointCloud",
     "SheetCalibration",
+    "calibration_axis",
     "extract_folder",
     "extract_folder_stripes",
     "isolated_rows",
@@ -257,8 +258,21 @@ def part_from_camera(points_mm, angle_deg, axis: dict, e_s) -> np.ndarray:
     return np.stack([a * cos + b * sin, -a * sin + b * cos, c], axis=-1)
 
 
-def _axis_3d(calibration) -> tuple[dict, np.ndarray] | None:
-    """The calibration's 3-D axis (turned so that it points along the sheet's height) and e_s, or None."""
+def calibration_axis(calibration) -> tuple[dict, np.ndarray] | None:
+    """The rotary axis a calibration measured in 3-D, and its sheet's stage axis, or None.
+
+    Parameters
+    ----------
+    calibration : SheetModel
+        A calibration; a target calibration with table poses and FabScan's carry an axis.
+
+    Returns
+    -------
+    (dict, (3,) ndarray) or None
+        The axis (:func:`scheimpflug.calibration.target.axis_in_sheet`'s keys; ``direction``
+        turned to point along the sheet's height axis) and ``e_s`` (camera frame); None for a
+        calibration without one.
+    """
     axis = getattr(calibration, "axis", None)
     if not isinstance(axis, dict) or "direction" not in axis or not hasattr(calibration, "sheet_frame"):
         return None
@@ -296,7 +310,7 @@ def points_from_pixels(u, v, angle_deg, calibration, axis_mm: float | None) -> n
         without a 3-D axis.
     """
     if axis_mm is None:
-        found = _axis_3d(calibration)
+        found = calibration_axis(calibration)
         if found is None:
             raise ValueError("axis_mm is None but the calibration holds no rotary axis")
         uu, vv, aa = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64),

@@ -459,15 +459,16 @@ def acceptance_by_calibration(rig: Rig, out, calibrations: dict, *, binning: int
     rig_b = binned_rig(rig, binning)
     vol, plan = acceptance_plan(rig_b, quick, frames)
     rows = {name: {"sphere": [], "ball_bar": [], "plane": [], "failed": []} for name in calibrations}
+    geometry = {name: _geometry(model, rig_b, lambda msg: None) for name, (model, _) in calibrations.items()}
     for pos in plan:
         if log:
             log(f"acceptance: {pos.name}")
         _render(rig_b, position_scenario(rig_b, pos, seed, _MATERIAL), out / pos.name, seed, None,
                 lambda msg: None)
         ff = open_frame_folder(out / pos.name)
+        stripes = extract_folder_stripes(ff, "cog")          # once: the same detection for every calibration
         for name, (model, axis_mm) in calibrations.items():
-            geometry = _geometry(model, rig_b, lambda msg: None)
-            cloud, _ = measured_cloud(ff, model, axis_mm, geometry)
+            cloud, _ = measured_cloud(ff, model, axis_mm, geometry[name], stripes=stripes)
             if quality is not None:
                 cloud = cloud.select(quality_mask(cloud, quality))
             try:
@@ -481,7 +482,7 @@ def acceptance_by_calibration(rig: Rig, out, calibrations: dict, *, binning: int
             for name, r in rows.items()}
 
 
-def measured_cloud(ff, cal, axis_mm: float | None, geometry: SheetGeometry):
+def measured_cloud(ff, cal, axis_mm: float | None, geometry: SheetGeometry, stripes=None):
     """The cloud of a rotary scan folder with every point's measured quality (frames and calibration only).
 
     Parameters
@@ -496,6 +497,8 @@ def measured_cloud(ff, cal, axis_mm: float | None, geometry: SheetGeometry):
     geometry : scheimpflug.point_quality.SheetGeometry or None
         Laser origin and camera centre (:func:`scheimpflug.point_quality.sheet_geometry`);
         None: the incidences stay unknown (NaN), the sweep edges are still measured.
+    stripes : scheimpflug.reconstruct.FolderStripes, optional
+        The scan's stripe samples when already extracted (default: extracted here, "cog").
 
     Returns
     -------
@@ -504,9 +507,10 @@ def measured_cloud(ff, cal, axis_mm: float | None, geometry: SheetGeometry):
     stripes : scheimpflug.reconstruct.FolderStripes
         The stripe samples it was made of.
     """
-    st = extract_folder_stripes(ff, "cog")
+    st = stripes if stripes is not None else extract_folder_stripes(ff, "cog")
     cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in ff.frames], cal, axis_mm,
-                                 intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px)
+                                 intensity=st.peak, snr=st.snr, stripe_width_px=st.stripe_width_px,
+                                 along=st.along)
     if geometry is None:
         edge = sweep_edges(cloud.frame, cloud.row, len(ff), cloud.intensity)
         return dataclasses.replace(cloud, sweep_edge=edge), st

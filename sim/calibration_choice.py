@@ -237,14 +237,6 @@ def _truth_pixels(folder: Path, camera_from_rig: np.ndarray, every: int = 4) -> 
     return np.concatenate(u), np.concatenate(v), np.concatenate(pts)
 
 
-def _rigid(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) with b ≈ R·a + t (Kabsch, proper)."""
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    r = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
-    return r, cb - ca @ r.T
-
-
 # ---------------------------------------------------------------- one calibration's figures
 
 
@@ -264,30 +256,33 @@ def _model_plane(model, rig_b: Rig) -> np.ndarray:
     return np.asarray(opencv_dict(model, rig_b.lens.focal_length_mm, rig_b.sensor.pixel_pitch_um)["laser_plane"])
 
 
-def _model_axis(model, axis_mm) -> tuple[np.ndarray, np.ndarray]:
+def _model_axis(model, axis_mm, rig_b: Rig) -> tuple[np.ndarray, np.ndarray]:
     """A point and the direction of the calibration's rotary axis in its camera frame."""
-    if axis_mm is None:
-        from scheimpflug.reconstruct import _axis_3d
-
-        axis, _ = _axis_3d(model)
-        return np.asarray(axis["origin_mm"]), np.asarray(axis["direction"])
     from scheimpflug.calibration import GeneralCalibration
+    from scheimpflug.calibration.camera import ideal_camera
+    from scheimpflug.reconstruct import calibration_axis
 
+    if axis_mm is None:
+        axis, _ = calibration_axis(model)
+        return np.asarray(axis["origin_mm"]), np.asarray(axis["direction"])
     if isinstance(model, GeneralCalibration):
         g = model.metric_scale() * model.homography
-        return g[:, 2] + axis_mm * g[:, 0], g[:, 1]
-    _, g = model._decomposed(None)
+    else:                              # the paper form decomposed as _camera_points does (one stage mm = 1 mm)
+        _, g = ideal_camera(model, rig_b.lens.focal_length_mm, rig_b.sensor.pixel_pitch_um)
+        g = g / np.linalg.norm(g[:, 0])
     return g[:, 2] + axis_mm * g[:, 0], g[:, 1]
 
 
 def _calibration_figures(model, axis_mm, truth: dict, pixels: tuple, rig_b: Rig) -> dict:
     u, v, true_cam = pixels
     ours = _camera_points(model, u, v, rig_b)
+    from scheimpflug.fitting import fit_rigid
+
     ok = np.all(np.isfinite(ours), axis=1)
-    r, t = _rigid(ours[ok], true_cam[ok])
+    r, t, _ = fit_rigid(ours[ok], true_cam[ok])
     resid = np.linalg.norm(ours[ok] @ r.T + t - true_cam[ok], axis=1)
     plane = _model_plane(model, rig_b)
-    q, w = _model_axis(model, axis_mm)
+    q, w = _model_axis(model, axis_mm, rig_b)
     q, w = r @ q + t, r @ w
     w_true = truth["axis_dir"] / np.linalg.norm(truth["axis_dir"])
     rel = q - truth["axis_point"]

@@ -7,6 +7,8 @@ plane ``n·X = d`` (no undistortion), the platform ``Rᵀ(X − t)``, turned by 
 
 import numpy as np
 
+from scheimpflug.fitting import fit_rigid
+
 
 def fabscan_points(lines, across, angles_deg, cfg) -> np.ndarray:
     """FabScan's points of stripe samples of frames stored unturned, stripe along the rows.
@@ -32,8 +34,4 @@ def fabscan_points(lines, across, angles_deg, cfg) -> np.ndarray:
 
 def rigid_rms(a, b, mirror=False) -> float:
     """RMS of b − (R·a + t) after the best proper rigid motion (or, ``mirror``, the best improper one) [mm]."""
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    s = np.sign(np.linalg.det(vt.T @ u.T)) * (-1 if mirror else 1)
-    rm = vt.T @ np.diag([1, 1, s]) @ u.T
-    return float(np.sqrt(np.mean(np.sum(((rm @ (a - ca).T).T + cb - b) ** 2, axis=1))))
+    return fit_rigid(a, b, mirror=mirror)[2]

@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from scheimpflug.fitting import fit_circle, fit_circle_top_view, fit_cylinder, fit_plane, fit_plane_paper
+from scheimpflug.fitting import (
+    fit_circle,
+    fit_circle_top_view,
+    fit_cylinder,
+    fit_plane,
+    fit_plane_paper,
+    fit_rigid,
+)
 
 
 @pytest.fixture
@@ -114,3 +121,19 @@ def test_circle_top_view_ignores_height(rng):
 def test_degenerate_sets_raise(fn, pts):
     with pytest.raises(ValueError):
         fn(pts)
+
+
+def test_fit_rigid_recovers_a_known_motion_and_tells_a_mirror_image():
+    rng = np.random.default_rng(4)
+    a = rng.uniform(-50, 50, (200, 3))
+    r0 = Rotation.from_rotvec([0.3, -0.2, 1.1]).as_matrix()
+    t0 = np.array([12.0, -3.0, 150.0])
+    b = a @ r0.T + t0
+    r, t, rms = fit_rigid(a, b)
+    np.testing.assert_allclose(r, r0, atol=1e-12)
+    np.testing.assert_allclose(t, t0, atol=1e-10)
+    assert rms < 1e-10 and np.linalg.det(r) > 0
+    mirrored = b * np.array([1.0, 1.0, -1.0])           # b's mirror image: no rotation maps a onto it
+    assert fit_rigid(a, mirrored)[2] > 10.0 and fit_rigid(a, mirrored, mirror=True)[2] < 1e-10
+    with pytest.raises(ValueError, match="n >= 3"):
+        fit_rigid(a[:2], b[:2])

@@ -72,7 +72,7 @@ import cv2
 import numpy as np
 
 from scheimpflug.errors import FrameError
-from scheimpflug.io.frames import radians_note
+from scheimpflug.io.frames import STRIPE_ALONG, radians_note
 
 __all__ = ["CHANNELS", "ImportedFrame", "frames_with_angles", "import_frames", "parse_angles", "positions_from_csv",
            "positions_from_names", "read_image", "target_frames"]
@@ -135,7 +135,7 @@ def read_image(path: str | Path, channel: str | None = None) -> np.ndarray:
     if img is None and p.suffix.lower() in (".tif", ".tiff"):
         img = _read_tifffile(p)
     if img is None:
-        raise FrameError(f"frame {str(p)!r} is unreadable or corrupt (not a PNG or TIFF OpenCV can decode)")
+        raise FrameError(f"frame {str(p)!r} is unreadable or corrupt (not a PNG, TIFF or JPEG OpenCV can decode)")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.dtype not in (np.uint8, np.uint16):
@@ -567,8 +567,10 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         raise FrameError("no frames to import")
     if len({f.key for f in frames}) != 1:
         raise FrameError("frames mix stage positions and angles")
-    if stripe_along not in ("rows", "columns"):
-        raise FrameError(f"--stripe-along {stripe_along!r}: rows or columns")
+    if stripe_along not in STRIPE_ALONG:
+        raise FrameError(f"--stripe-along {stripe_along!r}: one of {', '.join(STRIPE_ALONG)}")
+    if channel is not None:
+        _weights(channel)                     # a bad --channel is refused even where every file is grey
     bgs = _pair_backgrounds(frames, backgrounds)
     frames = sorted(frames, key=lambda f: f.value)        # stable: equal positions keep their order
     images = _load_all(frames, channel, bgs)
