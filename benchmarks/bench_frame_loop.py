@@ -15,7 +15,9 @@ the second frame written to the last, which leaves out the loop's set-up (this
 checkout's truth sorts the mesh's faces once per run, ≈ 0.5–1.3 s for the cylinder) —
 and for the whole loop ("all"); the frame loop's stages as
 ``RenderStats.seconds`` holds them (wall time of each stage; in a pipelined loop the
-background thread's stages overlap the render and do not add up to the frame time),
+other threads' stages — ``finish``, the image finished on a second thread, ``png``,
+``truth_write``, and the sheet's cut inside ``truth`` — overlap the render and do not
+add up to the frame time; ``truth`` also holds the run's one-off face sort),
 and the process's peak resident memory (``ru_maxrss``); the 1-minute load average at
 the start of each measurement.
 

@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
@@ -101,6 +102,7 @@ from .variant import is_jit_variant
 
 __all__ = [
     "FrameLight",
+    "PendingLight",
     "RenderSettings",
     "Renderer",
 ]
@@ -230,6 +232,39 @@ class FrameLight:
     walks: tuple = (0, 0)
 
 
+class PendingLight:
+    """A frame begun by :meth:`Renderer.begin_light`: its light split, and what is left to compute.
+
+    Parameters
+    ----------
+    light : FrameLight
+        The frame's light; its ``image`` is final once :meth:`finish` has run.
+    rest : callable or None
+        What is left (no scene query), returning ``light``; None when nothing is.
+    """
+
+    def __init__(self, light: FrameLight, rest: Callable[[], FrameLight] | None = None) -> None:
+        self.light, self._rest = light, rest
+
+    @property
+    def done(self) -> bool:
+        """True when nothing is left to compute (``light.image`` is final)."""
+        return self._rest is None
+
+    def finish(self) -> FrameLight:
+        """Compute what is left (once; any thread) and return the frame's light.
+
+        Returns
+        -------
+        FrameLight
+            The finished frame.
+        """
+        if self._rest is not None:
+            rest, self._rest = self._rest, None
+            rest()
+        return self.light
+
+
 def _border_pixels(pose: SensorPose, n: int = 33) -> np.ndarray:
     u = np.linspace(-0.5, pose.columns - 0.5, n)
     v = np.linspace(-0.5, pose.rows - 0.5, n)
@@ -314,7 +349,7 @@ class Renderer:
         self._speckle_model = None
         #: wall time [s] spent per stage since construction (``benchmarks/bench_optics.py``)
         self.timings = {"ambient": 0.0, "first_hit": 0.0, "transport": 0.0, "accumulate": 0.0,
-                        "speckle": 0.0}
+                        "speckle": 0.0, "finish": 0.0}
 
     def _part_contrast(self) -> np.ndarray:
         """Speckle contrast of each part's surface light, indexed by part index + 1."""
@@ -400,26 +435,78 @@ class Renderer:
         FrameLight
             The image and, beyond the ideal twin, its laser light by origin.
         """
+        return self.begin_light(rig_from_part, seed, rig_from_laser).finish()
+
+    def begin_light(self, rig_from_part, seed: int, rig_from_laser=None) -> PendingLight:
+        """:meth:`render_light` up to what needs the posed scene; the rest in ``finish()``.
+
+        Everything that queries the scene — pose, ambient light, the laser's paths, the
+        surface speckle's chief-ray hits — runs here; what is left (the surface
+        speckle's deposit and coherent sums, or on the ideal twin the ambient grid's
+        interpolation and the splats: numba and OpenCV on arrays) runs in the returned
+        object's ``finish()``, which may be called on another thread after the scene is
+        posed for the next frame (the pipelined frame loop).  ``begin_light(...).finish()``
+        is :meth:`render_light`, value for value.
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) or (n_parts, 4, 4) float
+            Pose of the parts in the rig frame [mm].
+        seed : int
+            Frame seed (≥ 0), as in :meth:`render`.
+        rig_from_laser : (4, 4) float, optional
+            This frame's pose of the laser sheet, as in :meth:`render` [mm].
+
+        Returns
+        -------
+        PendingLight
+            The frame's light split now (``light.image`` once finished) and what is left.
+        """
         self._pose_frame(rig_from_part, rig_from_laser)
         key = self._key(seed)
         t0 = time.perf_counter()
-        out = self._ambient_image(key)
+        coarse = self._ambient_coarse(key)
         self.timings["ambient"] += time.perf_counter() - t0
         first, extra = self._laser_paths(key)
+        if extra is None and not self._speckle_on():     # the ideal twin, as it always was
+            light = FrameLight(None)
+
+            def finish_ideal() -> FrameLight:
+                t2 = time.perf_counter()
+                out = self._ambient_full(coarse)
+                self._splat_into(out, first[0], first[1])
+                light.image = out
+                self.timings["finish"] += time.perf_counter() - t2   # only here: one thread
+                return light
+
+            return PendingLight(light, finish_ideal)
         t0 = time.perf_counter()
-        if extra is None and not self._speckle_on():
-            self._splat_into(out, first[0], first[1])      # the ideal twin, as it always was
-            return FrameLight(out)
+        out = self._ambient_full(coarse)
+        self.timings["ambient"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
         if extra is None and self.rig.twin.speckle_model == "sensor":
             out += self._accumulate(first[0], first[1]) * self._speckle(key).astype(np.float32)
-            return FrameLight(out)
+            return PendingLight(FrameLight(out))
         light = self._combine(first, extra)
         t1 = time.perf_counter()
         self.timings["accumulate"] += t1 - t0
-        out += self._speckled(light, key) if self._speckle_on() else light.laser
-        self.timings["speckle"] += time.perf_counter() - t1
-        light.image = out
-        return light
+        if not self._speckle_on() or self.rig.twin.speckle_model == "sensor":
+            out += self._speckled(light, key) if self._speckle_on() else light.laser
+            self.timings["speckle"] += time.perf_counter() - t1
+            light.image = out
+            return PendingLight(light)
+        prepared = self._surface_speckle().prepare(light.laser)
+        coherent = light.coherent * self.sheet.speckle_contrast
+        scene_s = time.perf_counter() - t1
+
+        def finish() -> FrameLight:
+            t2 = time.perf_counter()
+            out.__iadd__(prepared.apply(light.laser, coherent))
+            light.image = out
+            self.timings["speckle"] += scene_s + time.perf_counter() - t2   # only here: one thread
+            return light
+
+        return PendingLight(light, finish)
 
     def render_components(self, rig_from_part, seed: int,
                           rig_from_laser=None) -> tuple[np.ndarray, np.ndarray]:
@@ -454,7 +541,7 @@ class Renderer:
         first, extra = self._laser_paths(key)
         light = self._combine(first, extra)
         laser = self._speckled(light, key) if self._speckle_on() else light.laser
-        return laser, self._ambient_image(key)
+        return laser, self._ambient_full(self._ambient_coarse(key))
 
     def speckle_grain_px(self) -> float:
         """Speckle grain on the sensor, in pixels.
@@ -575,13 +662,17 @@ class Renderer:
         """Laser light with speckle: I + I_c·(S − 1), S the model's pixel speckle (mean 1)."""
         if self.rig.twin.speckle_model == "sensor":
             return light.laser * self._speckle(key).astype(np.float32)
+        c = self.sheet.speckle_contrast
+        return self._surface_speckle().apply(light.laser, light.coherent * c)
+
+    def _surface_speckle(self):
+        """The surface speckle model (:class:`sim.speckle.SurfaceSpeckle`), made on first use."""
         if self._speckle_model is None:
             from .speckle import SurfaceSpeckle
 
             self._speckle_model = SurfaceSpeckle(self.rig, self.pose, self.scene,
                                                  self.settings.seed)
-        c = self.sheet.speckle_contrast
-        return self._speckle_model.apply(light.laser, light.coherent * c)
+        return self._speckle_model
 
     def _speckle(self, key: int) -> np.ndarray:
         return speckle_pattern(self.shape, self.sheet.speckle_contrast, self.speckle_grain_px(), key)
@@ -749,13 +840,15 @@ class Renderer:
         light.walks = extra.walks
         return light
 
-    def _ambient_image(self, key: int) -> np.ndarray:
+    def _ambient_coarse(self, key: int) -> np.ndarray | None:
+        """The ambient light on the coarse grid (rows, columns of ``_amb_grid``) [e⁻]; None = no ambient.
+
+        The scene query (Dr.Jit); :meth:`_ambient_full` makes the image of it (any thread).
+        """
         e_amb = self.rig.environment.ambient_irradiance_w_m2
         if not self.settings.ambient or e_amb == 0.0:
-            return np.zeros(self.shape, np.float32)
+            return None
         mi, dr = self._mi, self._dr
-        import cv2
-
         s = dr.opaque(mi.UInt32, key) ^ 0x27D4EB2F
         ray = self._frame[0] @ mi.Ray3f(mi.Point3f(self.lens.centre_x_mm, 0.0, 0.0), self._amb_dirs)
         si = self.scene.scene.ray_intersect(ray)
@@ -772,7 +865,14 @@ class Renderer:
         if self.scene.textures:
             albedo = albedo * self.scene.albedo_dr(si)
         radiance = albedo * (e_amb / (math.pi * k_n))  # [W/(m²·sr)]
-        coarse = (np.asarray(radiance, np.float64) * self._amb_e_per_radiance).astype(np.float32)
+        return (np.asarray(radiance, np.float64) * self._amb_e_per_radiance).astype(np.float32)
+
+    def _ambient_full(self, coarse: np.ndarray | None) -> np.ndarray:
+        """The ambient image (rows, columns) float32 [e⁻]: the coarse grid interpolated, or zeros."""
+        if coarse is None:
+            return np.zeros(self.shape, np.float32)
+        import cv2
+
         nr, nc = self._amb_grid
         step = self.settings.ambient_step_px
         big = cv2.resize(coarse.reshape(nr, nc), (nc * step, nr * step),

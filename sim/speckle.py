@@ -71,6 +71,7 @@ from .lightsheet import light_sheet
 from .truth import pixel_directions
 
 __all__ = [
+    "PreparedSpeckle",
     "SpeckleKernel",
     "SurfaceSpeckle",
     "coherent_kernel",
@@ -269,13 +270,35 @@ class SurfaceSpeckle:
         (rows, columns) float32
             laser + coherent·(S − 1) [e⁻].
         """
-        s = self.pixel_speckle(laser)
-        if not (laser.dtype == coherent.dtype == np.float32):
-            return (laser + coherent * (s - np.float32(1.0))).astype(np.float32)
-        s -= np.float32(1.0)          # float32 in place: the same values, no frame-sized temporaries
-        np.multiply(coherent, s, out=s)
-        np.add(laser, s, out=s)
-        return s
+        return self.prepare(laser).apply(laser, coherent)
+
+    def prepare(self, laser) -> PreparedSpeckle:
+        """The half of :meth:`pixel_speckle` that needs the posed scene: the lit pixels' chief-ray hits.
+
+        What is left — the scatterers' deposit and the coherent sums, numba on arrays
+        the result owns — is :meth:`PreparedSpeckle.pixel_speckle`, which may run on
+        another thread while the scene is posed for the next frame (the pipelined frame
+        loop, :func:`sim.writer.render_scenario`).  One prepared frame at a time may be
+        finished (the deposit's scratch grids are the model's).
+
+        Parameters
+        ----------
+        laser : (rows, columns) float
+            Laser electrons (as :meth:`pixel_speckle`) [e⁻].
+
+        Returns
+        -------
+        PreparedSpeckle
+            The frame's lit pixels and their hits on the scene as posed now.
+        """
+        laser = np.asarray(laser)
+        rows, cols = laser.shape
+        lit = (laser >= self.min_electrons) \
+            & (laser >= self.min_row_fraction * laser.max(axis=1, keepdims=True))
+        if not lit.any():
+            return PreparedSpeckle(self, (rows, cols), lit, None)
+        need = _needed_pixels(lit, self.margin_px)
+        return PreparedSpeckle(self, (rows, cols), lit, self._hit_rays(need))
 
     def pixel_speckle(self, laser, keep_fine: bool = False) -> np.ndarray:
         """Speckle factor S of each pixel (mean 1; 1 where no laser light).
@@ -294,17 +317,16 @@ class SurfaceSpeckle:
         (rows, columns) float32
             Mean-1 speckle factor [-].
         """
-        rows, cols = laser.shape
-        laser = np.asarray(laser)
-        lit = (laser >= self.min_electrons) \
-            & (laser >= self.min_row_fraction * laser.max(axis=1, keepdims=True))
-        out = np.ones((rows, cols), np.float32)
-        if not lit.any():
+        return self.prepare(laser).pixel_speckle(keep_fine)
+
+    def _speckle_of(self, shape, lit, hits, keep_fine: bool) -> np.ndarray:
+        """:meth:`pixel_speckle` from the lit pixels and their hits (no scene query)."""
+        out = np.ones(shape, np.float32)
+        if hits is None:
             return out
         tiles = _lit_tiles(lit, TILE_PX)
         kernels, kidx = self._tile_kernels(tiles)
-        need = _needed_pixels(lit, self.margin_px)
-        index, part_pt, part_n, m12, part_idx, base_tiles = self._hits(need, rows, cols)
+        index, part_pt, part_n, m12, part_idx, base_tiles = self._hit_arrays(hits, *shape)
         slot, cells, corr = self._deposit(index, part_pt, part_n, m12, part_idx, base_tiles)
         n_taps = max(len(k.values) for k in kernels)
         offsets = np.zeros((len(kernels), n_taps, 2), np.int64)
@@ -383,23 +405,33 @@ class SurfaceSpeckle:
             index[i] = keys[id(k)]
         return kernels, index
 
-    def _hits(self, need: np.ndarray, rows: int, cols: int):
-        """Chief-ray hits of the needed pixels, in compact arrays.
+    def _hit_rays(self, need: np.ndarray) -> tuple:
+        """Chief-ray hits of the needed pixels on the scene as posed now (the scene query).
+
+        Returns their rows and columns, the rays' directions (n, 3), the hits' distance,
+        part index (−1 = none) and normal (:meth:`sim.scene.SimScene.first_hit_parts`), and
+        the parts' rig_from_part (p, 4, 4) of this pose.
+        """
+        rr, cc = _nonzero(need)
+        if self._directions is None:
+            rows, cols = need.shape
+            self._directions = pixel_directions(self.rig).reshape(rows, cols, 3)
+        w = self._directions[rr, cc]
+        t, idx, n = self.scene.first_hit_parts(w) if rr.size else (np.zeros(0),) * 3
+        mats = np.stack([np.asarray(m, np.float64) for m in self.scene.rig_from_part])
+        return rr, cc, w, t, idx, n, mats
+
+    def _hit_arrays(self, rays: tuple, rows: int, cols: int):
+        """The hits of :meth:`_hit_rays` in compact arrays (numpy, no scene query).
 
         Returns index (rows, columns) int32 into the arrays (−1 = no hit or not needed),
         part-frame point (n, 3) and normal (n, 3, toward the lens), rig_from_part rows
         (n, 12), part index (n,), and the (tile row, tile column) of the tiles holding
         hits, in row-major order.
         """
-        index = self._scratch("index", (rows, cols), np.int32)
-        index.fill(-1)
-        rr, cc = _nonzero(need)
-        if self._directions is None:
-            self._directions = pixel_directions(self.rig).reshape(rows, cols, 3)
-        w = self._directions[rr, cc]
-        t, idx, n = self.scene.first_hit_parts(w) if rr.size else (np.zeros(0),) * 3
+        rr, cc, w, t, idx, n, mats = rays
+        index = np.full((rows, cols), -1, np.int32)
         sel = np.nonzero(idx >= 0)[0]
-        mats = np.stack([np.asarray(m, np.float64) for m in self.scene.rig_from_part])
         m = mats[idx[sel]]
         p, n = t[sel, None] * w[sel], n[sel]
         n = np.where((np.sum(n * p, 1) > 0)[:, None], -n, n)
@@ -410,6 +442,64 @@ class SurfaceSpeckle:
         return (index, np.einsum("kji,kj->ki", rot, p - trans), np.einsum("kji,kj->ki", rot, n),
                 np.ascontiguousarray(m[:, :3, :].reshape(-1, 12)), idx[sel].astype(np.int64),
                 np.stack([tiles // n_tile_cols, tiles % n_tile_cols], 1).astype(np.int64))
+
+
+class PreparedSpeckle:
+    """One frame's speckle after its scene queries (:meth:`SurfaceSpeckle.prepare`).
+
+    Parameters
+    ----------
+    model : SurfaceSpeckle
+        The model that prepared it.
+    shape : (int, int)
+        The frame's (rows, columns).
+    lit : (rows, columns) bool
+        Pixels whose speckle is computed.
+    hits : tuple or None
+        Their neighbourhood's chief-ray hits (``SurfaceSpeckle._hit_rays``); None when
+        nothing is lit.
+    """
+
+    def __init__(self, model: SurfaceSpeckle, shape: tuple[int, int], lit: np.ndarray, hits) -> None:
+        self.model, self.shape, self.lit, self.hits = model, shape, lit, hits
+
+    def pixel_speckle(self, keep_fine: bool = False) -> np.ndarray:
+        """Speckle factor S of each pixel (:meth:`SurfaceSpeckle.pixel_speckle`).
+
+        Parameters
+        ----------
+        keep_fine : bool
+            As :meth:`SurfaceSpeckle.pixel_speckle`.
+
+        Returns
+        -------
+        (rows, columns) float32
+            Mean-1 speckle factor [-].
+        """
+        return self.model._speckle_of(self.shape, self.lit, self.hits, keep_fine)
+
+    def apply(self, laser, coherent) -> np.ndarray:
+        """Laser light with speckle, laser + coherent·(S − 1) (:meth:`SurfaceSpeckle.apply`).
+
+        Parameters
+        ----------
+        laser : (rows, columns) float32
+            The laser electrons this frame was prepared from [e⁻].
+        coherent : (rows, columns) float32
+            The same light weighted by its speckle contrast [e⁻].
+
+        Returns
+        -------
+        (rows, columns) float32
+            Laser light with speckle [e⁻].
+        """
+        s = self.pixel_speckle()
+        if not (laser.dtype == coherent.dtype == np.float32):
+            return (laser + coherent * (s - np.float32(1.0))).astype(np.float32)
+        s -= np.float32(1.0)          # float32 in place: the same values, no frame-sized temporaries
+        np.multiply(coherent, s, out=s)
+        np.add(laser, s, out=s)
+        return s
 
 
 def _lit_tiles(lit: np.ndarray, t: int) -> np.ndarray:
@@ -636,7 +726,7 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, cells,
             _deposit_one(cells, fu, fv, a.real, a.imag)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, lattice, seed, cam,
                   lo, k_wave, cells, table):  # pragma: no cover - compiled
     """Each needed pixel's scatterers, once, on the fine grid of its own tile (offset 1).
@@ -656,7 +746,7 @@ def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, latti
                                    table)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _fold_halos(base_tiles, slot, n, cells):  # pragma: no cover - compiled
     """Add each tile's halo cells (fine index −1 and n) into the neighbour tile they belong to."""
     for i in range(base_tiles.shape[0]):
@@ -679,7 +769,7 @@ def _fold_halos(base_tiles, slot, n, cells):  # pragma: no cover - compiled
                     cells[k, a2, b2, e] += cells[i, a, b, e]
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _normalise(cells, corr):  # pragma: no cover - compiled
     """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile.
 
@@ -792,7 +882,7 @@ def _convolve_row(wr, wi, wocc, a0, b0, b1, cb, hr, hi, offsets, ntap, full, ur,
                 c_v[j] += h2 * crow[j]
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _pixel_means(tiles, t, s, margin, lit, slot, cells, corr, offsets, values_re, values_im,
                  ntaps, lags, kidx, out, keep_fine, fine):  # pragma: no cover - compiled
     """S of each lit pixel: mean over its s × s fine samples of |h ⊛ o|²/(E|U|²·coverage).

@@ -89,6 +89,7 @@ __all__ = [
     "SceneCaster",
     "SceneTruth",
     "StripeTruth",
+    "TruthSection",
     "TruthTolerances",
     "laser_origin_mm",
     "opencv_camera",
@@ -995,6 +996,40 @@ def _section_faces(vertices, faces, candidates, point, normal):  # pragma: no co
     return seg[:k], face_of[:k]
 
 
+@dataclasses.dataclass(frozen=True)
+class TruthSection:
+    """A frame's candidate stripe points before the visibility test (:meth:`SceneTruth.section`).
+
+    Parameters
+    ----------
+    rows : (k,) int
+        Sensor row of each crossing.
+    u_px : (k,) float
+        Its column [px].
+    points_mm : (k, 3) float
+        Its point on the surface, rig frame [mm].
+    faces : (k,) int
+        The face it lies on.
+    rig_from_part : (4, 4) float
+        The frame's pose of the scene.
+    ref_from_rig : (4, 4) float
+        Rig frame → truth reference frame.
+    lens_mm : (3,) float
+        The lens centre the visibility is tested from, rig frame [mm].
+    laser_mm : (3,) float
+        The laser origin the lighting is tested from, rig frame [mm].
+    """
+
+    rows: np.ndarray
+    u_px: np.ndarray
+    points_mm: np.ndarray
+    faces: np.ndarray
+    rig_from_part: np.ndarray
+    ref_from_rig: np.ndarray
+    lens_mm: np.ndarray
+    laser_mm: np.ndarray
+
+
 class SceneTruth:
     """The per-row stripe truth of many frames of one scene, with per-scene data computed once.
 
@@ -1098,10 +1133,32 @@ class SceneTruth:
             angle between the laser ray and the normal of the face the point lies on
             [deg], NaN = none.
         """
+        return self.finish(self.section(rig_from_part, ref_from_part, rig_from_laser), caster)
+
+    def section(self, rig_from_part, ref_from_part, rig_from_laser=None) -> TruthSection:
+        """The half of :meth:`frame` that needs no scene query: the sheet's cut through the mesh.
+
+        Numpy on the per-scene data (read only), so it may run on another thread while
+        the scene is posed and rendered (the pipelined frame loop).
+
+        Parameters
+        ----------
+        rig_from_part : (4, 4) float
+            Pose of the scene in the rig frame.
+        ref_from_part : (4, 4) float
+            Part frame → truth reference frame.
+        rig_from_laser : (4, 4) float, optional
+            This frame's pose of the laser sheet, as in :meth:`frame` [mm].
+
+        Returns
+        -------
+        TruthSection
+            The candidate stripe points of each row, before the visibility test.
+        """
         rig, g, tol = self.rig, self.geometry, self.tol
         part_from_rig = invert(rig_from_part)
         if rig_from_laser is not None or rig.laser.line_bow_mrad != 0.0 or lens_centre_mm(rig)[0] != 0.0:
-            return self._frame_erring(rig_from_part, ref_from_part, caster, rig_from_laser)
+            return self._section_erring(rig_from_part, ref_from_part, rig_from_laser)
         point = transform_points(part_from_rig, g.object_hinge_mm)
         normal = part_from_rig[:3, :3] @ g.sheet_normal
         normal = normal / np.linalg.norm(normal)
@@ -1113,16 +1170,35 @@ class SceneTruth:
         rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose)
         faces = face_of[idx]
         keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts)
-        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
-        keep = self._visible_and_lit(caster, pts)
-        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
-        truth, first = _primary_rows(rig.sensor.rows, rows, u,
-                                     transform_points(ref_from_part @ part_from_rig, pts),
-                                     self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
-        return truth, self._extras(rows[first], pts[first], faces[first], rig_from_part)
+        return TruthSection(rows[keep], u[keep], pts[keep], faces[keep], rig_from_part,
+                            ref_from_part @ part_from_rig, np.zeros(3), laser_origin_mm(rig))
 
-    def _frame_erring(self, rig_from_part, ref_from_part, caster, rig_from_laser):
-        """:meth:`frame` for a turned or bowed sheet or a moved lens (the rules of :func:`stripe_truth`)."""
+    def finish(self, section: TruthSection, caster: RayCaster) -> tuple[StripeTruth, dict]:
+        """:meth:`frame` from its section: the visibility test on the posed scene, one point per row.
+
+        Parameters
+        ----------
+        section : TruthSection
+            The frame's section (:meth:`section`).
+        caster : RayCaster
+            First-hit queries for the scene posed as the section's ``rig_from_part``.
+
+        Returns
+        -------
+        truth : StripeTruth
+            As :meth:`frame`.
+        extra : dict
+            As :meth:`frame`.
+        """
+        sec = section
+        keep = self._visible_and_lit(caster, sec.points_mm, sec.lens_mm, sec.laser_mm)
+        rows, u, pts, faces = sec.rows[keep], sec.u_px[keep], sec.points_mm[keep], sec.faces[keep]
+        truth, first = _primary_rows(self.rig.sensor.rows, rows, u, transform_points(sec.ref_from_rig, pts),
+                                     self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
+        return truth, self._extras(rows[first], pts[first], faces[first], sec.rig_from_part, sec.laser_mm)
+
+    def _section_erring(self, rig_from_part, ref_from_part, rig_from_laser) -> TruthSection:
+        """:meth:`section` for a turned or bowed sheet or a moved lens (the rules of :func:`stripe_truth`)."""
         rig, tol = self.rig, self.tol
         part_from_rig = invert(rig_from_part)
         sheet = posed_sheet(light_sheet(rig), rig_from_laser)
@@ -1148,13 +1224,8 @@ class SceneTruth:
                                       self.normals[faces] @ rig_from_part[:3, :3].T, tol)
             u = project_points(rig, pts, self.pose).uv_px[:, 0]
         keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts, sheet)
-        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
-        keep = self._visible_and_lit(caster, pts, c, sheet.origin_mm)
-        rows, u, pts, faces = rows[keep], u[keep], pts[keep], faces[keep]
-        truth, first = _primary_rows(rig.sensor.rows, rows, u,
-                                     transform_points(ref_from_part @ part_from_rig, pts),
-                                     self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
-        return truth, self._extras(rows[first], pts[first], faces[first], rig_from_part, sheet.origin_mm)
+        return TruthSection(rows[keep], u[keep], pts[keep], faces[keep], rig_from_part,
+                            ref_from_part @ part_from_rig, c, np.asarray(sheet.origin_mm, np.float64))
 
     def candidate_faces_near(self, plane_point_mm, plane_normal, margin_mm: float) -> np.ndarray:
         """Faces in blocks whose bounding box comes within ``margin_mm`` of a plane.

@@ -71,9 +71,10 @@ IN_FLIGHT_PER_WORKER = 2
 
 #: ``auto_workers`` starts workers only for a job of at least this many pixels (frames ×
 #: rows × columns; 60 full paper frames).  Two workers start ≈ 2 s later than one process
-#: (each one imports, builds its twin and warms its first frame on one core), so they
-#: break even at ≈ 30 realistic full frames and are ≈ 15 % faster at 60, 1.73× on a
-#: 360-frame scan (benchmarks/RESULTS.md).
+#: (each one imports, builds its twin and warms its first frame on one core).  Against
+#: the pipelined one-process loop of issue 27 they are about even on 90 realistic full
+#: frames (21.8 against 22.8 s) and 1.10× faster on a 360-frame scan (57.0 against
+#: 62.8 s; it was 1.73× against the loop before; benchmarks/RESULTS.md).
 AUTO_MIN_PIXELS = 60 * 1936 * 1216
 
 
@@ -81,10 +82,9 @@ def auto_workers(rig: Rig, frames: int, n_cores: int | None = None,
                  worker_bytes: float | None = None, ram_bytes: float | None = None) -> int:
     """Worker processes for ``--workers auto``: one per core for a realistic twin's long job, else 1.
 
-    The realistic twin's frame costs ≈ 0.31 s of CPU on one core and its stages are
-    largely serial, so two single-threaded workers on 2 cores render 1.73× the
-    frames per second of one process using both (a 360-frame pile scan, start-up
-    included, benchmarks/RESULTS.md); the ideal
+    The realistic twin's frame costs ≈ 0.3 s of CPU on one core; two single-threaded
+    workers on 2 cores render 1.10× the frames per second of one pipelined process
+    using both (a 360-frame pile scan, start-up included, benchmarks/RESULTS.md); the ideal
     twin keeps one process (its frames are cheap, the workers' start-up and memory
     are not: 2 workers gain ≈ 1.2× per frame and start ≈ 1.3 s later).
 

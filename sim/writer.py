@@ -293,12 +293,32 @@ class MitsubaTwin:
         (rows, columns) float32
             Expected electrons per pixel [e⁻] (:meth:`Renderer.render_light`).
         """
+        return self.begin(frame).finish().image
+
+    def begin(self, frame: FrameSpec):
+        """:meth:`render` up to what needs the posed scene (:meth:`sim.render.Renderer.begin_light`).
+
+        Parameters
+        ----------
+        frame : FrameSpec
+            The frame (``rig_from_part``, ``seed``).
+
+        Returns
+        -------
+        sim.render.PendingLight
+            The frame's light split (what :meth:`light` returns from now on) and, in
+            ``finish()``, what is left of its image: numba on arrays, no scene query, so
+            it may run on another thread while the next frame is posed.
+        """
+        from .render import PendingLight
+
         if self.camera is not None:
-            return self._render_with_camera(frame)
-        light = self.renderer.render_light(self._poses(frame), frame.seed, frame.rig_from_laser)
+            self._render_with_camera(frame)
+            return PendingLight(self._light[1])
+        pending = self.renderer.begin_light(self._poses(frame), frame.seed, frame.rig_from_laser)
         self._posed = frame.index
-        self._light = (frame.index, light)
-        return light.image
+        self._light = (frame.index, pending.light)
+        return pending
 
     def _poses(self, frame: FrameSpec):
         """The scene's pose for a frame: the part's, or one per part with the background's fixed one."""
@@ -867,18 +887,28 @@ def _scene_truth_files(out: Path, rig: Rig, scenario: Scenario) -> None:
                 scenario.assembly.transformed(f.ref_from_part).to_ply(p)
 
 
-def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None, defer=None) -> dict:
+def _scene_truth(rig, mesh) -> SceneTruth:
+    """The run's :class:`sim.truth.SceneTruth` (the faces in Morton blocks), made on first use."""
+    if "scene_truth" not in mesh:
+        mesh["scene_truth"] = SceneTruth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"])
+    return mesh["scene_truth"]
+
+
+def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None, defer=None, section=None) -> dict:
     """The frame's truth arrays (stripe, secondary light, per-pixel, the scenario's own).
 
     With a list ``defer`` (and no scenario truth of its own), the secondary-light truth
     — numpy on the light split, no scene query — is left out and ``defer`` receives
-    ``(number of stripe arrays, the light split)`` for :func:`_complete_truth`.
+    ``(number of stripe arrays, the light split)`` for :func:`_complete_truth`.  A
+    ``section`` future (:meth:`sim.truth.SceneTruth.section` of this frame, computed on
+    another thread) saves computing the sheet's cut here.
     """
     t0 = time.perf_counter()
-    if "scene_truth" not in mesh:     # per run: the faces in Morton blocks (sim.truth.SceneTruth)
-        mesh["scene_truth"] = SceneTruth(rig, mesh["vertices"], mesh["faces"], mesh["face_ids"])
-    stripe, _ = mesh["scene_truth"].frame(frame.rig_from_part, frame.ref_from_part, caster,
-                                          frame.rig_from_laser)
+    truth = _scene_truth(rig, mesh)
+    if section is None:
+        stripe, _ = truth.frame(frame.rig_from_part, frame.ref_from_part, caster, frame.rig_from_laser)
+    else:
+        stripe, _ = truth.finish(section.result(), caster)
     arrays = stripe.arrays()
     split = light if light is not None and light.laser is not None else None
     if defer is not None and getattr(scenario, "frame_truth", None) is None:
@@ -939,16 +969,19 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
 
     Per frame: render, sensor noise, geometric truth (these use the posed scene),
     secondary-light truth, truth file, PNG.  With ``overlap=True`` (the default) the
-    frame loop is a two-stage pipeline: render, noise and the scene's truth here, the
-    secondary-light truth and both writes of the frame before in one background thread
+    frame loop is a pipeline: render up to the scene's queries, the scene's truth and
+    the noise here; the sheet's cut through the mesh on a thread while the frame
+    renders; the rest of a frame's image (surface speckle's deposit and coherent sums,
+    ambient interpolation, splats) on a second thread while the next frame renders; the
+    secondary-light truth and both writes of a finished frame in a background thread
     (libdeflate and zlib release the GIL), at most one frame behind; the files are the
-    same byte for byte.  ``overlap=False`` runs
-    every stage of a frame before the next frame (the loop before issue 27).  Frames
-    whose truth holds no stripe are reported through ``warn`` (default: stderr);
-    ``progress(done, total)`` is called after each frame written
-    (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the ``png`` and
-    ``truth_write`` entries of ``RenderStats.seconds`` (and the secondary-light part of
-    ``truth``) are background-thread time and do not add up to the wall time.
+    same byte for byte.  ``overlap=False`` runs every stage of a frame before the next
+    frame (the loop before issue 27).  Frames whose truth holds no stripe are reported
+    through ``warn`` (default: stderr); ``progress(done, total)`` is called after each
+    frame written (:mod:`scheimpflug.callbacks`).  With ``overlap=True`` the ``finish``
+    (the image finished on its thread), ``png`` and ``truth_write`` entries of
+    ``RenderStats.seconds`` (and the section and secondary-light parts of ``truth``)
+    are other threads' wall time and do not add up to the wall time.
 
     Parameters
     ----------
@@ -968,8 +1001,8 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     warn : callable, optional
         Receives each warning as one line; default: print to stderr.
     overlap : bool, default True
-        Write each frame (and its secondary-light truth) in a background thread while
-        the next frame is rendered.
+        Finish each frame's surface speckle and write each frame (and its
+        secondary-light truth) on other threads while the next frame is rendered.
 
     Returns
     -------
@@ -1050,15 +1083,21 @@ class _Counter:
 
 
 def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledger=None) -> None:
-    """The frames of ``todo``: pipelined on two threads (``overlap``) or one after the other.
+    """The frames of ``todo``: pipelined on three threads (``overlap``) or one after the other.
 
-    Pipelined: this thread renders a frame, adds its sensor noise and computes its
-    scene-bound truth (the stripe from geometry and ray queries on the posed scene) — all
-    of Dr.Jit's kernels on one thread, its pool at one thread meanwhile unless the twin has
-    a camera pass (:func:`sim.threads.drjit_threads`; two threads sharing it measured slower) — while one
-    background thread turns the frame before it into files — the secondary-light truth
-    (numpy, numba), the truth archive and the PNG (libdeflate and zlib release the GIL) —
-    at most one frame behind.  The files are those of the sequential loop, byte for byte.
+    Pipelined: this thread does everything that uses the posed scene or Dr.Jit — it
+    renders a frame up to its scene queries (:meth:`MitsubaTwin.begin`), tests its
+    stripe truth's visibility on the posed scene and adds the sensor noise — Dr.Jit's
+    pool at one thread, two for the noise's one kernel, unless the twin has a camera
+    pass (:func:`sim.threads.drjit_threads`; two threads sharing it measured slower).
+    The sheet's cut through the mesh (:meth:`sim.truth.SceneTruth.section`, numpy) runs
+    on a thread while the frame renders.  What is left of a frame's image (the surface
+    speckle's deposit and coherent sums, the ambient light's interpolation, the splats:
+    numba and OpenCV, :meth:`sim.render.PendingLight.finish`) runs on a second thread
+    while this one renders the next frame, which then gets its noise.  One background
+    thread turns each finished frame into files — the secondary-light truth (numpy,
+    numba), the truth archive and the PNG (libdeflate and zlib release the GIL) — at
+    most one frame behind.  The files are those of the sequential loop, byte for byte.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -1070,23 +1109,115 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
             _finish_frame(out, model, frame, None, image, arrays, stats, ledger)
             bar.update()
         return
-    pending = None
     # one pool thread, unless a camera pass (a path tracer over every pixel) needs both cores
-    pool_threads = 1 if getattr(twin, "camera", None) is None else None
-    with drjit_threads(pool_threads), ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files") as pool:
-        for frame in todo:
-            electrons = _timed(stats, "render", twin.render, frame)
-            image = _noise(electrons, model, frame, stats)     # Dr.Jit's kernels on one thread
-            deferred: list = []
-            arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, deferred)
-            if pending is not None:      # the frame before, written meanwhile: re-raises its
-                pending.result()         # failure here, before anything of this frame is written
-                bar.update()
-            pending = pool.submit(_files_of_frame, rig, out, model, frame, image, arrays,
-                                  deferred, stats, ledger)
-        if pending is not None:
+    camera = getattr(twin, "camera", None) is not None
+    pool_threads, noise_threads = (None, None) if camera else (1, 2)
+    files = _FileStage(rig, out, model, stats, ledger, bar)
+    scene_truth = _timed(stats, "truth", _scene_truth, rig, mesh)
+    with drjit_threads(pool_threads), \
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-light",
+                               initializer=_one_numba_thread) as finisher, \
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-section") as sections:
+        waiting = None       # (frame, its finish on the other thread, its truth) of a frame not finished
+        try:
+            for frame in todo:
+                section = sections.submit(_section, scene_truth, frame, stats)   # meanwhile: the render
+                pending = _timed(stats, "render", _begin, twin, frame)
+                if pending.done:             # nothing left to finish: noise now, then truth
+                    with drjit_threads(noise_threads):
+                        image = _noise(pending.light.image, model, frame, stats)
+                    truth = _truth_deferred(rig, scenario, twin, frame, stats, warn, mesh, section)
+                    if waiting is not None:
+                        _noise_and_files(waiting, model, stats, files, noise_threads)
+                        waiting = None
+                    files.submit(frame, image, truth)
+                    continue
+                truth = _truth_deferred(rig, scenario, twin, frame, stats, warn, mesh, section)
+                finishing = finisher.submit(_timed, stats, "finish", pending.finish)
+                if waiting is not None:     # the frame before: its speckle done meanwhile
+                    _noise_and_files(waiting, model, stats, files, noise_threads)
+                waiting = (frame, finishing, truth)
+            if waiting is not None:
+                _noise_and_files(waiting, model, stats, files, noise_threads)
+        except BaseException:
+            files.close(raise_failure=False)  # the frame being written finishes; this error is the one
+            raise
+        files.close()
+
+
+def _one_numba_thread() -> None:
+    """Run numba's parallel loops on this thread alone (numba's thread count is per calling thread)."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def _begin(twin, frame):
+    """The frame begun (:meth:`MitsubaTwin.begin`), or rendered whole by a twin without ``begin``."""
+    if hasattr(twin, "begin"):
+        return twin.begin(frame)
+    from .render import FrameLight, PendingLight
+
+    return PendingLight(FrameLight(twin.render(frame)))
+
+
+def _truth_deferred(rig, scenario, twin, frame, stats, warn, mesh, section) -> tuple[dict, list]:
+    """The frame's scene-bound truth now, its secondary-light truth deferred to the file stage."""
+    deferred: list = []
+    arrays = _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, deferred, section)
+    return arrays, deferred
+
+
+def _section(truth: SceneTruth, frame, stats):
+    """The frame's sheet cut through the mesh (:meth:`sim.truth.SceneTruth.section`), timed as truth."""
+    return _timed(stats, "truth", truth.section, frame.rig_from_part, frame.ref_from_part,
+                  frame.rig_from_laser)
+
+
+def _noise_and_files(waiting, model, stats, files, noise_threads) -> None:
+    """A frame whose image was finished on another thread: its noise here, then its files."""
+    frame, finishing, truth = waiting
+    light = finishing.result()               # re-raises the finishing thread's failure
+    with drjit_threads(noise_threads):
+        image = _noise(light.image, model, frame, stats)
+    files.submit(frame, image, truth)
+
+
+class _FileStage:
+    """The background thread that writes frames' files in order, at most one frame behind.
+
+    ``submit`` first waits for the frame before (re-raising its failure, before anything
+    of the new frame is written) and counts it done on the progress bar.
+    """
+
+    def __init__(self, rig, out, model, stats, ledger, bar) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._args = (rig, out, model, stats, ledger)
+        self._bar = bar
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files")
+        self._pending = None
+
+    def _wait(self) -> None:
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
             pending.result()
-            bar.update()
+            self._bar.update()
+
+    def submit(self, frame, image, truth) -> None:
+        self._wait()
+        rig, out, model, stats, ledger = self._args
+        arrays, deferred = truth
+        self._pending = self._pool.submit(_files_of_frame, rig, out, model, frame, image, arrays,
+                                          deferred, stats, ledger)
+
+    def close(self, raise_failure: bool = True) -> None:
+        """Wait for the last frame's files (re-raising its failure unless told not to); stop the thread."""
+        try:
+            if raise_failure:
+                self._wait()
+        finally:
+            self._pool.shutdown(wait=True)
 
 
 def _files_of_frame(rig, out, model, frame, image, arrays, deferred, stats, ledger) -> None:
@@ -1140,10 +1271,10 @@ def _noise(electrons, model, frame, stats) -> np.ndarray:
                   getattr(frame, "exposure_factor", 1.0))
 
 
-def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, defer=None) -> dict:
+def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, defer=None, section=None) -> dict:
     """Truth arrays of one frame (main thread: uses the posed scene); warns if no stripe."""
     arrays = _frame_truth(rig, scenario, frame, twin.caster(frame), stats, mesh,
-                          _twin_light(twin, frame), defer)
+                          _twin_light(twin, frame), defer, section)
     stats.frames_rendered += 1
     if not np.isfinite(arrays["stripe_u"]).any():
         stats.frames_without_stripe.append(frame.index)

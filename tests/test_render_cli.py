@@ -260,6 +260,48 @@ def test_interrupt_leaves_a_resumable_folder(tmp_path, small_rig):
     assert _digest(out) == _digest(tmp_path / "ref")  # exact: resume
 
 
+class FinishingTwin(FakeTwin):
+    """A twin that leaves part of each image to ``finish()`` (run on the pipelined loop's second thread)."""
+
+    def __init__(self, rig, assembly, fail_at=None):
+        super().__init__(rig, assembly)
+        self.fail_at, self.finished_on = fail_at, set()
+
+    def begin(self, frame):
+        import threading
+
+        from sim.render import FrameLight, PendingLight
+
+        light = FrameLight(None)
+
+        def finish():
+            self.finished_on.add(threading.current_thread().name.split("_")[0])
+            if frame.index == self.fail_at:
+                raise RenderError(f"finishing frame {frame.index} failed")
+            light.image = FakeTwin.render(self, frame)
+            return light
+
+        return PendingLight(light, finish)
+
+    def render(self, frame):
+        return self.begin(frame).finish().image
+
+
+def test_pipelined_loop_finishes_frames_on_another_thread_and_stops_at_a_failure(tmp_path, small_rig):
+    sc = blocker_scenario(small_rig, frames=4, truth_pixels_every=0)
+    _run(small_rig, sc, tmp_path / "ref")
+    twin, _ = _run(small_rig, sc, tmp_path / "piped", twin=FinishingTwin(small_rig, sc.assembly), overlap=True)
+    assert twin.finished_on == {"frame-light"}                  # not on this thread
+    assert _digest(tmp_path / "piped") == _digest(tmp_path / "ref")  # exact: threads (same code, other threads)
+    out = tmp_path / "failed"
+    with pytest.raises(RenderError, match="finishing frame 2 failed"):
+        _run(small_rig, sc, out, twin=FinishingTwin(small_rig, sc.assembly, fail_at=2), overlap=True)
+    assert sorted(p.name for p in (out / "frames").iterdir()) == ["00000.png", "00001.png"]
+    assert json.loads((out / "manifest.json").read_text())["complete"] is False
+    _, stats = _run(small_rig, sc, out, overlap=True)
+    assert stats.frames_skipped == 2 and _digest(out) == _digest(tmp_path / "ref")  # exact: resume
+
+
 def test_png_encoder_round_trips_through_opencv(tmp_path):
     import cv2
 
