@@ -1109,6 +1109,8 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
             _finish_frame(out, model, frame, None, image, arrays, stats, ledger)
             bar.update()
         return
+    if not todo:             # a complete folder resumed: nothing to set up
+        return
     # one pool thread, unless a camera pass (a path tracer over every pixel) needs both cores
     camera = getattr(twin, "camera", None) is not None
     pool_threads, noise_threads = (None, None) if camera else (1, 2)
