@@ -1113,12 +1113,11 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
         return
     # one pool thread, unless a camera pass (a path tracer over every pixel) needs both cores
     camera = getattr(twin, "camera", None) is not None
-    pool_threads, noise_threads = (None, None) if camera else (1, 2)
+    pool_threads, noise_threads = (None, None) if camera else (1, _noise_threads(rig))
     files = _FileStage(rig, out, model, stats, ledger, bar)
     scene_truth = _timed(stats, "truth", _scene_truth, rig, mesh)
     with drjit_threads(pool_threads), \
-            ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-light",
-                               initializer=_one_numba_thread) as finisher, \
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-light") as finisher, \
             ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-section") as sections:
         waiting = None       # (frame, its finish on the other thread, its truth) of a frame not finished
         try:
@@ -1147,11 +1146,15 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
         files.close()
 
 
-def _one_numba_thread() -> None:
-    """Run numba's parallel loops on this thread alone (numba's thread count is per calling thread)."""
-    import numba
+#: frames of at least this many pixels get the noise's kernel on two pool threads (full
+#: paper frames: 1.07× frames/s); smaller ones keep one — resizing the pool around every
+#: frame cost more than it gave on 4 × 4 binned frames (benchmarks/RESULTS.md)
+NOISE_POOL_MIN_PIXELS = 1_000_000
 
-    numba.set_num_threads(1)
+
+def _noise_threads(rig: Rig) -> int | None:
+    """Dr.Jit pool threads for the noise's kernel in the pipelined loop (None: the loop's one)."""
+    return 2 if rig.sensor.rows * rig.sensor.columns >= NOISE_POOL_MIN_PIXELS else None
 
 
 def _begin(twin, frame):
