@@ -26,6 +26,7 @@ one after the other on the same frames: render, noise, truth, PNG encoding.
 
     .venv/bin/python benchmarks/bench_frame_loop.py --baseline /tmp/base --twin ideal --frames 60
     .venv/bin/python benchmarks/bench_frame_loop.py --baseline /tmp/base --twin realistic --frames 30
+    python benchmarks/bench_frame_loop.py --baseline /tmp/base --binning 4 --part pile --step-deg 5 --frames 72
 
 The twins: ``ideal`` — the ``paper`` preset (one bounce, opaque, no speckle), the paper
 cylinder (1.09 M triangles) at 0.5° steps, as ``benchmarks/bench_scan.py``; ``realistic``
@@ -52,8 +53,9 @@ import numpy as np
 from scheimpflug.model.rig import load_preset
 from sim.scenarios import rotary_scenario
 from sim.writer import MitsubaTwin, build_manifest, generator_info, render_scenario
+from scheimpflug.model.binning import binned_rig
 twin_kind, part, step, frames, warm, stages = {twin!r}, {part!r}, {step!r}, {frames}, {warm}, {stages}
-rig = load_preset("paper")
+rig = binned_rig(load_preset("paper"), {binning}) if {binning} > 1 else load_preset("paper")
 if twin_kind == "realistic":
     rig = rig.replace(twin={{"bounces": 3, "subsurface": True}}, laser={{"speckle_contrast": 0.7}})
 scenario = rotary_scenario(rig, part=part, step_deg=step, frames=warm + frames, truth_pixels_every=0)
@@ -100,10 +102,12 @@ print("RESULT " + json.dumps(out))
 _TWINS = {"ideal": ("cylinder", 0.5), "realistic": ("pile", 2.0)}
 
 
-def measure(root: Path, twin: str, frames: int, warm: int, stages: bool, part: str | None) -> dict:
+def measure(root: Path, twin: str, frames: int, warm: int, stages: bool, part: str | None,
+            binning: int = 1, step_deg: float | None = None) -> dict:
     """One fresh process of checkout ``root``: the frame loop's figures (see the module docstring)."""
     default_part, step = _TWINS[twin]
-    code = _CHILD.format(root=str(root), twin=twin, part=part or default_part, step=step,
+    step = step_deg or step
+    code = _CHILD.format(root=str(root), twin=twin, part=part or default_part, step=step, binning=binning,
                          frames=frames, warm=warm, stages=stages)
     load = os.getloadavg()[0]
     env = dict(os.environ, PYTHONPATH=str(root))
@@ -138,14 +142,20 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=2, help="alternating base/this pairs")
     ap.add_argument("--part", default=None, help="part (default: cylinder ideal, pile realistic)")
     ap.add_argument("--stages", action="store_true", help="also each stage's CPU time alone")
+    ap.add_argument("--binning", type=int, default=1, help="k × k binned sensor (default 1: full frames)")
+    ap.add_argument("--step-deg", type=float, default=None,
+                    help="turn between frames (default: 0.5° ideal, 2° realistic)")
     args = ap.parse_args()
     print(f"{os.cpu_count()} cores; base = {args.baseline.resolve()}, this = {ROOT}")
     for twin in args.twin:
-        print(f"\n{twin} twin, {args.frames} full frames per run after {args.warmup} warm-up frames")
+        size = "full" if args.binning == 1 else f"{args.binning} × {args.binning} binned"
+        print(f"\n{twin} twin, {args.frames} {size} frames per run after {args.warmup} warm-up frames")
         ratios = []
         for k in range(args.runs):
-            base = measure(args.baseline, twin, args.frames, args.warmup, args.stages, args.part)
-            this = measure(ROOT, twin, args.frames, args.warmup, args.stages, args.part)
+            base = measure(args.baseline, twin, args.frames, args.warmup, args.stages, args.part,
+                           args.binning, args.step_deg)
+            this = measure(ROOT, twin, args.frames, args.warmup, args.stages, args.part,
+                           args.binning, args.step_deg)
             print(f" run {k + 1}")
             print(_row("base", base))
             print(_row("this", this))

@@ -136,7 +136,11 @@ class Twin(Protocol):
     """What the frame loop needs from the renderer (:class:`MitsubaTwin`, or a test double).
 
     A structural type (:class:`typing.Protocol`): any object with matching
-    :meth:`render` and :meth:`caster` methods is a twin.
+    :meth:`render` and :meth:`caster` methods is a twin.  A twin may also have
+    ``begin(frame)`` returning a :class:`sim.render.PendingLight` whose ``finish()``
+    is ``render(frame)``'s image without further scene queries
+    (:meth:`MitsubaTwin.begin`); the pipelined loop then finishes frames on another
+    thread.
 
     Parameters
     ----------
