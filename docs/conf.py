@@ -73,10 +73,13 @@ autodoc_typehints = "none"            # the numpydoc docstrings carry the types 
 
 
 def _shared_exports() -> dict:
-    """Per subpackage, the names of its ``__all__`` that its top-level package exports too.
+    """Per module, the names of its ``__all__`` that another page describes.
 
-    The subpackage's page leaves them to the top-level page: two alias pages of one object would
-    both claim its canonical name (Sphinx's duplicate-description warning).
+    A subpackage leaves the names its top-level package exports too to the top-level page; a
+    plain module leaves the names it only re-exports (a moved module's shim, such as
+    ``scheimpflug.sheet_model``) to the module that defines them.  Two pages of one object
+    would both claim its canonical name (Sphinx's duplicate-description warning, raised or not
+    depending on how a parallel build splits the pages).
     """
     import importlib
     import pkgutil
@@ -86,10 +89,15 @@ def _shared_exports() -> dict:
         pkg = importlib.import_module(top)
         curated = set(getattr(pkg, "__all__", []))
         for info in pkgutil.walk_packages(pkg.__path__, top + "."):
+            mod = importlib.import_module(info.name)
+            names = set(getattr(mod, "__all__", []))
             if info.ispkg:
-                shared = curated & set(getattr(importlib.import_module(info.name), "__all__", []))
-                if shared:
-                    out[info.name] = sorted(shared)
+                shared = curated & names
+            else:
+                shared = {n for n in names if getattr(getattr(mod, n, None), "__module__", info.name)
+                          not in (None, info.name)}
+            if shared:
+                out[info.name] = sorted(shared)
     return out
 
 
