@@ -42,9 +42,15 @@ map on leaves the others unchanged) and are the same in every frame and run.
 Random numbers: a :class:`numpy.random.Generator` on PCG64 seeded by
 ``numpy.random.SeedSequence((seed, frame_index, 0x5E45))`` gives one 64-bit key
 per frame; every pixel then draws from its own counter-based SplitMix64
-stream started from a hash of (key, pixel index), inside one parallel numba
-kernel (shot noise by exact Poisson sampling, read noise by the inverse normal
-CDF, Wichura's AS241).  The
+stream started from a hash of (key, pixel index): the shot noise by exact
+Poisson sampling (CDF inversion below λ = 10, PTRS above), then the read
+noise by the inverse normal CDF of the stream's next uniform.  Two backends
+run these streams: Dr.Jit's LLVM kernel (vectorised, the default when
+usable) and a parallel numba kernel.  They draw the same shot-noise counts —
+the same uniforms through the same float64 arithmetic — and differ only in
+the read noise's quantile (single-precision ``erfinv`` in Dr.Jit, Wichura's
+AS241 in double precision in numba), by a few 1e-7 e⁻ — a pixel's DN can
+differ by 1 where the sum falls within that of a rounding boundary.  The
 same ``(seed, frame_index)`` always gives bit-identical frames, independent of
 how many frames were rendered before and of the number of threads.
 """
@@ -292,9 +298,16 @@ def _frame_key(rng: np.random.Generator) -> np.uint64:
 
 
 # ---------------------------------------------------------------- Dr.Jit (LLVM, SIMD) backend
-# The same model as the numba kernels, vectorised by Dr.Jit's LLVM backend (≈ 5× faster on
-# 2 cores).  Each pixel gets its own PCG32 stream, seeded with a SplitMix64 hash of (frame
-# key, pixel index): PCG32 streams seeded with consecutive values are correlated.
+# The same model and the same per-pixel SplitMix64 streams as the numba kernels, vectorised
+# by Dr.Jit's LLVM backend: the shot-noise counts of the two backends are the same numbers
+# (the same uniforms, the same float64 arithmetic); only the read noise's quantile differs
+# in its last bits (single-precision erfinv here, AS241 in numba).
+#
+# Speed: the CDF inversion's first _UNROLL + 1 terms are summed without a loop (a packet of
+# lanes otherwise iterates as often as its largest count, each step a float64 division);
+# the rare lanes whose count exceeds _UNROLL finish in a symbolic loop.
+
+_UNROLL = 8   # λ ≈ 3 e⁻ (a dark frame's ambient): P(X > 8) = 0.4 %
 
 
 def _drjit_llvm():
@@ -317,51 +330,82 @@ def _drjit_llvm():
 _DR = None
 
 
-def _dr_streams(llvm, n: int, key: np.uint64):
+def _dr_mix64(llvm, z):
+    """:func:`_mix64` on Dr.Jit UInt64 lanes."""
+    z = (z ^ (z >> 30)) * llvm.UInt64(int(_M1))
+    z = (z ^ (z >> 27)) * llvm.UInt64(int(_M2))
+    return z ^ (z >> 31)
+
+
+def _dr_pixel_states(llvm, n: int, key: np.uint64):
+    """:func:`_pixel_state` of pixels 0 … n − 1 (UInt64), the frame key passed opaque."""
     import drjit as dr
 
     U64 = llvm.UInt64
-
-    def mix(z):
-        z = (z ^ (z >> 30)) * U64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> 27)) * U64(0x94D049BB133111EB)
-        return z ^ (z >> 31)
-
-    h1 = mix(dr.opaque(U64, int(key)) + dr.arange(U64, n) * U64(0x9E3779B97F4A7C15))
-    rng = llvm.PCG32(size=n)
-    rng.seed(h1, mix(h1 ^ U64(0xD1B54A32D192ED03)))
-    return rng
+    index_hash = _dr_mix64(llvm, dr.arange(U64, n) * U64(int(_STREAM)) + U64(int(_GAMMA)))
+    return _dr_mix64(llvm, dr.opaque(U64, int(key)) ^ index_hash)
 
 
-def _dr_poisson(llvm, lam, rng):
-    """Exact Poisson counts (Float64) of means ``lam`` (Float64).
+def _dr_next_uniform(llvm, state):
+    """:func:`_next_uniform` on lanes: (advanced state, Float64 uniform in (0, 1))."""
+    state = state + llvm.UInt64(int(_GAMMA))
+    u = (llvm.Float64(_dr_mix64(llvm, state) >> 11) + 0.5) * (1.0 / 9007199254740992.0)
+    return state, u
 
-    Inversion below _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; ``rng`` is advanced.
+
+def _dr_invert_poisson(llvm, lam, u):
+    """min{k : F(k; λ) ≥ u} (Float64) for λ < _PTRS_LAMBDA, as :func:`_invert_one`.
+
+    The same float64 operations in the same order as the numba kernel and
+    :func:`_invert_poisson_numpy`; lanes with λ ≥ _PTRS_LAMBDA hold a meaningless value.
     """
     import drjit as dr
 
     F64 = llvm.Float64
-    u = rng.next_float64()
-    small = lam < _PTRS_LAMBDA
+    p = dr.exp(-lam)
+    cdf = F64(p)
+    one, zero = F64(1.0), F64(0.0)
+    k = dr.select(u > cdf, one, zero)          # k = #{j ≤ K : u > F(j)}, F increasing in j
+    for j in range(1, _UNROLL + 1):
+        p = p * (lam * (1.0 / j))
+        cdf = cdf + p
+        k = k + dr.select(u > cdf, one, zero)
+    more = (k > _UNROLL) & (lam < _PTRS_LAMBDA)    # u > F(K): go on from term K
 
     def cond(k, p, cdf):
-        return small & (u > cdf) & (k < float(_MAX_COUNT))
+        return more & (u > cdf) & (k < float(_MAX_COUNT))
 
     def body(k, p, cdf):
-        p = p * lam / (k + 1.0)
-        return k + 1.0, p, cdf + p
+        k1 = k + 1.0
+        p = p * (lam * (1.0 / k1))
+        return k1, p, cdf + p
 
-    p0 = dr.exp(-lam)
-    k, _, _ = dr.while_loop(state=(F64(0.0), p0, F64(p0)), cond=cond, body=body)
+    k, _, _ = dr.while_loop(state=(dr.select(more, F64(_UNROLL), k), p, cdf), cond=cond,
+                            body=body)
+    return k
+
+
+def _dr_poisson(llvm, lam, state):
+    """Exact Poisson counts (Float64) of means ``lam`` (Float64), as :func:`_poisson_one`.
+
+    Inversion below _PTRS_LAMBDA, PTRS (as :func:`_ptrs_once`) above; returns the counts
+    and each lane's advanced stream ``state`` (UInt64).
+    """
+    import drjit as dr
+
+    small = lam < _PTRS_LAMBDA
+    drawn, u = _dr_next_uniform(llvm, state)
+    k = _dr_invert_poisson(llvm, lam, u)
     b = 0.931 + 2.53 * dr.sqrt(lam)
     a = -0.059 + 0.02483 * b
     vr = 0.9277 - 3.6224 / (b - 2.0)
     log_invalpha = dr.log(1.1239 + 1.1328 / (b - 3.4))
     loglam = dr.log(lam)
 
-    def body2(rng, k, done):
-        uu = rng.next_float64() - 0.5
-        vv = rng.next_float64()
+    def body(s, k, done):
+        s, uu = _dr_next_uniform(llvm, s)
+        s, vv = _dr_next_uniform(llvm, s)
+        uu = uu - 0.5
         us = 0.5 - dr.abs(uu)
         kk = dr.floor((2.0 * a / us + b) * uu + lam + 0.43)
         quick = (us >= 0.07) & (vv <= vr)
@@ -369,37 +413,42 @@ def _dr_poisson(llvm, lam, rng):
         slow = dr.log(vv) + log_invalpha - dr.log(a / (us * us) + b) <= \
             -lam + kk * loglam - dr.lgamma(kk + 1.0)
         accept = ~done & (quick | (~reject & slow))
-        return rng, dr.select(accept, kk, k), done | accept
+        return s, dr.select(accept, kk, k), done | accept
 
-    _, k, _ = dr.while_loop(state=(rng, k, small), cond=lambda rng, k, done: ~done, body=body2)
-    return k
+    def cond(s, k, done):
+        return ~done
+
+    s, k, _ = dr.while_loop(state=(dr.select(small, drawn, state), k, small), cond=cond, body=body)
+    return k, s
 
 
 def _dr_standard_normal(llvm, u):
-    """Φ⁻¹(u) (Float64) of uniforms ``u`` (Float32) in [0, 1).
+    """Φ⁻¹(u) (Float64) of uniforms ``u`` (Float64) in (0, 1), in single precision.
 
-    ``u = 0`` (once in 2**24 draws of ``next_float32``) would give
-    erfinv(−1) = NaN and an out-of-range pixel; it is moved half a step above 0.
+    ``u`` is rounded to float32 and kept in [2⁻²⁵, 1 − 2⁻²⁴] (|z| ≤ 5.5): a uniform that
+    rounds to 0 or 1 would give erfinv(∓1) = ∓inf and an out-of-range pixel.
     """
     import drjit as dr
 
-    u = dr.select(u > 0.0, u, 2.0 ** -25)
-    return llvm.Float64(dr.sqrt(2.0) * dr.erfinv(2.0 * u - 1.0))
+    u32 = dr.clip(llvm.Float(u), 2.0 ** -25, 1.0 - 2.0 ** -24)
+    return llvm.Float64(dr.sqrt(2.0) * dr.erfinv(2.0 * u32 - 1.0))
 
 
 def _dr_sensor(llvm, flat: np.ndarray, key: np.uint64, model: SensorModel,
                dark: np.ndarray | None = None) -> np.ndarray:
+    """:func:`_sensor_kernel` on Dr.Jit lanes: (n,) float32 electrons → (n,) uint16 DN."""
     import drjit as dr
 
-    rng = _dr_streams(llvm, flat.size, key)
     lam = llvm.Float64(llvm.Float(flat))
-    n = _dr_poisson(llvm, lam, rng)
+    n, state = _dr_poisson(llvm, lam, _dr_pixel_states(llvm, flat.size, key))
     if dark is not None:
         n = n + llvm.Float64(llvm.Float(dark))
     e = dr.minimum(n, model.full_well_e)
     if model.read_noise_e > 0:
-        e = e + model.read_noise_e * _dr_standard_normal(llvm, rng.next_float32())
-    dn = dr.clip(dr.round(e / model.gain_e_per_dn + model.dark_offset_dn), 0.0, float(model.full_scale_dn))
+        _, u = _dr_next_uniform(llvm, state)
+        e = e + model.read_noise_e * _dr_standard_normal(llvm, u)
+    dn = dr.clip(dr.round(e * (1.0 / model.gain_e_per_dn) + model.dark_offset_dn), 0.0,
+                 float(model.full_scale_dn))
     return llvm.UInt32(dn).numpy().astype(np.uint16)
 
 
@@ -413,9 +462,8 @@ def poisson_counts(lam, rng: np.random.Generator, backend: str | None = None) ->
     rng : numpy.random.Generator
         Generator of the frame (:func:`frame_rng`); one 64-bit key is drawn from it.
     backend : {None, "drjit", "numba"}, optional
-        Dr.Jit's LLVM kernel (per-pixel PCG32 streams; the default when usable)
-        or the numba kernel (per-pixel SplitMix64 streams).  The two are exact
-        in distribution but give different numbers.
+        Dr.Jit's LLVM kernel (the default when usable) or the numba kernel; both draw from the same per-pixel SplitMix64
+        streams and give the same counts (module docstring).
 
     Returns
     -------
@@ -445,8 +493,9 @@ def poisson_counts(lam, rng: np.random.Generator, backend: str | None = None) ->
     flat = np.ascontiguousarray(lam, dtype=np.float32).reshape(-1)
     llvm = _backend(backend)
     if llvm is not None:
-        rng_dr = _dr_streams(llvm, flat.size, _frame_key(rng))
-        counts = _dr_poisson(llvm, llvm.Float64(llvm.Float(flat)), rng_dr).numpy().astype(np.float32)
+        states = _dr_pixel_states(llvm, flat.size, _frame_key(rng))
+        counts, _ = _dr_poisson(llvm, llvm.Float64(llvm.Float(flat)), states)
+        counts = counts.numpy().astype(np.float32)
         return counts.reshape(np.shape(lam))
     counts = np.empty(flat.size, dtype=np.float32)
     _poisson_kernel(flat, _frame_key(rng), _INV_K, _PTRS_LAMBDA, counts)
@@ -708,7 +757,9 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
         :func:`frame_rng` for reproducible frames.
     backend : {None, "drjit", "numba"}
         Dr.Jit's vectorised LLVM kernel (default when usable) or the numba
-        kernel; both sample the same model exactly, with different streams.
+        kernel; both sample the same model exactly from the same per-pixel
+        streams: the same shot noise, the read noise's quantile equal to a few
+        1e-7 e⁻ (module docstring).
     exposure_factor : float, default 1.0
         The frame's real exposure over the nominal one (:func:`exposure_scale`) [-].
 

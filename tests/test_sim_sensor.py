@@ -135,11 +135,45 @@ def test_inversion_branch_matches_the_numpy_reference():
     assert b[0] >= 0 and b[1] == -1 and b[2] == -1          # λ ≥ 10 is left to PTRS
 
 
-def test_read_noise_quantile_is_finite_at_a_zero_uniform():
-    """Dr.Jit's next_float32() can return exactly 0 (once in 2**24 pixels): erfinv(−1) = NaN
-    then read as an out-of-range 65535 pixel.  The quantile must stay finite there."""
+def test_read_noise_quantile_is_finite_at_the_ends_of_the_uniforms():
+    """A uniform that rounds to 0 or 1 in single precision (once in 2**24 pixels) would give
+    erfinv(∓1) = ∓inf, then an out-of-range pixel.  The quantile must stay finite there."""
     llvm = sensor_module._backend("drjit")
-    u = llvm.Float([0.0, 0.5, 1.0 - 2.0 ** -24])
+    u = llvm.Float64([0.0, 2.0 ** -60, 0.5, 1.0 - 2.0 ** -24, 1.0 - 2.0 ** -53])
     z = np.asarray(sensor_module._dr_standard_normal(llvm, u))
     assert np.all(np.isfinite(z))
-    assert z[0] == pytest.approx(stats.norm.ppf(2.0 ** -25), rel=1e-4) and z[1] == 0.0
+    assert z[0] == pytest.approx(stats.norm.ppf(2.0 ** -25), rel=1e-4) and z[2] == 0.0
+    assert z[4] == pytest.approx(stats.norm.ppf(1.0 - 2.0 ** -24), rel=1e-4)
+
+
+def test_dr_jit_inversion_matches_the_numpy_reference():
+    """The unrolled terms and the loop that finishes the rare large counts (λ < 10)."""
+    llvm = sensor_module._backend("drjit")
+    rng = frame_rng(5, 0)
+    lam = rng.uniform(0, 9.99, 20000)
+    lam[:50] = 9.99                                # counts well past the unrolled terms
+    u = rng.random(20000)
+    u[:50] = 1.0 - rng.random(50) * 1e-6
+    ref = np.empty(20000)
+    sensor_module._invert_poisson_numpy(lam.astype(np.float32), u, ref)
+    got = np.asarray(sensor_module._dr_invert_poisson(llvm, llvm.Float64(lam.astype(np.float32)),
+                                                      llvm.Float64(u)))
+    assert ref[:50].min() > sensor_module._UNROLL + 10
+    np.testing.assert_array_equal(got, ref)   # exact: integers
+
+
+def test_backends_draw_the_same_shot_noise_and_nearly_the_same_frame(rig):
+    """Dr.Jit and numba run the same per-pixel streams: the same counts on both branches
+    (λ < 10 and PTRS); the frames differ only where the read noise's single- against
+    double-precision quantile crosses a rounding boundary."""
+    rng = np.random.default_rng(2)
+    lam = rng.uniform(0.0, 12.0, (400, 500)).astype(np.float32)
+    lam[::7] = rng.uniform(10.0, 20000.0, lam[::7].shape)
+    a = poisson_counts(lam, frame_rng(9, 4), backend="drjit")
+    b = poisson_counts(lam, frame_rng(9, 4), backend="numba")
+    np.testing.assert_array_equal(a, b)   # exact: integers
+    model = SensorModel.from_rig(rig.replace(sensor={"dsnu_e": 3.0}))
+    fa = apply_sensor(lam, model, frame_rng(9, 4), backend="drjit").astype(int)
+    fb = apply_sensor(lam, model, frame_rng(9, 4), backend="numba").astype(int)
+    assert np.abs(fa - fb).max() <= 1
+    assert np.mean(fa != fb) < 1e-4
