@@ -978,7 +978,7 @@ def render_scenario(rig: Rig, scenario: Scenario, out, twin: Twin, manifest: dic
     renders; the rest of a frame's image (surface speckle's deposit and coherent sums,
     ambient interpolation, splats) on a second thread while the next frame renders; the
     secondary-light truth and both writes of a finished frame in a background thread
-    (libdeflate and zlib release the GIL), at most one frame behind; the files are the
+    (libdeflate and zlib release the GIL), at most two frames behind; the files are the
     same byte for byte.  ``overlap=False`` runs every stage of a frame before the next
     frame (the loop before issue 27).  Frames whose truth holds no stripe are reported
     through ``warn`` (default: stderr); ``progress(done, total)`` is called after each
@@ -1101,7 +1101,8 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
     while this one renders the next frame, which then gets its noise.  One background
     thread turns each finished frame into files — the secondary-light truth (numpy,
     numba), the truth archive and the PNG (libdeflate and zlib release the GIL) — at
-    most one frame behind.  The files are those of the sequential loop, byte for byte.
+    most two frames behind (:class:`_FileStage`).  The files are those of the
+    sequential loop, byte for byte.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -1193,35 +1194,51 @@ def _noise_and_files(waiting, model, stats, files, noise_threads) -> None:
 
 
 class _FileStage:
-    """The background thread that writes frames' files in order, at most one frame behind.
+    """The background thread that writes frames' files in order, at most ``depth`` frames behind.
 
-    ``submit`` first waits for the frame before (re-raising its failure, before anything
-    of the new frame is written) and counts it done on the progress bar.
+    ``submit`` first waits until fewer than ``depth`` frames are pending (re-raising the
+    failure of the oldest, before anything of the new frame is written) and counts the
+    frames done on the progress bar.  Once a frame's files fail, the frames queued after
+    it write nothing: the folder holds whole frames only, up to the one that failed.
+    Two frames in flight let the render thread go on while the file thread catches up
+    with a slow frame, instead of both waiting for each other in turn.
     """
 
-    def __init__(self, rig, out, model, stats, ledger, bar) -> None:
+    def __init__(self, rig, out, model, stats, ledger, bar, depth: int = 2) -> None:
+        import threading
+        from collections import deque
         from concurrent.futures import ThreadPoolExecutor
 
         self._args = (rig, out, model, stats, ledger)
         self._bar = bar
+        self._depth = depth
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-files")
-        self._pending = None
+        self._pending: deque = deque()
+        self._failed = threading.Event()
 
-    def _wait(self) -> None:
-        if self._pending is not None:
-            pending, self._pending = self._pending, None
-            pending.result()
+    def _wait(self, keep: int = 0) -> None:
+        while len(self._pending) > keep:
+            self._pending.popleft().result()
             self._bar.update()
 
+    def _write(self, *args) -> None:
+        if self._failed.is_set():          # a frame before failed: write nothing of this one
+            return
+        try:
+            _files_of_frame(*args)
+        except BaseException:
+            self._failed.set()
+            raise
+
     def submit(self, frame, image, truth) -> None:
-        self._wait()
+        self._wait(keep=self._depth - 1)
         rig, out, model, stats, ledger = self._args
         arrays, deferred = truth
-        self._pending = self._pool.submit(_files_of_frame, rig, out, model, frame, image, arrays,
-                                          deferred, stats, ledger)
+        self._pending.append(self._pool.submit(self._write, rig, out, model, frame, image, arrays,
+                                               deferred, stats, ledger))
 
     def close(self, raise_failure: bool = True) -> None:
-        """Wait for the last frame's files (re-raising its failure unless told not to); stop the thread."""
+        """Wait for the last frames' files (re-raising a failure unless told not to); stop the thread."""
         try:
             if raise_failure:
                 self._wait()

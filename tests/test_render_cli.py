@@ -302,6 +302,41 @@ def test_pipelined_loop_finishes_frames_on_another_thread_and_stops_at_a_failure
     assert stats.frames_skipped == 2 and _digest(out) == _digest(tmp_path / "ref")  # exact: resume
 
 
+def test_file_stage_keeps_two_frames_in_flight_and_writes_nothing_after_a_failure(monkeypatch):
+    """The background writer: frames in order, ``submit`` blocks only when two are pending;
+    a failed frame's error comes out of the next ``submit`` and the frame queued behind it
+    writes nothing."""
+    import threading
+
+    import sim.writer as writer
+
+    written, release = [], threading.Event()
+
+    def files(rig, out, model, frame, *rest):
+        if frame == 1:
+            release.wait(10)                        # frame 2 is queued before 1 fails
+            raise OSError("disk gone")
+        written.append(frame)
+
+    class Bar:
+        done = 0
+
+        def update(self):
+            self.done += 1
+
+    monkeypatch.setattr(writer, "_files_of_frame", files)
+    bar = Bar()
+    stage = writer._FileStage(None, None, None, None, None, bar)
+    for frame in (0, 1, 2):
+        stage.submit(frame, None, ({}, []))       # returns at once: at most two pending
+    assert len(stage._pending) == 2
+    release.set()
+    with pytest.raises(OSError, match="disk gone"):
+        stage.submit(3, None, ({}, []))
+    stage.close(raise_failure=False)
+    assert written == [0] and bar.done == 1       # nothing of frames 2 and 3
+
+
 def test_png_encoder_round_trips_through_opencv(tmp_path):
     import cv2
 
