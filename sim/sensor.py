@@ -362,14 +362,21 @@ def _dr_invert_poisson(llvm, lam, u):
     import drjit as dr
 
     F64 = llvm.Float64
-    p = dr.exp(-lam)
-    cdf = F64(p)
     one, zero = F64(1.0), F64(0.0)
-    k = dr.select(u > cdf, one, zero)          # k = #{j ≤ K : u > F(j)}, F increasing in j
-    for j in range(1, _UNROLL + 1):
-        p = p * (lam * (1.0 / j))
-        cdf = cdf + p
-        k = k + dr.select(u > cdf, one, zero)
+
+    def unrolled(k, p, cdf, go):
+        p = dr.exp(-lam)
+        cdf = F64(p)
+        k = dr.select(u > cdf, one, zero)      # k = #{j ≤ K : u > F(j)}, F increasing in j
+        for j in range(1, _UNROLL + 1):
+            p = p * (lam * (1.0 / j))
+            cdf = cdf + p
+            k = k + dr.select(u > cdf, one, zero)
+        return k, p, cdf, go & False
+
+    # one pass, in a loop so that packets of dark pixels (λ = 0: count 0) skip it
+    k, p, cdf, _ = dr.while_loop(state=(F64(0.0), F64(1.0), F64(1.0), lam > 0.0),
+                                 cond=lambda k, p, cdf, go: go, body=unrolled)
     more = (k > _UNROLL) & (lam < _PTRS_LAMBDA)    # u > F(K): go on from term K
 
     def cond(k, p, cdf):
