@@ -74,7 +74,10 @@ def test_quick_acceptance_run_in_the_twin(tmp_path, capsys):
     from scheimpflug.app.cli import main
 
     runs = {}
-    (tmp_path / "dist.toml").write_text("[lens]\nk1 = -0.05\n")
+    # a distortion the paper model ignores; k1 = -0.2 so that its sphere-distance error stands
+    # out of the quick run's noise: SD 0.016-0.022 mm over seeds 0-3 against |SD| <= 0.006 mm
+    # of the ideal rig (k1 = -0.05 gave 0.001-0.005 mm: within the noise)
+    (tmp_path / "dist.toml").write_text("[lens]\nk1 = -0.2\n")
     for name, rig in (("ideal", ["--preset", "paper"]), ("dist", ["--rig", str(tmp_path / "dist.toml")])):
         assert main(["acceptance", *rig, "--binning", "4", "--quick", "--model", "paper", "--out",
                      str(tmp_path / name), "--json", "--quiet"]) == 0
@@ -87,5 +90,5 @@ def test_quick_acceptance_run_in_the_twin(tmp_path, capsys):
                                                              "extraction_range_mm")})
     for key in ("PF_mm", "PS_mm", "SD_mm", "F_mm"):
         assert abs(r[key]) < 3 * ref, key
-    assert abs(runs["dist"]["SD_mm"]) > abs(r["SD_mm"])
+    assert abs(runs["dist"]["SD_mm"]) > 2 * abs(r["SD_mm"])
     assert (tmp_path / "ideal" / "acceptance.png").stat().st_size > 10_000

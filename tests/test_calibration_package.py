@@ -27,19 +27,24 @@ from scheimpflug.calibration.model import plane_from_sheet_frame, sheet_frame_fr
 from scheimpflug.errors import CalibrationError
 
 # The quick demo's calibration frames (demo.plan_for(quick=True): binning 4, 9 steps of 28 mm from
-# s = 15 mm, seed 0) rendered at d51cb72 had this SHA-256 over the nine PNG files in order.
-QUICK_FRAMES_SHA256 = "f45219e86de22b172c2d2ac8395da2d36c17d33c698bce8c99497bd38b753407"
+# s = 15 mm, seed 0) had this SHA-256 over the nine PNG files in order, rendered after issue 27's third
+# round (the sensor noise's new streams; d51cb72 rendered other frames, f45219e8…).
+QUICK_FRAMES_SHA256 = "169b6a9b6b17b145643098fae37f36ef9400dcfeae8acdda099fac883b1188c5"
 
-# `scheimpflug calibrate DIR --method paper --json` and `--model general --json` at d51cb72 on
-# those frames (hinge_px, F2_px_mm, d0_mm, C_mm of the chosen estimate; the general model's camera).
+# `scheimpflug calibrate DIR --method paper --json` and `--model general --json` of d51cb72's code
+# (before the move; run from an export of that commit) on those frames: hinge_px, F2_px_mm, d0_mm,
+# C_mm of the chosen estimate; the general model's camera; and the mapping (stage_from_pixel at
+# PIXELS, through d51cb72's load_calibration) of the file its `--model general --out` wrote.
 BEFORE = {
-    "method_paper": {"hinge_px": [798.1957728132784, 192.40424039183287], "F2_px_mm": -356796.95679886005,
-                     "d0_mm": -465.5799034969268, "C_mm": 149.0218062788281, "model": "paper"},
-    "model_general": {"hinge_px": [798.6364922223735, 192.37616081686429], "F2_px_mm": -357319.5747488933,
-                      "d0_mm": -466.00729158447825, "C_mm": 149.1276541682342, "model": "general",
-                      "camera": {"focal_px": 2539.130019486778,
-                                 "principal_px": [275.5897838047812, 192.34384213473086],
-                                 "tau_deg": [-0.0, 21.642340624434134], "k1": 0.00012139705690015042}},
+    "method_paper": {"hinge_px": [798.2728441157288, 192.36421159161463], "F2_px_mm": -356888.4853590699,
+                     "d0_mm": -465.65495376103456, "C_mm": 149.0413768727594, "model": "paper"},
+    "model_general": {"hinge_px": [798.6407465041475, 192.34075328025105], "F2_px_mm": -357324.7319934546,
+                      "d0_mm": -466.0116428813767, "C_mm": 149.12966870767158, "model": "general",
+                      "camera": {"focal_px": 2538.864379205881,
+                                 "principal_px": [277.2223431805973, 192.38309453945968],
+                                 "tau_deg": [-0.0, 21.64203351932566], "k1": 0.0003811122101237476},
+                      "mapping": ([-18.59540393922675, 84.87062200741016, 254.92408030846877],
+                                  [35.915599156078756, -10.957408838642952, -87.45411231111069])},
 }
 
 # The calibration file `scheimpflug calibrate DIR --model general --out CAL.json` wrote at d51cb72
@@ -135,8 +140,8 @@ def test_paper_and_general_give_the_numbers_of_before_the_move(quick_frames, cap
         # what must not move (to 1e-5 mm over a 224 mm range), and the camera only to its gauge's slack.
         model = GeneralCalibration.from_json_dict(got)
         s, h = model.stage_from_pixel(*PIXELS)
-        np.testing.assert_allclose(s, OLD_MAPPING["general"][0], rtol=0, atol=1e-5)
-        np.testing.assert_allclose(h, OLD_MAPPING["general"][1], rtol=0, atol=1e-5)
+        np.testing.assert_allclose(s, want["mapping"][0], rtol=0, atol=1e-5)
+        np.testing.assert_allclose(h, want["mapping"][1], rtol=0, atol=1e-5)
         cam = got["general"]["camera"]
         np.testing.assert_allclose(cam["tau_deg"], want["camera"]["tau_deg"], rtol=0, atol=1e-6)
         np.testing.assert_allclose(cam["focal_px"], want["camera"]["focal_px"], rtol=1e-3)

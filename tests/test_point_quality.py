@@ -251,10 +251,12 @@ def test_old_and_generic_readers_read_the_quality_ply(tmp_path, rng):
 
 
 @pytest.mark.render
-def test_default_filter_halves_pf_of_a_binned_sphere_scan_and_uses_no_truth(tmp_path, variant):
+def test_default_filter_cuts_pf_of_a_binned_sphere_scan_and_uses_no_truth(tmp_path, variant):
     """The twin's ideal paper rig, 4× binned, 2 sphere positions: the grazing points carry the bias.
 
-    Measured (seeds 0, 1): PF 134 / 149 µm with the filter, 252 / 358 µm without; at full
+    Measured over 16 noise draws (seeds 0–7, the sensor noise's streams before and after issue
+    27's third round): PF 125–269 µm with the filter, 194–424 µm without, a ratio of 0.37–0.77
+    (median 0.58) — this quick plan's two positions do not always halve it; at full
     resolution 33–34 µm against 290–315 µm (benchmarks/RESULTS.md).
     """
     import shutil
@@ -264,7 +266,7 @@ def test_default_filter_halves_pf_of_a_binned_sphere_scan_and_uses_no_truth(tmp_
 
     res = run_acceptance(RIG, tmp_path, binning=4, quick=True, kinds=["sphere"], warn=lambda m: None)
     assert res["quality_filter"] == DEFAULT_FILTER.to_json_dict()
-    assert res["PF_mm"] < 0.6 * res["unfiltered"]["PF_mm"], (res["PF_mm"], res["unfiltered"]["PF_mm"])
+    assert res["PF_mm"] < 0.85 * res["unfiltered"]["PF_mm"], (res["PF_mm"], res["unfiltered"]["PF_mm"])
     pos = res["positions"]["sphere"][0]
     assert pos["quality_filter"]["sweep_edge"] > 0 and pos["n_points"] < pos["unfiltered"]["n_points"]
     # what was dropped is what was biased: against the nominal sphere, the dropped points of the
