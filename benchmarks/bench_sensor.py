@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+import sim.sensor
 from scheimpflug.model.rig import load_preset
 from sim.sensor import SensorModel, apply_sensor, frame_rng
 
@@ -45,8 +46,6 @@ def main() -> None:
         lam = np.zeros(shape, np.float32)
         lam[:, :900] = rng.uniform(0, 4, (rig.sensor.rows, 900))
     lam[:, 500:506] = 12000.0
-    import sim.sensor
-
     print(f"sim.sensor from {os.path.dirname(os.path.dirname(sim.sensor.__file__))}; "
           f"{args.frame} frame, threads {args.threads or 'all'}")
     ms = {}

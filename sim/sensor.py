@@ -184,6 +184,7 @@ _GAMMA = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _STREAM = np.uint64(0xD1B54A32D192ED03)
+_U53 = 1.0 / 9007199254740992.0            # 2⁻⁵³: a 53-bit integer → [0, 1)
 
 
 @numba.njit(inline="always")
@@ -198,7 +199,7 @@ def _mix64(z):  # pragma: no cover - compiled
 def _next_uniform(state):  # pragma: no cover - compiled
     """Advance a SplitMix64 state; return (state, u) with u uniform in (0, 1)."""
     state = state + _GAMMA
-    u = (np.float64(_mix64(state) >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
+    u = (np.float64(_mix64(state) >> np.uint64(11)) + 0.5) * _U53
     return state, u
 
 
@@ -349,7 +350,7 @@ def _dr_pixel_states(llvm, n: int, key: np.uint64):
 def _dr_next_uniform(llvm, state):
     """:func:`_next_uniform` on lanes: (advanced state, Float64 uniform in (0, 1))."""
     state = state + llvm.UInt64(int(_GAMMA))
-    u = (llvm.Float64(_dr_mix64(llvm, state) >> 11) + 0.5) * (1.0 / 9007199254740992.0)
+    u = (llvm.Float64(_dr_mix64(llvm, state) >> 11) + 0.5) * _U53
     return state, u
 
 
@@ -469,8 +470,9 @@ def poisson_counts(lam, rng: np.random.Generator, backend: str | None = None) ->
     rng : numpy.random.Generator
         Generator of the frame (:func:`frame_rng`); one 64-bit key is drawn from it.
     backend : {None, "drjit", "numba"}, optional
-        Dr.Jit's LLVM kernel (the default when usable) or the numba kernel; both draw from the same per-pixel SplitMix64
-        streams and give the same counts (module docstring).
+        Dr.Jit's LLVM kernel (the default when usable) or the numba kernel; both
+        draw from the same per-pixel SplitMix64 streams and give the same counts
+        (module docstring).
 
     Returns
     -------

@@ -37,15 +37,13 @@ def test_the_stage_calibrations_hold_the_truth(choice, variant):
     assert choice["methods"]["paper"]["plane_normal_deg"] < 0.05                  # the ideal rig's own form
 
 
-@pytest.mark.render
 # The bounds below hold in each of 16 noise draws of this plan (seeds 0-7, with the sensor noise's
 # streams before and after issue 27's third round; benchmarks/RESULTS.md): the table poses' axis
 # 0.07-1.22 mm off (median 0.28), the blocker's 0.02-0.15 mm (median 0.07) — nearer in 15 of the 16,
 # so a pair of one draw may not show it —, the cylinder's diameter 0.08-2.39 against 0.03-0.23 mm
 # off, the blocker's cylinder form 1.1-2.2 × the stage calibration's, the bowed print's sheet
 # 5.0-45 × the flat one's RMS, |SD| 0.54-1.43 × the axis offset.
-
-
+@pytest.mark.render
 def test_the_pattern_calibration_and_what_weakens_it(choice, variant):
     t, tb, bow = (choice["methods"][k] for k in ("target", "target+blocker", "target-bow"))
     assert t["sheet_rms_mm"] < 0.15 and t["plane_normal_deg"] < 1.0 and t["axis_offset_mm"] < 2.0
