@@ -530,9 +530,11 @@ def _needed_pixels(lit: np.ndarray, margin: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ numba kernels
+# error_model="numpy": no Python-style zero check before each floating-point division
+# (none of these kernels divides by zero); the same results, the deposit ≈ 7 % faster.
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _mix(h):  # pragma: no cover - compiled
     """splitmix64 finaliser."""
     h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -540,7 +542,7 @@ def _mix(h):  # pragma: no cover - compiled
     return h ^ (h >> np.uint64(31))
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _cell_hash(i, j, k, key):  # pragma: no cover - compiled
     """64 random bits of lattice cell (i, j, k) of the part whose key is ``key``."""
     return _mix((np.uint64(i & 0x1FFFFF) | (np.uint64(j & 0x1FFFFF) << np.uint64(21))
@@ -551,7 +553,7 @@ _CIS_N = 4096
 _CIS = np.exp(2j * np.pi * np.arange(_CIS_N + 1) / _CIS_N)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _cis(phase, table):  # pragma: no cover - compiled
     """exp(i·phase) by linear interpolation in a 4096-entry table (error < 3e-7).
 
@@ -564,7 +566,7 @@ def _cis(phase, table):  # pragma: no cover - compiled
     return table[i] * (1.0 - f) + table[i + 1] * f
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _project(x, y, z, cam):  # pragma: no cover - compiled
     """Chief-ray image (u, v) [px] of a rig point (thin lens at x = cam[16], radial distortion, sensor plane)."""
     k1, k2, cx = cam[14], cam[15], cam[16]
@@ -580,14 +582,14 @@ def _project(x, y, z, cam):  # pragma: no cover - compiled
     return u, v
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _affine(m, p0, p1, p2):  # pragma: no cover - compiled
     """M (12,) = rows of a 3 × 4 rigid transform, applied to the point (p0, p1, p2)."""
     return (m[0] * p0 + m[1] * p1 + m[2] * p2 + m[3], m[4] * p0 + m[5] * p1 + m[6] * p2 + m[7],
             m[8] * p0 + m[9] * p1 + m[10] * p2 + m[11])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _tangents(n):  # pragma: no cover - compiled
     """Two unit tangents (t1, t2) of the normal n, as tuples (no allocation)."""
     if abs(n[0]) < 0.9:
@@ -600,7 +602,7 @@ def _tangents(n):  # pragma: no cover - compiled
     return (x, y, z), (n[1] * z - n[2] * y, n[2] * x - n[0] * z, n[0] * y - n[1] * x)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _jacobian(y, t1, t2, m12, cam):  # pragma: no cover - compiled
     """Pixel (u, v) of part point y and the 2 × 2 Jacobian d(u, v)/d(t1, t2) [px/mm]."""
     x0 = _affine(m12, y[0], y[1], y[2])
@@ -613,7 +615,7 @@ def _jacobian(y, t1, t2, m12, cam):  # pragma: no cover - compiled
     return u0, v0, (ua - u0) / eps, (va - v0) / eps, (ub - u0) / eps, (vb - v0) / eps
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _deposit_one(cells, fu, fv, are, aim):  # pragma: no cover - compiled
     """Bilinear deposit of one scatterer at fine coordinates (fu, fv); cross-weight statistics."""
     g = cells.shape[0]
@@ -648,7 +650,7 @@ def _deposit_one(cells, fu, fv, are, aim):  # pragma: no cover - compiled
     c[2] += w11 * w11
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, cells,
                    gr0, gc0, s, off, table):  # pragma: no cover - compiled
     """Deposit the scatterers owned by pixel (r, c) (their chief-ray image in its square).
@@ -730,7 +732,7 @@ def _deposit_pixel(r, c, part, y, n, m12, delta, seed, cam, lo, k_wave, cells,
             _deposit_one(cells, fu, fv, a.real, a.imag)
 
 
-@nb.njit(cache=True, nogil=True, parallel=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True, parallel=True)
 def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, lattice, seed, cam,
                   lo, k_wave, cells, table):  # pragma: no cover - compiled
     """Each needed pixel's scatterers, once, on the fine grid of its own tile (offset 1).
@@ -750,7 +752,7 @@ def _deposit_base(base_tiles, t, s, index, part_pt, part_n, m12, part_idx, latti
                                    table)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _fold_halos(base_tiles, slot, n, cells):  # pragma: no cover - compiled
     """Add each tile's halo cells (fine index −1 and n) into the neighbour tile they belong to."""
     for i in range(base_tiles.shape[0]):
@@ -773,7 +775,7 @@ def _fold_halos(base_tiles, slot, n, cells):  # pragma: no cover - compiled
                     cells[k, a2, b2, e] += cells[i, a, b, e]
 
 
-@nb.njit(cache=True, nogil=True, parallel=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True, parallel=True)
 def _normalise(cells, corr):  # pragma: no cover - compiled
     """O = Σ w·c / √Σw² on occupied interior cells; mean neighbour correlation per tile.
 
@@ -813,7 +815,7 @@ def _normalise(cells, corr):  # pragma: no cover - compiled
             corr[i, e] = sums[e] / counts[e] if counts[e] > 0 else 0.0
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _window(slot, cells, n, fa0, fb0, size, wr, wi, wocc):  # pragma: no cover - compiled
     """Copy a size × size window of the normalised field and occupancy out of the tile grids.
 
@@ -847,7 +849,7 @@ def _window(slot, cells, n, fa0, fb0, size, wr, wi, wocc):  # pragma: no cover -
     return full
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _row_span(lit, r, c0, c1):  # pragma: no cover - compiled
     """First and one-past-last lit column of row r within [c0, c1) (c1, c1 when none)."""
     lo, hi = c1, c1
@@ -859,7 +861,7 @@ def _row_span(lit, r, c0, c1):  # pragma: no cover - compiled
     return lo, hi
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _convolve_row(wr, wi, wocc, a0, b0, b1, cb, hr, hi, offsets, ntap, full, ur, ui, cv):
     # pragma: no cover - compiled
     """Field h ⊛ o (and coverage Σ|h|²·occ) at window row a0, columns b0…b1 − 1 (+ cb).
@@ -886,7 +888,7 @@ def _convolve_row(wr, wi, wocc, a0, b0, b1, cb, hr, hi, offsets, ntap, full, ur,
                 c_v[j] += h2 * crow[j]
 
 
-@nb.njit(cache=True, nogil=True, parallel=True)
+@nb.njit(cache=True, error_model="numpy", nogil=True, parallel=True)
 def _pixel_means(tiles, t, s, margin, lit, slot, cells, corr, offsets, values_re, values_im,
                  ntaps, lags, kidx, out, keep_fine, fine):  # pragma: no cover - compiled
     """S of each lit pixel: mean over its s × s fine samples of |h ⊛ o|²/(E|U|²·coverage).
