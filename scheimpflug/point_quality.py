@@ -34,13 +34,23 @@ Per point, measured from the frames and the calibration only (never from truth):
     surface between the two) and the point is lit at less than half of what
     the row's neighbour and Lambert's law predict: only part of the sheet's
     thickness lights it (:func:`sweep_edges`).
+``saturated``, ``centre_sigma_px``
+    The stripe's peak was clipped in the point's row, and the centre's standard
+    uncertainty from the noise [px]: for a clipped row, propagated through its two
+    edges (:func:`scheimpflug.stripe.extract_stripes`, module docstring step 5); for
+    the others, the Cramér–Rao bound of its width and SNR (:func:`centre_crb_px`).
 
 The default filter (:data:`DEFAULT_FILTER`)
 -------------------------------------------
 A point is kept when **both** incidences are at most ``max_incidence_deg``
 (75°), its SNR is at least ``min_snr`` (13) and it is not on a sweep edge; a
-NaN quality (not measurable) fails nothing.  The thresholds come from the
-physics, not from a fit to one scan:
+NaN quality (not measurable) fails nothing.  A saturated point's SNR is that of
+a clipped peak — a lower bound that says nothing of its centre, which comes
+from the edges: it is kept instead when its ``centre_sigma_px`` is at most the
+bound the SNR threshold guarantees an unsaturated stripe of its width,
+``centre_crb_px(stripe_width_px, min_snr)`` (the clipped profile's width is
+below the stripe's, so the test is, if anything, strict).  The thresholds come
+from the physics, not from a fit to one scan:
 
 * 75°: the footprint of the sheet is 1/cos 75° = 3.9 × as long as at normal
   incidence and the irradiance 0.26 × — there the footprint's length grows by
@@ -89,7 +99,8 @@ __all__ = [
 ]
 
 #: The per-point quality fields of :class:`scheimpflug.reconstruct.PointCloud` (and PLY properties).
-QUALITY_FIELDS = ("stripe_width_px", "snr", "incidence_laser_deg", "incidence_camera_deg", "sweep_edge")
+QUALITY_FIELDS = ("stripe_width_px", "snr", "incidence_laser_deg", "incidence_camera_deg", "sweep_edge",
+                  "saturated", "centre_sigma_px")
 
 
 # ---------------------------------------------------------------- stripe width per row
@@ -615,12 +626,30 @@ def quality_mask(cloud, quality: QualityFilter) -> np.ndarray:
         with np.errstate(invalid="ignore"):
             return np.isfinite(x) & bad(x)
 
-    out = ~(fails("snr", lambda x: x < quality.min_snr)
+    sat = _saturated(cloud)
+    out = ~((fails("snr", lambda x: x < quality.min_snr) & ~sat) | _uncertain_saturated(cloud, quality, sat)
             | fails("incidence_laser_deg", lambda x: x > quality.max_incidence_deg)
             | fails("incidence_camera_deg", lambda x: x > quality.max_incidence_deg))
     if quality.drop_sweep_edges and cloud.sweep_edge is not None:
         out &= ~np.asarray(cloud.sweep_edge, dtype=bool)
     return out
+
+
+def _saturated(cloud) -> np.ndarray:
+    """The cloud's saturation flags (all False where unknown)."""
+    if cloud.saturated is None:
+        return np.zeros(len(cloud), dtype=bool)
+    return np.asarray(cloud.saturated, dtype=bool)
+
+
+def _uncertain_saturated(cloud, quality: QualityFilter, sat: np.ndarray) -> np.ndarray:
+    """Saturated points whose centre is less certain than ``min_snr`` makes an unsaturated one's."""
+    if cloud.centre_sigma_px is None or cloud.stripe_width_px is None or not sat.any():
+        return np.zeros(len(cloud), dtype=bool)
+    sigma = np.asarray(cloud.centre_sigma_px, np.float64)
+    bound = centre_crb_px(cloud.stripe_width_px, quality.min_snr)
+    with np.errstate(invalid="ignore"):
+        return sat & np.isfinite(sigma) & np.isfinite(bound) & (sigma > bound)
 
 
 def filter_counts(cloud, quality: QualityFilter) -> dict:
@@ -636,7 +665,9 @@ def filter_counts(cloud, quality: QualityFilter) -> dict:
     Returns
     -------
     dict
-        ``n_points``, ``n_kept``, ``low_snr``, ``laser_incidence``, ``camera_incidence``, ``sweep_edge``.
+        ``n_points``, ``n_kept``, ``low_snr`` (unsaturated points), ``uncertain_saturated``
+        (saturated points whose centre σ exceeds the SNR threshold's bound), ``laser_incidence``,
+        ``camera_incidence``, ``sweep_edge``.
     """
     def count(name, bad):
         x = getattr(cloud, name)
@@ -647,7 +678,11 @@ def filter_counts(cloud, quality: QualityFilter) -> dict:
 
     t = quality.max_incidence_deg
     edge = 0 if cloud.sweep_edge is None or not quality.drop_sweep_edges else int(np.count_nonzero(cloud.sweep_edge))
+    sat = _saturated(cloud)
+    with np.errstate(invalid="ignore"):
+        low = 0 if cloud.snr is None else int(np.count_nonzero((np.asarray(cloud.snr, np.float64) < quality.min_snr)
+                                                               & ~sat))
     return {"n_points": len(cloud), "n_kept": int(np.count_nonzero(quality_mask(cloud, quality))),
-            "low_snr": count("snr", lambda x: x < quality.min_snr),
+            "low_snr": low, "uncertain_saturated": int(np.count_nonzero(_uncertain_saturated(cloud, quality, sat))),
             "laser_incidence": count("incidence_laser_deg", lambda x: x > t),
             "camera_incidence": count("incidence_camera_deg", lambda x: x > t), "sweep_edge": edge}

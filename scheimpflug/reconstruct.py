@@ -21,6 +21,7 @@ the PLY happen in ``scheimpflug.app.commands.reconstruct``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -29,7 +30,8 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.model.hinge import stage_from_pixel
-from scheimpflug.point_quality import stripe_widths_px
+from scheimpflug.model.rig import Sensor
+from scheimpflug.point_quality import centre_crb_px, stripe_widths_px
 from scheimpflug.stripe import (
     DEFAULT_WINDOW_PX,
     extract_stripes,
@@ -44,8 +46,10 @@ __all__ = [
     "ISOLATION_PX",
     "FolderStripes",
     "PointCloud",
+    "SATURATED_CHOICES",
     "SheetCalibration",
     "calibration_axis",
+    "dn_per_electron",
     "extract_folder",
     "extract_folder_stripes",
     "isolated_rows",
@@ -139,6 +143,16 @@ class PointCloud:
         adjacent frame of the scan and the point is dimmer than Lambert's law
         and that row's neighbour say (:func:`scheimpflug.point_quality.sweep_edges`;
         None: unknown).
+    saturated : (n,) ndarray bool or None
+        The stripe's peak was clipped at the saturation level in the point's row:
+        its centre is the midpoint of the profile's two edges
+        (:func:`scheimpflug.stripe.extract_stripes`, ``saturated="edges"``), its
+        ``intensity`` and ``snr`` are lower bounds (None: unknown).
+    centre_sigma_px : (n,) ndarray float or None
+        Standard uncertainty of the stripe centre from the noise [px]: a saturated
+        row's propagated through its two edges (:class:`scheimpflug.stripe.StripeProfile`'s
+        ``u_sigma``), an unsaturated row's Cramér–Rao bound from its width and SNR
+        (:func:`scheimpflug.point_quality.centre_crb_px`); NaN or None when unknown.
 
     Raises
     ------
@@ -156,9 +170,11 @@ class PointCloud:
     incidence_laser_deg: np.ndarray | None = None
     incidence_camera_deg: np.ndarray | None = None
     sweep_edge: np.ndarray | None = None
+    saturated: np.ndarray | None = None
+    centre_sigma_px: np.ndarray | None = None
 
     _PER_POINT = ("angle_deg", "row", "intensity", "frame", "stripe_width_px", "snr",
-                  "incidence_laser_deg", "incidence_camera_deg", "sweep_edge")
+                  "incidence_laser_deg", "incidence_camera_deg", "sweep_edge", "saturated", "centre_sigma_px")
 
     def __post_init__(self) -> None:
         n = np.asarray(self.xyz_mm).shape[0]
@@ -325,7 +341,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
                          axis_mm: float, intensity: Sequence[np.ndarray] | None = None,
                          snr: Sequence[np.ndarray] | None = None,
                          stripe_width_px: Sequence[np.ndarray] | None = None,
-                         along: str = "columns") -> PointCloud:
+                         along: str = "columns", saturated: Sequence[np.ndarray] | None = None,
+                         centre_sigma_px: Sequence[np.ndarray] | None = None) -> PointCloud:
     """Point cloud of a rotary scan from per-frame stripe samples.
 
     Parameters
@@ -348,6 +365,9 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
         default: the cloud has none).
     along : {"columns", "rows"}, default "columns"
         The frames' stripe orientation (:func:`scheimpflug.stripe.image_pixels`).
+    saturated, centre_sigma_px : sequence of (n_i,) bool / float, optional
+        Per-sample saturation flag and centre uncertainty [px] (:class:`FolderStripes`;
+        default: the cloud has none).
 
     Returns
     -------
@@ -360,8 +380,8 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     ------
     ValueError
         If ``rows``, ``u``, ``angles_deg`` (and ``intensity``, ``snr``,
-        ``stripe_width_px``) do not have one entry per frame, or a frame's
-        ``rows`` and ``u`` differ in size.
+        ``stripe_width_px``, ``saturated``, ``centre_sigma_px``) do not have one entry
+        per frame, or a frame's ``rows`` and ``u`` differ in size.
     """
     angles = np.asarray(list(angles_deg), dtype=np.float64)
     if not (len(rows) == len(u) == len(angles)) or (intensity is not None and len(intensity) != len(u)):
@@ -382,11 +402,14 @@ def reconstruct_profiles(rows: Sequence[np.ndarray], u: Sequence[np.ndarray],
     xyz = points_from_pixels(*image_pixels(vv, uu, along), aa, calibration, axis_mm)
     ok = np.all(np.isfinite(xyz), axis=1)
     extra = {}
-    for name, per_frame in (("snr", snr), ("stripe_width_px", stripe_width_px)):
+    for name, per_frame in (("snr", snr), ("stripe_width_px", stripe_width_px), ("saturated", saturated),
+                            ("centre_sigma_px", centre_sigma_px)):
         if per_frame is not None:
             if len(per_frame) != len(u) or any(np.asarray(x).size != k for x, k in zip(per_frame, sizes)):
                 raise ValueError(f"{name} needs one value per stripe sample of every frame")
             extra[name] = cat(per_frame)[ok]
+    if "saturated" in extra:
+        extra["saturated"] = extra["saturated"] > 0.5
     return PointCloud(xyz_mm=xyz[ok], angle_deg=aa[ok], row=vv[ok].astype(np.int64),
                       intensity=ii[ok], frame=ff[ok], **extra)
 
@@ -449,6 +472,11 @@ class FolderStripes:
         Counters of :func:`extract_folder`.
     along : {"columns", "rows"}, optional
         The folder's stripe orientation (default "columns").
+    saturated : list of (n_i,) ndarray bool, optional
+        The sample's peak was clipped (its centre from the edges, :data:`SATURATED_CHOICES`).
+    centre_sigma_px : list of (n_i,) ndarray float64, optional
+        Standard uncertainty of each centre from the noise [px]
+        (:attr:`scheimpflug.reconstruct.PointCloud.centre_sigma_px`).
     """
 
     rows: list
@@ -458,12 +486,57 @@ class FolderStripes:
     stripe_width_px: list
     stats: dict
     along: str = "columns"
+    saturated: list | None = None
+    centre_sigma_px: list | None = None
+
+
+SATURATED_CHOICES = ("edges", "drop", "plateau")
+"""What :func:`extract_folder_stripes` does with a saturated row: its centre from the clipped
+profile's two edges with its own uncertainty (the default), drop it (the default before
+issue 34), or the middle of the run of saturated pixels (``--keep-saturated`` before issue 34)."""
+
+
+def dn_per_electron(folder) -> float:
+    """A frame folder's camera noise gain from its manifest's rig, 0 where unknown.
+
+    Parameters
+    ----------
+    folder : scheimpflug.io.frames.FrameFolder
+        The frames; a rendered folder's rig has the sensor's ``gain_e_per_dn`` (0: full
+        well at full scale, ``full_well_e / (2**adc_bits − 1 − dark_offset_dn)``).
+
+    Returns
+    -------
+    float
+        DN per photo-electron [DN]; 0 for a folder without a sensor table (real frames:
+        the noise's signal dependence unknown).
+    """
+    sensor = folder.rig.get("sensor") if isinstance(folder.rig, dict) else None
+    if not isinstance(sensor, dict):
+        return 0.0
+
+    def value(key):
+        v = sensor.get(key, getattr(Sensor, key))
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        return float(v) if ok else float(getattr(Sensor, key))
+
+    gain = value("gain_e_per_dn")
+    if gain <= 0:
+        gain = value("full_well_e") / max(2.0 ** value("adc_bits") - 1.0 - value("dark_offset_dn"), 1.0)
+    return 1.0 / gain if gain > 0 else 0.0
+
+
+def _centre_sigma(prof, width: np.ndarray) -> np.ndarray:
+    """A profile's centre uncertainty: the edges' for clipped rows, the Cramér–Rao bound elsewhere [px]."""
+    crb = centre_crb_px(width, prof.score)
+    sat = prof.u_sigma if prof.u_sigma is not None else np.full(len(prof), np.nan)
+    return np.where(prof.saturated, sat, crb)
 
 
 def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
-                           keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                           keep_saturated: bool | None = None, progress: ProgressCallback | None = None,
                            multi_peak: str = "nearest", window_px: int | str = "auto",
-                           drop_isolated: bool = False) -> FolderStripes:
+                           drop_isolated: bool = False, saturated: str = "edges") -> FolderStripes:
     """Stripe samples of every frame of a frame folder, with each row's SNR and stripe width.
 
     Parameters
@@ -474,8 +547,8 @@ def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
         Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
     min_snr : float, default 6.0
         Detection threshold [-].
-    keep_saturated : bool, default False
-        Keep rows whose stripe is saturated (dropped by default).
+    keep_saturated : bool, optional
+        The option before issue 34: True is ``saturated="edges"``, False ``"drop"``.
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
     multi_peak : str
@@ -484,36 +557,45 @@ def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
         Detector window (:func:`extract_folder`).
     drop_isolated : bool, default False
         Drop lone rows (:func:`extract_folder`).
+    saturated : {"edges", "drop", "plateau"}, default "edges"
+        Rows whose stripe peak is saturated (:data:`SATURATED_CHOICES`); the noise of
+        their edges grows with the signal by the folder's :func:`dn_per_electron`.
 
     Returns
     -------
     FolderStripes
-        Per-frame arrays and counters.
+        Per-frame arrays and counters (with each sample's saturation flag and centre
+        uncertainty).
 
     Raises
     ------
     FrameError
         If a frame is missing or invalid.
     ValueError
-        For an unknown ``method`` or a bad ``min_snr``.
+        For an unknown ``method`` or ``saturated`` rule, or a bad ``min_snr``.
     """
+    if keep_saturated is not None:
+        saturated = "edges" if keep_saturated else "drop"
+    if saturated not in SATURATED_CHOICES:
+        raise ValueError(f"saturated must be one of {', '.join(SATURATED_CHOICES)}, got {saturated!r}")
     along = getattr(folder, "stripe_along", "columns")
+    rule = {"saturated": "plateau" if saturated == "plateau" else "edges", "dn_per_electron": dn_per_electron(folder)}
 
     def one(rec, frame):
         frame = oriented(frame, along)
         sat = folder.saturation_dn(frame)
         prof = extract_stripes(frame, method, min_snr=min_snr, multi_peak=multi_peak,
-                               saturation_dn=sat, window_px=window_px)
+                               saturation_dn=sat, window_px=window_px, **rule)
         win = window_px if isinstance(window_px, int) else \
             stripe_window_px(measured_stripe_sigma_px(frame, prof, DEFAULT_WINDOW_PX))
-        return prof, stripe_widths_px(frame, prof.rows, prof.u, prof.background, min(win, 28)), \
-            saturated_fraction(frame, sat) > 0.5
+        width = stripe_widths_px(frame, prof.rows, prof.u, prof.background, min(win, 28))
+        return prof, width, saturated_fraction(frame, sat) > 0.5
 
     out = FolderStripes([], [], [], [], [], {"blank_frames": 0, "saturated_rows": 0, "isolated_rows": 0,
-                                            "saturated_frames": 0}, along)
+                                            "saturated_frames": 0}, along, [], [])
     stats = out.stats
     for prof, width, blown in folder.map_frames(one):
-        keep = np.ones(len(prof), dtype=bool) if keep_saturated else ~prof.saturated
+        keep = ~prof.saturated if saturated == "drop" else np.ones(len(prof), dtype=bool)
         lone = isolated_rows(prof.rows, prof.u)
         stats["isolated_rows"] += int(lone.sum())
         if drop_isolated:
@@ -521,17 +603,19 @@ def extract_folder_stripes(folder, method: str = "cog", *, min_snr: float = 6.0,
         stats["saturated_rows"] += int(prof.saturated.sum())
         stats["blank_frames"] += int(len(prof) == 0)
         stats["saturated_frames"] += int(blown)
-        for field_, values in zip((out.rows, out.u, out.peak, out.snr, out.stripe_width_px),
-                                  (prof.rows, prof.u, prof.peak, prof.score, width)):
+        for field_, values in zip((out.rows, out.u, out.peak, out.snr, out.stripe_width_px, out.saturated,
+                                   out.centre_sigma_px),
+                                  (prof.rows, prof.u, prof.peak, prof.score, width, prof.saturated,
+                                   _centre_sigma(prof, width))):
             field_.append(values[keep])
         report(progress, len(out.rows), len(folder))
     return out
 
 
 def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
-                   keep_saturated: bool = False, progress: ProgressCallback | None = None,
+                   keep_saturated: bool | None = None, progress: ProgressCallback | None = None,
                    multi_peak: str = "nearest", window_px: int | str = "auto",
-                   drop_isolated: bool = False):
+                   drop_isolated: bool = False, saturated: str = "edges"):
     """Stripe samples of every frame of a frame folder.
 
     Frames are decoded and extracted on threads (:meth:`FrameFolder.map_frames`).
@@ -544,8 +628,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Stripe centre method (:func:`scheimpflug.stripe.extract_stripes`).
     min_snr : float, default 6.0
         Detection threshold [-].
-    keep_saturated : bool, default False
-        Keep rows whose stripe is saturated (dropped by default).
+    keep_saturated : bool, optional
+        The option before issue 34: True is ``saturated="edges"``, False ``"drop"``.
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame (:mod:`scheimpflug.callbacks`).
     multi_peak : str
@@ -557,6 +641,8 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
         Drop a row's stripe when neither adjacent row has one within
         :data:`ISOLATION_PX` columns (:func:`isolated_rows`): a surface images to
         a run of rows, a lone detection is noise or stray light at a part's edge.
+    saturated : {"edges", "drop", "plateau"}, default "edges"
+        Rows whose stripe peak is saturated (:data:`SATURATED_CHOICES`).
 
     Returns
     -------
@@ -574,9 +660,9 @@ def extract_folder(folder, method: str = "cog", *, min_snr: float = 6.0,
     FrameError
         If a frame is missing or invalid.
     ValueError
-        For an unknown ``method`` or a bad ``min_snr``.
+        For an unknown ``method`` or ``saturated`` rule, or a bad ``min_snr``.
     """
     res = extract_folder_stripes(folder, method, min_snr=min_snr, keep_saturated=keep_saturated,
                                  progress=progress, multi_peak=multi_peak, window_px=window_px,
-                                 drop_isolated=drop_isolated)
+                                 drop_isolated=drop_isolated, saturated=saturated)
     return res.rows, res.u, res.peak, res.stats

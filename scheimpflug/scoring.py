@@ -48,6 +48,7 @@ __all__ = [
     "is_closed_mesh",
     "point_to_mesh",
     "sample_surface",
+    "placement_mismatch",
     "scale_mismatch",
     "score_points",
     "two_sided_distance",
@@ -61,6 +62,9 @@ UNIT_FACTORS = (("metres", 1000.0), ("inches", 25.4), ("cm", 10.0))
 """Units whose factor to mm a cloud-to-mesh size ratio is compared with (:func:`scale_mismatch`)."""
 _UNIT_MATCH = 0.15      # a size ratio within 15 % of a unit factor names the unit [-]
 _GROSS_RATIO = 30.0     # a size ratio beyond this (either way) is a mismatch whatever the unit [-]
+OFF_MESH_FRACTION = 0.05
+"""A cloud whose median point-to-mesh distance exceeds this share of the mesh's size lies off the mesh
+(:func:`placement_mismatch`) [-]."""
 
 _LEAF_SIZE = 4          # triangles per BVH leaf: 4 balances box tests against triangle tests
 _STACK = 128            # traversal stack depth; a median-split tree on 1e9 faces is < 64 deep
@@ -830,3 +834,49 @@ def scale_mismatch(points_mm: np.ndarray, vertices_mm: np.ndarray) -> str | None
         return (f"the {small} is {max(ratio, 1 / ratio):.4g} × smaller than the other (bounding boxes "
                 f"{min(a, b):.4g} and {max(a, b):.4g}): not the same part, or another unit")
     return None
+
+
+def placement_mismatch(points_mm: np.ndarray, distance_mm: np.ndarray, vertices_mm: np.ndarray) -> str | None:
+    """A cloud lying off its mesh (offset, turned or another part), in words, or None.
+
+    The criterion: the median distance of the points to the mesh exceeds
+    :data:`OFF_MESH_FRACTION` (5 %) of the mesh's size (the diagonal of its
+    bounding box).  A scan in the mesh's frame lies on its surface within the
+    instrument's error, well under 1 % of a part's size, also when it covers
+    only part of the mesh or holds strays (the median ignores up to half of the
+    points); a scan in another frame (an offset origin, another axis position)
+    or of another scale (a calibration of another binning: 30 % on a sphere is
+    8.7 % of its box diagonal) lies farther.  The message gives the median
+    distance, how far the cloud's box centre is from the mesh's and both sizes.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) float
+        The cloud's points [mm].
+    distance_mm : (n,) float
+        Their distances to the mesh (signed or not) [mm].
+    vertices_mm : (m, 3) float
+        The mesh's vertices [mm].
+
+    Returns
+    -------
+    str or None
+        What is off, or None when the cloud lies on the mesh.
+    """
+    d = np.abs(np.asarray(distance_mm, np.float64))
+    d = d[np.isfinite(d)]
+    v = np.asarray(vertices_mm, np.float64)
+    size = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 0.0
+    if not (len(d) and size > 0):
+        return None
+    median = float(np.median(d))
+    if median <= OFF_MESH_FRACTION * size:
+        return None
+    p = np.asarray(points_mm, np.float64)
+    offset = 0.5 * (p.min(axis=0) + p.max(axis=0)) - 0.5 * (v.min(axis=0) + v.max(axis=0))
+    return (f"the cloud lies off the mesh: its points' median distance to it is {median:.4g} mm, "
+            f"{100 * median / size:.0f} % of the mesh's size (bounding-box diagonal {size:.4g} mm, the cloud's "
+            f"{_box_size(p):.4g} mm; above {100 * OFF_MESH_FRACTION:.0f} %), its box centre "
+            f"{np.linalg.norm(offset):.4g} mm from the mesh's (x, y, z {offset[0]:+.4g}, {offset[1]:+.4g}, "
+            f"{offset[2]:+.4g} mm): not in the mesh's frame (another origin or axis position), of another scale (a "
+            "calibration of other frames) or not the same part; the distances below measure that")

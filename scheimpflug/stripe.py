@@ -54,8 +54,56 @@ Per row
    are never chosen).  On the twin's knurled ring with three bounces it halves the
    wrong-peak choices (``benchmarks/RESULTS.md``).
 5. **Saturation.**  A row whose peak pixel reaches ``saturation_dn`` is
-   flagged; its centre is then the middle of the run of saturated pixels
-   (every profile fit is meaningless on a clipped top).
+   flagged; every profile fit is meaningless on a clipped top, but its sides
+   are intact.  With ``saturated="edges"`` (the default) the centre is the
+   midpoint of the clipped profile's two edges at ``L = background +
+   saturated_level × (saturation − background)``, the background and noise
+   taken from flanks outside the whole run of clipped pixels.  Each edge is
+   interpolated between the last pixel at or above L and the first below it,
+   log-linearly (exact for a Gaussian's tail but its curvature), then moved out
+   by ``t(1 − t) / (2 |x_e − u|)``: the Gaussian's log is a parabola of
+   curvature −1/σ² whose slope at the edge is −|x_e − u|/σ², so the chord
+   between the two pixels crosses L that much early, whatever σ.  Where the last
+   pixel above L is itself clipped (a steep, narrow stripe) the edge is
+   extrapolated from the two pixels outside it when they stand clear of the
+   noise (≥ 5 σ), else it is the middle of the pixel interval it must lie in,
+   with that interval's uniform variance.  On a noise-free pixel-integrated
+   Gaussian (σ = 1.5–3 px, true peak 1.2–100 × the clip) the midpoint lies
+   within 0.005 px of the centre; a plain linear interpolation errs by up to
+   0.09 px RMS over sub-pixel phases, the run of saturated pixels' middle by
+   up to half a pixel.
+
+   The level: the paper's half height is the natural edge, but a real
+   stripe is not symmetric (a thick sheet on a curved surface, a lens's
+   blur), and its midpoint moves with the level.  ``saturated_level = 0.3``
+   was measured best of 0.2–0.5 on both the twin and real frames.  Against
+   the twin's exact per-row truth (binning 2, every 3rd of 36 frames), the
+   clipped rows of the knurled metal cylinder at 4 × and of the pile of
+   sundries at 16 × the paper rig's exposure err by 0.030 and 0.029 px RMS at
+   0.3 (0.029 at 0.25, 0.038 and 0.035 at 0.2), 0.077 and 0.057 px at 0.5; on
+   FabScan's real bust (every 4th frame of ``scan-2_1``) the centres of three
+   consecutive clipped lines scatter by 0.077 px (robust; 0.117 RMS) at 0.3 and
+   0.078 (0.237) at 0.5, the unsaturated lines' by 0.078 (0.150)
+   (``benchmarks/bench_saturated_stripes.py`` for all frames).
+
+   The centre's variance (``u_sigma``) propagates each pixel's noise,
+   ``noise² + dn_per_electron × (x − background)`` (the flanks' white noise
+   about each flank's straight line — a bright stripe's tails slope through
+   them — floored at the frame's median row noise, plus shot noise when the
+   camera's gain is known), through both interpolations, with the level's error from the
+   flanks' mean (it cancels for a symmetric stripe).  The plateau's width
+   enters through where the edges fall: the wider the plateau, the deeper in
+   the tails, the flatter and noisier the edges.  It is the uncertainty from
+   the noise, as the Cramér–Rao bound is for an unsaturated row
+   (:func:`scheimpflug.point_quality.centre_crb_px`): the stripe's shape
+   (asymmetry, speckle) is in neither.  Honest over noise draws
+   (tests/test_saturated_stripes.py): the RMS of error / u_sigma is 0.9–1.2 for
+   white noise (0.7 where the interval rule decides: cautious), 1.0–1.1 for
+   shot noise with the camera's gain (without it the shot noise is missed:
+   2–3 ×).  ``saturated="plateau"`` keeps the rule before issue 34, the middle
+   of the run of saturated pixels (its ends known to a pixel: 1/24 px² of
+   variance).  The edge methods ("edge", "paper") stay edges when the top is
+   clipped, without ``u_sigma``.
 6. **Sub-pixel position** by ``method``:
 
    ``"gaussian3"``  3-point Gaussian (log-parabola) through the peak and its
@@ -104,6 +152,7 @@ __all__ = [
     "METHODS",
     "MULTI_PEAK_RULES",
     "PeakChoices",
+    "SATURATED_RULES",
     "StripeProfile",
     "extract_stripes",
     "extract_stripes_batch",
@@ -119,6 +168,8 @@ METHODS = ("blais-rioux", "cog", "edge", "gaussian3", "paper")
 """Sub-pixel methods of :func:`extract_stripes` (module docstring, step 6)."""
 MULTI_PEAK_RULES = ("nearest", "strongest", "track")
 """Rules for rows with several peaks (module docstring, step 4)."""
+SATURATED_RULES = ("plateau", "edges")
+"""Centres of saturated rows (module docstring, step 5); the index is the kernels' code."""
 _METHOD_CODE = {"gaussian3": 0, "cog": 1, "blais-rioux": 2, "edge": 3, "paper": 4}
 
 
@@ -210,6 +261,11 @@ class StripeProfile:
         2 if a second significant peak was seen in the row, else 1.
     method : str
         The sub-pixel method used (one of :data:`METHODS`).
+    u_sigma : (n,) ndarray float64, optional
+        Standard uncertainty of a saturated row's centre from the noise and the
+        edges' interpolation (module docstring, step 5) [px]; NaN in unsaturated
+        rows (:func:`scheimpflug.point_quality.centre_crb_px` bounds theirs from
+        the width and the SNR) and for the edge methods.
     """
 
     rows: np.ndarray
@@ -220,6 +276,7 @@ class StripeProfile:
     background: np.ndarray
     n_peaks: np.ndarray
     method: str
+    u_sigma: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.rows.shape[0])
@@ -257,8 +314,14 @@ def _flank_stats(x, k, window, flank):
     Both flanks are pooled unless their means differ by more than 4 noise σ
     (another peak or an edge in one of them): then the lower flank alone is used.
     """
-    sl, s2l, ml = _side_stats(x, k - window - flank, k - window)
-    sr, s2r, mr = _side_stats(x, k + window + 1, k + window + 1 + flank)
+    return _run_flank_stats(x, k, k, window, flank)
+
+
+@nb.njit(cache=True, nogil=True)
+def _run_flank_stats(x, lo, hi, window, flank):
+    """:func:`_flank_stats` of a peak spanning ``lo`` … ``hi`` (a plateau of clipped pixels)."""
+    sl, s2l, ml = _side_stats(x, lo - window - flank, lo - window)
+    sr, s2r, mr = _side_stats(x, hi + window + 1, hi + window + 1 + flank)
     mean_l, var_l = _mean_var(sl, s2l, ml)
     mean_r, var_r = _mean_var(sr, s2r, mr)
     if np.isfinite(mean_l) and np.isfinite(mean_r):
@@ -267,6 +330,52 @@ def _flank_stats(x, k, window, flank):
                 return mean_l, var_l
             return mean_r, var_r
     return _mean_var(sl + sr, s2l + s2r, ml + mr)
+
+
+@nb.njit(cache=True, nogil=True)
+def _side_line_stats(x, lo, hi):
+    """Sum, sum of squares, count of x[lo:hi] (clipped) and its residual sum of squares about its line."""
+    lo = max(lo, 0)
+    hi = min(hi, x.shape[0])
+    m = max(hi - lo, 0)
+    sj = sx = sjj = sjx = sxx = 0.0
+    for j in range(lo, hi):
+        v = float(x[j])
+        t = float(j - lo)
+        sj += t
+        sx += v
+        sjj += t * t
+        sjx += t * v
+        sxx += v * v
+    if m < 3:
+        return sx, sxx, m, 0.0
+    vjx = sjx - sj * sx / m
+    rss = (sxx - sx * sx / m) - vjx * vjx / (sjj - sj * sj / m)
+    return sx, sxx, m, max(rss, 0.0)
+
+
+@nb.njit(cache=True, nogil=True)
+def _clipped_flanks(x, lo, hi, window, flank):
+    """Background and noise variance of a clipped peak spanning ``lo`` … ``hi`` [DN, DN²].
+
+    The flanks outside the whole plateau, pooled or the lower one alone as in
+    :func:`_run_flank_stats`; the variance about each flank's straight line (a bright
+    stripe's tails and the ambient light slope through the flanks: a slope is not noise).
+    """
+    sl, s2l, ml, rl = _side_line_stats(x, lo - window - flank, lo - window)
+    sr, s2r, mr, rr = _side_line_stats(x, hi + window + 1, hi + window + 1 + flank)
+    mean_l, var_l = _mean_var(sl, s2l, ml)
+    mean_r, var_r = _mean_var(sr, s2r, mr)
+    use_l = np.isfinite(mean_l)
+    use_r = np.isfinite(mean_r)
+    if use_l and use_r and abs(mean_l - mean_r) > 4.0 * math.sqrt(min(var_l, var_r) + 1.0 / 12.0):
+        use_l, use_r = mean_l < mean_r, mean_l >= mean_r
+    s = (sl if use_l else 0.0) + (sr if use_r else 0.0)
+    m = (ml if use_l else 0) + (mr if use_r else 0)
+    dof = (max(ml - 2, 0) if use_l else 0) + (max(mr - 2, 0) if use_r else 0)
+    if m < 2 or dof == 0:
+        return np.nan, np.nan
+    return s / m, ((rl if use_l else 0.0) + (rr if use_r else 0.0)) / dof
 
 
 @nb.njit(cache=True, nogil=True)
@@ -331,10 +440,21 @@ def _subpixel(x, k, bg, method, window, edge_fraction):
             return k + min(max(0.5 * (a - c) / den, -0.5), 0.5)
         return float(k)
     if method == 1:  # windowed centre of gravity
+        lo, hi = max(0, k - window), min(n, k + window + 1)
         sw = 0.0
         swj = 0.0
-        for j in range(max(0, k - window), min(n, k + window + 1)):
+        for j in range(lo, hi):
             w = float(x[j]) - bg
+            sw += w
+            swj += w * j
+        if sw > 0.0 and lo <= swj / sw <= hi - 1:
+            return swj / sw
+        # pixels below the background outweigh the peak (a step beside it): their negative weights
+        # would throw the centre out of its own window; the peak's part above the background alone
+        sw = 0.0
+        swj = 0.0
+        for j in range(lo, hi):
+            w = max(float(x[j]) - bg, 0.0)
             sw += w
             swj += w * j
         if sw > 0.0:
@@ -385,7 +505,8 @@ def _nearer_peak(x, k, bg, amp, noise, window, ratio, min_snr):
 
 
 @nb.njit(cache=True, nogil=True)
-def _saturated_centre(x, k, sat):
+def _plateau(x, k, sat):
+    """First and last pixel of the run of saturated pixels through ``k``."""
     n = x.shape[0]
     lo = k
     hi = k
@@ -393,7 +514,111 @@ def _saturated_centre(x, k, sat):
         lo -= 1
     while hi + 1 < n and float(x[hi + 1]) >= sat:
         hi += 1
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def _plateau_centre(x, k, sat):
+    """Middle of the run of saturated pixels through ``k`` [px] (the ``saturated="plateau"`` rule)."""
+    lo, hi = _plateau(x, k, sat)
     return 0.5 * (lo + hi)
+
+
+@nb.njit(cache=True, nogil=True)
+def _extrapolated(x, q, step, bg, lv, b, t_min, noise2, dn_per_e):
+    """The crossing of a steep edge from the two pixels outside it (``_crossing``'s returns).
+
+    Log-linear through pixels q and q + step (b and c above the background), extrapolated
+    inward to the level lv: t in [t_min, 0] from q.  NaN unless both are clear of the noise
+    (c ≥ 5 σ) and the extrapolation stays between the clipped pixel and q.
+    """
+    q2 = q + step
+    if q2 < 0 or q2 >= x.shape[0]:
+        return np.nan, 0.0, 0.0, 0.0, 0.0, False
+    c = float(x[q2]) - bg
+    vb = noise2 + dn_per_e * b
+    vc = noise2 + dn_per_e * max(c, 0.0)
+    if not (c >= 5.0 * math.sqrt(vc) and b > c):
+        return np.nan, 0.0, 0.0, 0.0, 0.0, False
+    d = math.log(b) - math.log(c)
+    t = (math.log(b) - math.log(lv)) / d
+    if not t_min <= t <= 0.0:
+        return np.nan, 0.0, 0.0, 0.0, 0.0, False
+    dtb, dtc = (1.0 - t) / (b * d), t / (c * d)
+    return q + step * t, dtb * dtb + dtc * dtc, dtb * dtb * (vb - noise2) + dtc * dtc * (vc - noise2), \
+        -step / (lv * d), t, True
+
+
+@nb.njit(cache=True, nogil=True)
+def _crossing(x, k, step, bg, level, sat, noise2, dn_per_e):
+    """Where a clipped profile falls through ``level``, walking from ``k`` by ``step`` (±1).
+
+    Returns ``(position, white, shot, d_level, t, curved)``: the crossing [px]; the
+    coefficient of the white noise variance in its variance [px²/DN²]; its variance
+    from the signal-dependent noise and from the interval rule [px²]; its derivative
+    with respect to the level [px/DN]; the fraction t of the pixel step; whether the
+    Gaussian-tail curvature correction applies (module docstring, step 5).  NaN
+    position where the profile does not fall below the level inside the row.
+    """
+    n = x.shape[0]
+    p = k
+    while 0 <= p + step < n and float(x[p + step]) >= level:
+        p += step
+    q = p + step
+    if q < 0 or q >= n:
+        return np.nan, 0.0, 0.0, 0.0, 0.0, False
+    clipped = float(x[p]) >= sat
+    a = (sat if clipped else float(x[p])) - bg
+    lv = level - bg
+    vb = noise2 + dn_per_e * max(float(x[q]) - bg, 0.0)
+    b = max(float(x[q]) - bg, math.sqrt(vb))          # the log needs b > 0: floored at the noise
+    if b >= lv:                                       # (noise floor above the level: linear)
+        b = float(x[q]) - bg
+        d = a - b
+        t = (a - lv) / d
+        dta, dtb, dtl = (1.0 - t) / d, t / d, -1.0 / d
+        curved = False
+    else:                                             # log-linear: exact for a Gaussian's tail but its curvature
+        d = math.log(a) - math.log(b)
+        t = (math.log(a) - math.log(lv)) / d
+        dta, dtb, dtl = (1.0 - t) / (a * d), t / (b * d), -1.0 / (lv * d)
+        curved = not clipped
+    if clipped:                                       # x[p] ≥ sat > level: the crossing lies in [t, 1]
+        out = _extrapolated(x, q, step, bg, lv, b, t - 1.0, noise2, dn_per_e)
+        if np.isfinite(out[0]):
+            return out
+        model = (1.0 - t) ** 2 / 12.0
+        t = 0.5 * (t + 1.0)
+        return p + step * t, 0.25 * dtb * dtb, 0.25 * dtb * dtb * (vb - noise2) + model, \
+            0.5 * step * dtl, t, False
+    va_shot = dn_per_e * max(a, 0.0)
+    white = dta * dta + dtb * dtb
+    shot = dta * dta * va_shot + dtb * dtb * (vb - noise2)
+    return p + step * t, white, shot, step * dtl, t, curved
+
+
+@nb.njit(cache=True, nogil=True)
+def _edges_centre(x, k, bg, noise, flank, sat, fraction, dn_per_e):
+    """Centre of a clipped stripe: the midpoint of its two edges at ``fraction`` of the plateau.
+
+    Returns ``(u, white, other)``: the centre [px] and its variance ``white · noise² +
+    other`` [px²] (module docstring, step 5); the plateau's middle with variance
+    1/24 px² when an edge lies outside the row.
+    """
+    level = bg + fraction * (sat - bg)
+    noise2 = noise * noise
+    xr, wr, sr, dr, tr, cr = _crossing(x, k, 1, bg, level, sat, noise2, dn_per_e)
+    xl, wl, sl, dl, tl, cl = _crossing(x, k, -1, bg, level, sat, noise2, dn_per_e)
+    if not (np.isfinite(xr) and np.isfinite(xl)):
+        return _plateau_centre(x, k, sat), 0.0, 1.0 / 24.0
+    c = 0.5 * (xr + xl)
+    for _ in range(2):                                # the log interpolation's chord lies inside the
+        er = tr * (1.0 - tr) / (2.0 * max(xr - c, 0.5)) if cr else 0.0   # Gaussian's log: edges move out
+        el = tl * (1.0 - tl) / (2.0 * max(c - xl, 0.5)) if cl else 0.0
+        c = 0.5 * (xr + er + xl - el)
+    d_level = 0.5 * (dr + dl)                         # a common level error cancels for a symmetric stripe
+    white = 0.25 * (wr + wl) + d_level * d_level * (1.0 - fraction) ** 2 / flank
+    return c, white, 0.25 * (sr + sl)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -407,10 +632,37 @@ def _vertical_neighbour(frame, r, k):
     return hi
 
 
+_TABLE = 11   # per-row fields: valid, u, score, peak, saturated, background, n_peaks, noise, white, other,
+#              the noise of a clipped row's edges (u_sigma² = white · max(that, frame floor)² + other)
+
+
+@nb.njit(cache=True, nogil=True)
+def _centre(x, k, bg, noise, method, window, flank, sat, sat_opts, edge_fraction):
+    """Sub-pixel position around peak ``k`` and, for a clipped one, its variance's two parts.
+
+    ``sat_opts`` = (rule: 0 plateau, 1 edges; level [-]; DN per electron [DN]).  Returns
+    ``(u, white, other, bg, noise)`` [px, px²/DN², px², DN, DN]: ``white`` and ``other`` NaN
+    unless the peak is saturated and the method a centre (edges, 3 and 4, stay edges when
+    clipped); a clipped peak's background and noise from flanks outside its whole plateau
+    (those of ``k``, one end of it, may lie on the stripe's other side), the noise about each
+    flank's line (:func:`_clipped_flanks`).
+    """
+    if float(x[k]) >= sat and method < 3:
+        if sat_opts[0] != 1.0:
+            return _plateau_centre(x, k, sat), 0.0, 1.0 / 24.0, bg, noise
+        lo, hi = _plateau(x, k, sat)
+        bg2, var2 = _clipped_flanks(x, lo, hi, window, flank)
+        if np.isfinite(bg2):
+            bg, noise = bg2, math.sqrt(var2 + 1.0 / 12.0)
+        u, white, other = _edges_centre(x, k, bg, noise, flank, sat, sat_opts[1], sat_opts[2])
+        return u, white, other, bg, noise
+    return _subpixel(x, k, bg, method, window, edge_fraction), np.nan, np.nan, bg, noise
+
+
 @nb.njit(cache=True, nogil=True)
 def _one_row(frame, is_int, method, window, flank, min_snr, nearest, ratio, sat, edge_fraction,
-             hot_fraction, out, r):
-    """Fill ``out[r] = (valid, u, score, peak, saturated, background, n_peaks)``."""
+             hot_fraction, sat_opts, out, r):
+    """Fill ``out[r]``: valid, u, score, peak, saturated, background, n_peaks, noise, white, other."""
     x = frame[r]
     out[r, 0] = 0.0
     k = _coarse_peak(x, is_int)
@@ -438,36 +690,39 @@ def _one_row(frame, is_int, method, window, flank, min_snr, nearest, ratio, sat,
     if nb_hi < hot_fraction * amp and _vertical_neighbour(frame, r, k) - bg < hot_fraction * amp:
         return  # isolated in both directions: a hot pixel (a stripe narrower than a pixel is not)
     is_sat = float(x[k]) >= sat
-    if is_sat and method < 3:  # edges (3, 4) stay edges when the top is clipped
-        u = _saturated_centre(x, k, sat)
-    else:
-        u = _subpixel(x, k, bg, method, window, edge_fraction)
+    u, white, other, bg, sigma_noise = _centre(x, k, bg, noise, method, window, flank, sat, sat_opts,
+                                               edge_fraction)
     if not np.isfinite(u):
         return
+    amp = float(x[k]) - bg
     out[r, 0] = 1.0
     out[r, 1] = u
-    out[r, 2] = snr
+    out[r, 2] = amp / noise
     out[r, 3] = amp
     out[r, 4] = 1.0 if is_sat else 0.0
     out[r, 5] = bg
     out[r, 6] = npk
+    out[r, 8] = white
+    out[r, 9] = other
+    out[r, 10] = sigma_noise
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _extract_kernel(frame, is_int, method, window, flank, min_snr, nearest, ratio, sat,
-                    edge_fraction, hot_fraction):
+                    edge_fraction, hot_fraction, sat_opts):
     rows = frame.shape[0]
-    out = np.zeros((rows, 8), dtype=np.float64)
-    out[:, 7] = np.nan
+    out = np.zeros((rows, _TABLE), dtype=np.float64)
+    out[:, 7:] = np.nan
     for r in nb.prange(rows):
         _one_row(frame, is_int, method, window, flank, min_snr, nearest, ratio, sat,
-                 edge_fraction, hot_fraction, out, r)
+                 edge_fraction, hot_fraction, sat_opts, out, r)
     return out
 
 
 # ---------------------------------------------------------------- the "track" rule
 _K = 4                 # candidate peaks kept per row
-_CAND = 8              # fields per candidate: valid, u, snr, amp, saturated, bg, width, noise
+_CAND = 11             # fields per candidate: valid, u, snr, amp, saturated, bg, width, noise, white, other,
+#                        the noise of a clipped candidate's edges
 
 
 @nb.njit(cache=True, nogil=True)
@@ -519,7 +774,7 @@ def _peak_width(x, k, bg, window):
 
 @nb.njit(cache=True, nogil=True)
 def _row_candidates(x, is_int, method, window, flank, min_snr, ratio, dip, sat, edge_fraction,
-                    hot_fraction, cand, r):
+                    hot_fraction, sat_opts, cand, r):
     """Fill cand[r, :, :] with up to _K separate significant peaks of row x (strongest first)."""
     k0 = _coarse_peak(x, is_int)
     bg0, var0 = _flank_stats(x, k0, window, flank)
@@ -548,24 +803,26 @@ def _row_candidates(x, is_int, method, window, flank, min_snr, ratio, dip, sat, 
         if max(float(x[k - 1]), float(x[k + 1])) - bg < hot_fraction * amp:
             continue
         is_sat = float(x[k]) >= sat
-        u = _saturated_centre(x, k, sat) if is_sat and method < 3 else \
-            _subpixel(x, k, bg, method, window, edge_fraction)
+        u, white, other, bg, sigma_noise = _centre(x, k, bg, noise, method, window, flank, sat, sat_opts,
+                                                   edge_fraction)
         if not np.isfinite(u):
             continue
+        amp = float(x[k]) - bg
         c = cand[r, slot]
         c[0], c[1], c[2], c[3] = 1.0, u, amp / noise, amp
         c[4], c[5], c[6], c[7] = 1.0 if is_sat else 0.0, bg, _peak_width(x, k, bg, window), noise
+        c[8], c[9], c[10] = white, other, sigma_noise
         slot += 1
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def _candidates_kernel(frame, is_int, method, window, flank, min_snr, ratio, dip, sat,
-                       edge_fraction, hot_fraction):
+                       edge_fraction, hot_fraction, sat_opts):
     rows = frame.shape[0]
     cand = np.zeros((rows, _K, _CAND))
     for r in nb.prange(rows):
         _row_candidates(frame[r], is_int, method, window, flank, min_snr, ratio, dip, sat,
-                        edge_fraction, hot_fraction, cand, r)
+                        edge_fraction, hot_fraction, sat_opts, cand, r)
     return cand
 
 
@@ -649,10 +906,10 @@ TRACK_WEIGHTS = (1.0, 2.0, 1.0, 2.0, 1.0, 2.0, 9.0, 1.5, 9.0)
 
 
 def _track_table(arr, is_int, method, window, flank, min_snr, ratio, sat, edge_fraction,
-                 hot_fraction, prior_u, expected_u) -> np.ndarray:
+                 hot_fraction, sat_opts, prior_u, expected_u) -> np.ndarray:
     """The "track" rule: candidates per row, then the most continuous plausible choice."""
     cand = _candidates_kernel(arr, is_int, method, window, flank, min_snr, ratio, 0.7, sat,
-                              edge_fraction, hot_fraction)
+                              edge_fraction, hot_fraction, sat_opts)
     if expected_u is not None:
         lo, hi = _range_bounds(expected_u, arr.shape[0])
         cand[(cand[:, :, 1] < lo[:, None]) | (cand[:, :, 1] > hi[:, None]), 0] = 0.0
@@ -663,14 +920,14 @@ def _track_table(arr, is_int, method, window, flank, min_snr, ratio, sat, edge_f
     prior = np.full(arr.shape[0], np.nan) if prior_u is None else \
         np.asarray(prior_u, dtype=np.float64).reshape(arr.shape[0])
     choice = _track(cand, max(w_ref, 0.3), np.asarray(TRACK_WEIGHTS, np.float64), prior)
-    out = np.zeros((arr.shape[0], 8))
-    out[:, 7] = np.nan
+    out = np.zeros((arr.shape[0], _TABLE))
+    out[:, 7:] = np.nan
     rows = np.nonzero(choice >= 0)[0]
     c = cand[rows, choice[rows]]
     out[rows, 0] = 1.0
     out[rows, 1:6] = c[:, 1:6]
     out[rows, 6] = np.minimum(n_cand[rows], 2)
-    out[rows, 7] = c[:, 7]
+    out[rows, 7:11] = c[:, 7:11]
     has = n_cand > 0
     out[has & (choice < 0), 7] = cand[has & (choice < 0), 0, 7]
     return out
@@ -705,7 +962,8 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
                     window_px: int | str = 7, flank_px: int = 8, multi_peak: str = "nearest",
                     multi_peak_ratio: float = 0.3, saturation_dn: float | None = None,
                     edge_fraction: float = 0.5, hot_pixel_fraction: float = 0.1,
-                    prior_u=None, expected_u=None) -> StripeProfile:
+                    prior_u=None, expected_u=None, saturated: str = "edges",
+                    saturated_level: float = 0.3, dn_per_electron: float = 0.0) -> StripeProfile:
     """Find the stripe in every row of ``frame``.
 
     Parameters
@@ -744,6 +1002,18 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
     expected_u : (lo, hi) or (rows, 2) array_like float, optional
         "track" only: columns where the stripe can be (the measuring range, a part's
         known envelope); peaks outside are ignored [px].
+    saturated : {"edges", "plateau"}, default "edges"
+        Centre of a saturated row for the centre methods (module docstring, step 5):
+        the midpoint of the clipped profile's two edges, with its uncertainty, or the
+        middle of the run of saturated pixels (before issue 34).
+    saturated_level : float, default 0.3
+        Fraction of the plateau's height above the background at which a saturated
+        row's two edges are taken (module docstring, step 5) [-], in (0, 1).
+    dn_per_electron : float, default 0.0
+        The pixel noise's variance grows by this many DN² per DN of signal above the
+        background (a linear camera's DN per photo-electron, 1 / conversion gain)
+        [DN], >= 0; 0: the flanks' white noise everywhere.  Enters only the
+        uncertainty of saturated rows (``u_sigma``).
 
     Returns
     -------
@@ -768,21 +1038,28 @@ def extract_stripes(frame, method: str = "gaussian3", *, min_snr: float = 6.0,
         return _extract_auto(frame, method, min_snr=min_snr, flank_px=flank_px, multi_peak=multi_peak,
                              multi_peak_ratio=multi_peak_ratio, saturation_dn=saturation_dn,
                              edge_fraction=edge_fraction, hot_pixel_fraction=hot_pixel_fraction,
-                             prior_u=prior_u, expected_u=expected_u)
+                             prior_u=prior_u, expected_u=expected_u, saturated=saturated,
+                             saturated_level=saturated_level, dn_per_electron=dn_per_electron)
     if not (isinstance(window_px, (int, np.integer)) and window_px >= 1 and flank_px >= 2
             and 0 < edge_fraction < 1 and min_snr > 0 and 0 < multi_peak_ratio <= 1):
         raise ValueError("need window_px >= 1 (or 'auto'), flank_px >= 2, 0 < edge_fraction < 1, "
                          "min_snr > 0 and 0 < multi_peak_ratio <= 1")
+    if saturated not in SATURATED_RULES or not (math.isfinite(dn_per_electron) and dn_per_electron >= 0
+                                                and 0 < saturated_level < 1):
+        raise ValueError(f"saturated must be one of {', '.join(SATURATED_RULES)} (got {saturated!r}), "
+                         f"0 < saturated_level < 1 (got {saturated_level!r}) and dn_per_electron a finite "
+                         f"number >= 0 (got {dn_per_electron!r})")
     arr = _check_frame(frame)
     sat = _default_saturation(arr.dtype) if saturation_dn is None else float(saturation_dn)
     is_int = arr.dtype in (np.uint8, np.uint16)
     args = (arr, is_int, _METHOD_CODE[method], int(window_px), int(flank_px), float(min_snr))
+    rule = (float(SATURATED_RULES.index(saturated)), float(saturated_level), float(dn_per_electron))
     if multi_peak == "track":
         out = _track_table(*args, float(multi_peak_ratio), sat, float(edge_fraction),
-                           float(hot_pixel_fraction), prior_u, expected_u)
+                           float(hot_pixel_fraction), rule, prior_u, expected_u)
     else:
         out = _extract_kernel(*args, multi_peak == "nearest", float(multi_peak_ratio),
-                              sat, float(edge_fraction), float(hot_pixel_fraction))
+                              sat, float(edge_fraction), float(hot_pixel_fraction), rule)
     _apply_frame_noise_floor(out, float(min_snr))
     return _profile_from_table(out, method)
 
@@ -907,13 +1184,26 @@ def _apply_frame_noise_floor(out: np.ndarray, min_snr: float) -> None:
     out[:, 0] = np.where(valid & (snr >= min_snr), 1.0, 0.0)
 
 
+def _edge_noise_floor(out: np.ndarray) -> float:
+    """The frame's median row noise as the floor of the clipped rows' edge noise [DN] (0: too few rows).
+
+    Each row's flank noise, a clipped row's about the flanks' lines (a frame of bright clipped
+    stripes has their tails in every row's plain flanks): :func:`_apply_frame_noise_floor`'s
+    guard against the 16 flank pixels' underestimates, without the tails.
+    """
+    noise = np.where(np.isfinite(out[:, 10]), out[:, 10], out[:, 7])
+    finite = noise[np.isfinite(noise)]
+    return float(np.median(finite)) if finite.size >= 8 else 0.0
+
+
 def _profile_from_table(out: np.ndarray, method: str) -> StripeProfile:
     rows = np.flatnonzero(out[:, 0] > 0.5)
     t = out[rows]
+    noise = np.maximum(t[:, 10], _edge_noise_floor(out))
     return StripeProfile(rows=rows.astype(np.int64), u=t[:, 1].copy(), score=t[:, 2].copy(),
                          peak=t[:, 3].copy(), saturated=t[:, 4] > 0.5,
                          background=t[:, 5].copy(), n_peaks=t[:, 6].astype(np.int8),
-                         method=method)
+                         method=method, u_sigma=np.sqrt(t[:, 8] * noise * noise + t[:, 9]))
 
 
 def saturated_fraction(frame, saturation_dn: float | None = None) -> float:

@@ -186,6 +186,11 @@ class FrameSpec:
         The frame's commanded exposure [ms]; None = the rig's ``sensor.exposure_ms``.
     flood_scale : float, default 1.0
         The flood light's level in this frame over the rig's [-].
+    camera_seed : int or None, default None
+        The camera pass's seed (its Monte Carlo estimate of the flood light and the environment);
+        None = ``seed``.  A frame that shows the same lit scene as another one (a room-light
+        target's laser frame and its pose's flood frame: :mod:`sim.target`) takes that frame's,
+        so that the two differ by the laser and the sensor's noise only, as two photographs do.
     """
 
     index: int
@@ -201,6 +206,7 @@ class FrameSpec:
     pose_index: int | None = None
     exposure_ms: float | None = None
     flood_scale: float = 1.0
+    camera_seed: int | None = None
 
     def stage_entry(self) -> dict:
         """The manifest's stage entry of this frame.

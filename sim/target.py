@@ -324,7 +324,7 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
                     height_range_mm=None, lights=TARGET_LIGHTS, laser_flood: float = 0.0,
                     flood_exposure: float | None = None, plate_mm=None, border_mm: float | None = None,
                     thickness_mm: float = 3.0, bow_mm: float = 0.0, plate_material: str = "white-plastic",
-                    truth_pixels_every: int = 0) -> Scenario:
+                    truth_pixels_every: int = 0, room_light: bool = False) -> Scenario:
     """The ``target`` scenario (module docstring).
 
     Parameters
@@ -368,6 +368,13 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
         Material tag of the plate.
     truth_pixels_every : int, default 0
         Per-pixel truth every N-th frame (0 = never).
+    room_light : bool, default False
+        The set as users take it in a lit room: the laser frames with the flood light on at the
+        flood frames' level and their exposure (light ``"both"``), so that each pose's flood frame
+        is its laser frame's laser-off frame (``scenario_params.room_light``; the rig's flood
+        light is the room's).  The laser frame takes its flood frame's camera-pass estimate
+        (``FrameSpec.camera_seed``): the two photographs differ by the laser and the sensor's
+        noise, not by the twin's Monte Carlo noise.
 
     Returns
     -------
@@ -380,8 +387,8 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
     ------
     ScheimpflugError
         A bad option (one line naming it): 0 poses, a tilt or roll out of range, a bad light
-        list, no step on the table, ranges or a table that can never show the pattern, or
-        flood frames without a flood light.
+        list, no step on the table, ranges or a table that can never show the pattern, flood
+        frames (or room light) without a flood light, room light with ``laser_flood``.
     MeshError
         An unknown pattern spec, or a pattern larger than the plate.
     """
@@ -390,6 +397,11 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
     spec = parse_pattern(pattern)
     lights = _lights(lights)
     _check_options(poses, tilt_deg, roll_deg, off_sheet_mm, laser_flood, on_table, step_deg)
+    if room_light and laser_flood:
+        raise _fail("--room-light lights the laser frames as the flood frames (the flood at its full level, the "
+                    "flood frames' exposure): not with --laser-flood")
+    if room_light and rig.environment.flood_irradiance_w_m2 <= 0:
+        raise _fail("--room-light needs the room's light: its irradiance W/m² (render target --room-light W_M2)")
     if "flood" in lights and rig.environment.flood_irradiance_w_m2 <= 0:
         raise _fail("flood frames need the rig's flood light: set [environment] flood_irradiance_w_m2 > 0 "
                     "(render target --flood-w-m2)")
@@ -421,16 +433,21 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
         for light in lights:
             i = len(frames)
             z, laser, factor, actual = frame_errors(rig, seed, i)
-            name = light if light == "flood" or laser_flood == 0 else "both"
+            level = 1.0 if light == "flood" or room_light else float(laser_flood)
+            name = light if light == "flood" or level == 0 else "both"
+            exposure = t_flood if light == "flood" or room_light else rig.sensor.exposure_ms
+            shared = frames[-1].seed if room_light and light != "flood" and frames and frames[-1].pose_index == k \
+                and frames[-1].light == "flood" else None
             frames.append(FrameSpec(i, m, stage_from_rig @ m, frame_seed(seed, i), angle_deg=angle,
                                     rig_from_laser=laser, exposure_factor=factor, actual=actual, light=name,
-                                    pose_index=k, exposure_ms=t_flood if light == "flood" else rig.sensor.exposure_ms,
-                                    flood_scale=1.0 if light == "flood" else float(laser_flood)))
+                                    pose_index=k, exposure_ms=exposure, flood_scale=level, camera_seed=shared))
     params = {"pattern": spec.text, "poses": len(rig_from_parts), "on_table": bool(on_table),
               "step_deg": step_deg, "tilt_deg": tilt_deg, "roll_deg": roll_deg, "off_sheet_mm": off_sheet_mm,
               "depth_range_mm": None if depth_range_mm is None else list(depth_range_mm),
               "height_range_mm": None if height_range_mm is None else list(height_range_mm),
               "lights": list(lights), "laser_flood": laser_flood, "flood_exposure_ms": t_flood,
+              "room_light": bool(room_light),
+              "room_light_w_m2": rig.environment.flood_irradiance_w_m2 if room_light else None,
               "part": "target", "print": printed, "part_from_pattern": part_from_pattern.tolist(),
               "plate_material": plate_material, "thickness_mm": thickness_mm,
               "flood_aim_mm": flood_aim_point_mm(rig).tolist() if rig.environment.flood_irradiance_w_m2 > 0 else None}

@@ -252,6 +252,7 @@ class MitsubaTwin:
             settings = dataclasses.replace(settings, **{self.spp_field: int(spp)})
         self.scene = SimScene([*assembly.parts, *background], materials=materials, subsurface=rig.twin.subsurface)
         self._moving, self._static = len(assembly.parts), len(background)
+        self._exposure_ms = rig.sensor.exposure_ms        # the laser pass's (sim.render: electrons per watt)
         self._rig_from_stage = rig_from_stage(rig) if background else None
         self.materials = materials
         self.camera = None      # the camera pass (sim.camera_pass) replaces the coarse ambient pass
@@ -334,11 +335,13 @@ class MitsubaTwin:
         """The camera pass's image (flood light, environment) plus the laser's unless the frame is flood-lit only."""
         from .render import FrameLight
 
-        flood = self.camera.render(self._poses(frame), frame.seed, flood_scale=frame.flood_scale,
+        seed = frame.seed if getattr(frame, "camera_seed", None) is None else frame.camera_seed
+        flood = self.camera.render(self._poses(frame), seed, flood_scale=frame.flood_scale,
                                    exposure_ms=frame.exposure_ms)
         light = FrameLight(flood) if frame.light == "flood" else \
             self.renderer.render_light(self._poses(frame), frame.seed, frame.rig_from_laser)
         if frame.light != "flood":
+            _expose(light, frame.exposure_ms, self._exposure_ms)
             light.image = light.image + flood
         self._posed = frame.index
         self._light = (frame.index, light)
@@ -384,6 +387,22 @@ class MitsubaTwin:
 
 
 # ------------------------------------------------------------------ files
+
+
+def _expose(light, exposure_ms: float | None, rendered_ms: float) -> None:
+    """The laser's light of a frame exposed for ``exposure_ms`` instead of the rig's, in place.
+
+    The laser pass counts electrons over the rig's exposure (:class:`sim.render.Renderer`); a frame
+    commanded to another exposure (a room-light target's laser frame at its flood frame's) gets
+    its laser light scaled as the camera pass's flood light is: one exposure for the whole frame.
+    """
+    if exposure_ms is None or exposure_ms == rendered_ms:
+        return
+    k = float(exposure_ms) / float(rendered_ms)
+    for name in ("image", "laser", "coherent", "secondary", "subsurface"):
+        value = getattr(light, name)
+        if value is not None:
+            setattr(light, name, value * np.float32(k))
 
 
 def frame_paths(out: Path, index: int) -> tuple[Path, Path]:
@@ -758,7 +777,8 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
                **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms if getattr(f, "exposure_ms", None) is None
                else float(f.exposure_ms), "seed": f.seed,
                "pixel_truth": scenario.wants_pixel_truth(f.index),
-               **({"actual": f.actual} if getattr(f, "actual", None) else {})}
+               **({"actual": f.actual} if getattr(f, "actual", None) else {}),
+               **({"camera_seed": f.camera_seed} if getattr(f, "camera_seed", None) is not None else {})}
               for f in scenario.frames]
     return {
         "format": FORMAT,

@@ -63,7 +63,13 @@ def test_vdi_figures_of_every_calibration_from_one_rendering(choice, variant):
         assert not v["failed"] and all(math.isfinite(v[k]) for k in ("PF_mm", "PS_mm", "SD_mm", "F_mm")), name
     paper = choice["methods"]["paper"]["vdi"]
     assert abs(paper["PS_mm"]) < 0.05 and abs(paper["SD_mm"]) < 0.05          # the ideal rig, binned
-    # the pattern's sizes carry its axis error: |SD| between 0.4 and 2 × the axis offset
+    # the pattern's sizes carry its axis error δ and its sheet's ε: |SD| < 2 (δ + ε_max); where δ dominates
+    # (δ > 3 ε_max: the table poses' axis) |SD| is at least 0.4 δ.  Issue 34's calibration (the board found
+    # in more poses, the laser line's points on the board only) put the blocker's axis 0.003 mm off with the
+    # sheet at 0.07 mm max and |SD| 0.019 mm: there ε dominates, and δ alone says nothing of SD.
     for name in ("target", "target+blocker"):
         m = choice["methods"][name]
-        assert 0.4 * m["axis_offset_mm"] < abs(m["vdi"]["SD_mm"]) < 2 * m["axis_offset_mm"], name
+        axis, sheet = m["axis_offset_mm"], m["sheet_max_mm"]
+        assert abs(m["vdi"]["SD_mm"]) < 2 * (axis + sheet), name
+        if axis > 3 * sheet:
+            assert abs(m["vdi"]["SD_mm"]) > 0.4 * axis, name

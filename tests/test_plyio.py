@@ -24,9 +24,10 @@ def test_round_trip(tmp_path, rng):
     np.testing.assert_allclose(back.intensity, cloud.intensity, rtol=1e-6)
     assert np.array_equal(back.row, cloud.row)  # exact: integers
     assert np.all(back.frame == -1)                      # no frame index given: unknown
-    # the binary layout: header + 31 bytes per point + 17 of the point quality (4 float, 1 uchar)
+    # the binary layout: header + 31 bytes per point + 22 of the point quality (5 float, 2 uchar: the
+    # saturation flag and the centre's σ of issue 34 among them)
     header_len = path.read_bytes().index(b"end_header\n") + len(b"end_header\n")
-    assert path.stat().st_size == header_len + 48 * len(cloud)
+    assert path.stat().st_size == header_len + 53 * len(cloud)
     assert not list(tmp_path.glob(".*tmp*"))            # atomic write left no temporary
 
 

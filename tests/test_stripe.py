@@ -264,3 +264,20 @@ def test_isolated_rows():
     u = np.array([10.0, 10.5, 11.0, 10.0, 40.0, 45.0])
     assert isolated_rows(rows, u).tolist() == [False, False, False, True, True, True]
     assert isolated_rows(np.array([], dtype=int), np.array([])).shape == (0,)
+
+
+def test_centre_of_gravity_stays_in_its_window_beside_a_step():
+    """Pixels below the background (a dark region beside the stripe) must not throw the centre out of
+    its window: with the background at 60 DN, a 0 DN step left of a 100 DN plateau outweighs the peak
+    and the signed weights put the centre at 23.9 px, outside 12 ± 7 (issue 34, found on board-masked
+    laser frames)."""
+    from scheimpflug.stripe import _subpixel
+
+    x = np.zeros(40)
+    x[10:] = 100.0
+    x[12] = 210.0
+    u = _subpixel(x, 12, 60.0, 1, 7, 0.5)
+    assert 5 <= u <= 19
+    y = np.zeros(40)                       # an ordinary stripe keeps the signed weights' answer
+    y[18:23] = [10.0, 60.0, 100.0, 60.0, 10.0]
+    assert _subpixel(y, 20, 0.0, 1, 7, 0.5) == pytest.approx(20.0)

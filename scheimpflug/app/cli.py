@@ -16,6 +16,10 @@ Errors, always one line on stderr:
 * anything else is a bug of the toolkit: one line saying so and asking for a
   report, exit status 70 (``EX_SOFTWARE``).  ``--debug`` (or the environment
   variable ``SCHEIMPFLUG_DEBUG=1``) shows the Python traceback instead.
+
+A warning the library raises (legal but suspicious input) and the command does not
+print itself is one line too: ``scheimpflug CMD: warning: …``, without Python's file
+and source line.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 from scheimpflug.errors import ScheimpflugError
 
@@ -68,6 +73,15 @@ def _os_error_line(exc: OSError) -> str:
     return f"cannot access{where}: {exc.strerror or exc}"
 
 
+def _warning_printer(name: str):
+    """A ``warnings.showwarning`` that prints one line naming the command."""
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ARG001 - the hook's signature
+        print(f"{name}: warning: {_one_line(message)}", file=sys.stderr)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -77,7 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     name = f"scheimpflug {args.command}"
     debug = args.debug or os.environ.get(_DEBUG_ENV, "") not in ("", "0")
     try:
-        status = args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_printer(name)
+            status = args.func(args)
     except ScheimpflugError as exc:
         print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_ERROR

@@ -353,9 +353,12 @@ class OpenCVCamera:
         problem = _camera_matrix_problem(k)
         if problem:
             raise CalibrationError(problem)
-        if d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
-            raise CalibrationError(f"dist_coeffs must be 4, 5, 8, 12 or 14 finite numbers (OpenCV's order), got "
-                                   f"{d.size}")
+        if d.size not in (4, 5, 8, 12, 14):
+            raise CalibrationError(f"dist_coeffs must be 4, 5, 8, 12 or 14 numbers (OpenCV's order), got {d.size}")
+        bad = np.flatnonzero(~np.isfinite(d))
+        if bad.size:
+            raise CalibrationError(f"dist_coeffs[{bad[0]}] = {d[bad[0]]} is not a finite number (OpenCV's order: "
+                                   "k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, τx, τy)")
         object.__setattr__(self, "camera_matrix", k.copy())
         object.__setattr__(self, "dist_coeffs", np.concatenate([d, np.zeros(14 - d.size)]))
 
@@ -459,15 +462,23 @@ class OpenCVCamera:
         CalibrationError
             A missing key or a value :class:`OpenCVCamera` refuses.
         """
+        missing = [k for k in ("camera_matrix", "dist_coeffs") if k not in d]
+        if missing:
+            raise CalibrationError(f"the camera lacks {' and '.join(missing)}")
         try:
-            return cls(np.asarray(d["camera_matrix"], np.float64), np.asarray(d["dist_coeffs"], np.float64))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise CalibrationError(f"camera lacks or garbles camera_matrix or dist_coeffs: {exc!r}") from None
+            k, dist = np.asarray(d["camera_matrix"], np.float64), np.asarray(d["dist_coeffs"], np.float64)
+        except (TypeError, ValueError) as exc:
+            raise CalibrationError(f"camera_matrix and dist_coeffs must be numbers: {exc}") from None
+        return cls(k, dist)
 
 
 def _camera_matrix_problem(k: np.ndarray) -> str | None:
-    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-        return f"camera_matrix must be a finite 3 × 3 matrix, got shape {k.shape}"
+    if k.shape != (3, 3):
+        return f"camera_matrix must be a 3 × 3 matrix, got shape {k.shape}"
+    bad = np.argwhere(~np.isfinite(k))
+    if bad.size:
+        (i, j), value = bad[0], k[tuple(bad[0])]
+        return f"camera_matrix[{i}][{j}] = {value} is not a finite number: not a camera"
     if not (k[0, 0] > 0 and k[1, 1] > 0) or abs(np.linalg.det(k)) < 1e-12:
         return (f"camera_matrix is singular or has fx, fy <= 0 (fx = {k[0, 0]:.6g}, fy = {k[1, 1]:.6g} px): "
                 "not a camera")

@@ -52,12 +52,13 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from scheimpflug.calibration.camera import OpenCVCamera
-from scheimpflug.calibration.model import check_laser_plane, sheet_frame_from_plane
+from scheimpflug.calibration.model import MAX_SIDE_PX, check_laser_plane, numbers_text, sheet_frame_from_plane
 from scheimpflug.calibration.target import TargetCalibration, axis_in_sheet
 from scheimpflug.errors import CalibrationError
 
@@ -170,15 +171,75 @@ def _camera(k_fab: np.ndarray, dist: np.ndarray, a: np.ndarray, b: np.ndarray) -
     return OpenCVCamera(np.array([[f[0], 0.0, c[0]], [0.0, f[1], c[1]], [0.0, 0.0, 1.0]]), d)
 
 
-def _laser(cal: dict, laser: int, where: str) -> tuple[np.ndarray, float, float]:
-    planes = cal.get("laser_planes") or []
-    if not isinstance(planes, list) or not (0 <= laser < len(planes)):
-        raise CalibrationError(f"{where}: laser {laser} has no plane (the file holds {len(planes)} laser "
+def _numbers(table: dict, key: str, size: int | tuple, where: str = "calibration") -> np.ndarray:
+    """``table[key]`` as finite float64 numbers of a shape (an int: a vector of that length), or the error."""
+    if not isinstance(table, dict) or table.get(key) is None:
+        raise CalibrationError(f"{where}.{key} is missing")
+    try:
+        a = np.asarray(table[key], np.float64)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}.{key} must be numbers, got {table[key]!r:.60}") from None
+    if isinstance(size, int):
+        a = a.ravel() if a.ndim <= 2 else a
+    want = (size,) if isinstance(size, int) else size
+    if a.shape != want:
+        what = f"{size} numbers" if isinstance(size, int) else f"a {' × '.join(map(str, size))} matrix"
+        raise CalibrationError(f"{where}.{key} must be {what}, got {a.size} (shape {a.shape})")
+    if not np.all(np.isfinite(a)):
+        raise CalibrationError(f"{where}.{key} = {numbers_text(a)} holds a value that is not a finite number")
+    return a
+
+
+def _laser(cal: dict, laser: int) -> tuple[np.ndarray, float, float]:
+    """Laser ``laser``'s unit normal, distance [mm] and fit deviation [mm] (NaN when not given), checked."""
+    planes = cal.get("laser_planes")
+    if not isinstance(planes, list):
+        raise CalibrationError(f"calibration.laser_planes must be a list of planes, got {planes!r:.40}")
+    if not 0 <= laser < len(planes):
+        raise CalibrationError(f"laser {laser} has no plane (the file holds {len(planes)} laser "
                                f"plane(s){': laser 0' if len(planes) == 1 else ''})")
-    p = planes[laser]
-    normal = np.asarray(p["normal"], np.float64).ravel()
-    dist = float(p["distance"])
-    return normal, dist, float(p.get("deviation", math.nan))
+    where = f"calibration.laser_planes[{laser}]"
+    if not isinstance(planes[laser], dict):
+        raise CalibrationError(f"{where} must be an object with normal and distance")
+    normal = _numbers(planes[laser], "normal", 3, where)
+    dist = float(_numbers(planes[laser], "distance", 1, where)[0])
+    length = float(np.linalg.norm(normal))
+    if abs(length - 1.0) > 1e-6:
+        raise CalibrationError(f"{where}.normal = {numbers_text(normal)} has length {length:.6g}, not 1: FabScan's "
+                               "plane normal·X = distance needs a unit normal (the distance is then in mm)")
+    dev = planes[laser].get("deviation")
+    deviation = math.nan if dev is None else float(_numbers(planes[laser], "deviation", 1, where)[0])
+    return normal, dist, deviation
+
+
+def _check_in_front(k_fab: np.ndarray, size: tuple, normal: np.ndarray, dist: float, laser: int) -> None:
+    """FabScan's point of the frame's centre pixel, ``distance / (n·x) · x``, must lie in front of the camera."""
+    x = np.linalg.solve(k_fab, [(size[0] - 1) / 2.0, (size[1] - 1) / 2.0, 1.0])
+    z = dist / float(normal @ x) if normal @ x != 0 else math.inf
+    if not (0 < z < math.inf):
+        raise CalibrationError(f"calibration.laser_planes[{laser}]: the plane normal·X = distance (normal "
+                               f"{numbers_text(normal)}, distance {dist:.6g} mm) lies behind the camera where the "
+                               f"frame's centre looks (FabScan's point there: Z = {z:.6g} mm): the sheet a camera sees "
+                               "lies in front of it; is the sign of the distance wrong?")
+
+
+def _rotation(cal: dict) -> np.ndarray:
+    r = _numbers(cal, "platform_rotation", (3, 3))
+    err = float(np.abs(r.T @ r - np.eye(3)).max())
+    if err > 1e-6 or np.linalg.det(r) < 0:
+        why = f"RᵀR differs from the identity by {err:.3g}" if err > 1e-6 else "its determinant is −1 (a reflection)"
+        raise CalibrationError(f"calibration.platform_rotation is not a rotation: {why} (a 3 × 3 orthonormal "
+                               "matrix with determinant +1)")
+    return r
+
+
+def _principal_point_note(k_fab: np.ndarray, size: tuple) -> str | None:
+    c = k_fab[:2, 2]
+    if 0 <= c[0] <= size[0] - 1 and 0 <= c[1] <= size[1] - 1:
+        return None
+    return (f"FabScan's principal point ({c[0]:.6g}, {c[1]:.6g}) px lies outside its turned {size[0]} × {size[1]} "
+            "frame (width × height, from camera.resolution and camera.rotate): was the camera matrix made at "
+            "another resolution or orientation than camera.resolution says?")
 
 
 def read_fabscan(path: str | Path, *, laser: int = 0, distortion: str = "as-fabscan") -> TargetCalibration:
@@ -202,8 +263,17 @@ def read_fabscan(path: str | Path, *, laser: int = 0, distortion: str = "as-fabs
     Raises
     ------
     CalibrationError
-        A missing or unreadable file, no calibration in it, a laser without a plane, a non-unit
-        normal (naming it), a singular camera matrix, an unknown ``distortion``.
+        Naming the field: a missing or unreadable file, no calibration in it, a missing or
+        non-finite camera matrix, distortion, normal, distance, rotation or translation; a laser
+        without a plane, a normal of another length than 1 (of the wrong size, zero), a plane
+        behind the camera (a negative distance), a singular camera matrix, a platform rotation
+        that is not one (not orthonormal, or a reflection), a turntable behind the camera, a
+        missing ``camera.resolution``; an unknown ``distortion``.
+
+    Warns
+    -----
+    UserWarning
+        FabScan's principal point outside its turned frame (a camera matrix of another resolution).
     """
     p = Path(path)
     if distortion not in DISTORTION_USES:
@@ -220,29 +290,41 @@ def read_fabscan(path: str | Path, *, laser: int = 0, distortion: str = "as-fabs
         return _from_config(d, laser, distortion, str(p))
     except CalibrationError as exc:
         raise CalibrationError(f"FabScan config {str(p)!r}: {exc}") from None
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise CalibrationError(f"FabScan config {str(p)!r} lacks or garbles a field: {exc!r}") from None
+    except (KeyError, TypeError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+        raise CalibrationError(f"FabScan config {str(p)!r} garbles a field: {exc}") from None
+
+
+def _resolution(camera: dict) -> tuple[int, int]:
+    res = camera.get("resolution") if isinstance(camera, dict) else None
+    res = res if isinstance(res, dict) else {}
+    if not all(isinstance(res.get(k), int) and not isinstance(res.get(k), bool) and 0 < res[k] <= MAX_SIDE_PX
+               for k in ("width", "height")):
+        raise CalibrationError("camera.resolution needs the frames' width and height [px] (the size the camera "
+                               "stores, before FabScan turns them)")
+    return int(res["width"]), int(res["height"])
 
 
 def _from_config(d: dict, laser: int, distortion: str, where: str) -> TargetCalibration:
     cal, camera = d["calibration"], d.get("camera") or {}
-    res = camera.get("resolution") or {}
-    if not all(isinstance(res.get(k), int) and res[k] > 0 for k in ("width", "height")):
-        raise CalibrationError("camera.resolution needs the frames' width and height [px] (the size the camera "
-                               "stores, before FabScan turns them)")
-    width, height = int(res["width"]), int(res["height"])
-    a, b, _ = pixel_map(width, height, _flag(camera, "rotate"), _flag(camera, "hflip"), _flag(camera, "vflip"))
-    k_fab = OpenCVCamera(np.asarray(cal["camera_matrix"], np.float64), np.zeros(5)).camera_matrix   # checked as given
+    width, height = _resolution(camera)
+    a, b, turned = pixel_map(width, height, _flag(camera, "rotate"), _flag(camera, "hflip"), _flag(camera, "vflip"))
+    k_fab = OpenCVCamera(_numbers(cal, "camera_matrix", (3, 3)), np.zeros(5)).camera_matrix   # checked as given
     dist = np.asarray(cal.get("distortion_vector") or [], np.float64).ravel()
+    if dist.size:
+        dist = _numbers(cal, "distortion_vector", dist.size)
     cam = _camera(k_fab, dist if distortion == "apply" else np.zeros(0), a, b)
+    normal, dist_mm, deviation = _laser(cal, laser)
+    _check_in_front(k_fab, turned, normal, dist_mm, laser)
+    r, t = _rotation(cal), _numbers(cal, "platform_translation", 3)
+    if not t[2] > 0:
+        raise CalibrationError(f"calibration.platform_translation = {numbers_text(t)} puts the turntable at Z = "
+                               f"{t[2]:.6g} mm, not in front of the camera")
+    note = _principal_point_note(k_fab, turned)
+    if note:
+        warnings.warn(f"{where}: {note}", stacklevel=4)
     m = np.eye(3)
     m[:2, :2] = a.T
-    normal, dist_mm, deviation = _laser(cal, laser, where)
     plane = check_laser_plane([*(m @ normal), -dist_mm], f"laser {laser}'s plane")
-    r = np.asarray(cal["platform_rotation"], np.float64)
-    t = np.asarray(cal["platform_translation"], np.float64).ravel()
-    if r.shape != (3, 3) or not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or t.size != 3:
-        raise CalibrationError("platform_rotation must be a 3 × 3 rotation and platform_translation 3 numbers")
     w = m @ r[:, 2]
     origin, e_s, e_h = sheet_frame_from_plane(plane, axis_dir=w, axis_up=True)
     axis = axis_in_sheet(m @ t, w, plane, e_s, e_h, origin)

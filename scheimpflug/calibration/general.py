@@ -107,6 +107,7 @@ from scheimpflug.calibration.measure import (
     check_plate_orientation,
     measure_plate_frame,
 )
+from scheimpflug.calibration.model import frame_size_from_json, size_problem
 from scheimpflug.calibration.paper import (
     Calibration,
     CalibrationAccuracy,
@@ -302,6 +303,28 @@ class GeneralCalibration:
         """
         return None if self.paper is None else self.paper.constants()
 
+    def problem(self, columns: int | None = None, rows: int | None = None) -> str | None:
+        """What keeps this calibration from mapping frames of a size to the sheet, or None.
+
+        Parameters
+        ----------
+        columns, rows : int, optional
+            The frames' size [px]; frames of another size than the calibration records
+            are refused (:func:`~scheimpflug.calibration.model.size_problem`).
+
+        Returns
+        -------
+        str or None
+            Frames of another size, or a homography that is not finite and invertible.
+        """
+        size = size_problem(self, columns, rows)
+        if size:
+            return size
+        g = np.asarray(self.homography, np.float64)
+        if g.shape != (3, 3) or not np.all(np.isfinite(g)) or abs(np.linalg.det(g)) < 1e-300:
+            return "the sheet homography is not a finite, invertible 3 × 3 matrix"
+        return None
+
     def to_json_dict(self) -> dict[str, Any]:
         """The calibration JSON: docs/reference/interface.md calibrate fields (of the paper estimate) and the model.
 
@@ -348,8 +371,10 @@ class GeneralCalibration:
         Raises
         ------
         CalibrationError
-            A field is missing or malformed.
+            A field is missing or malformed, or the frame size is
+            (:func:`~scheimpflug.calibration.model.frame_size_from_json`).
         """
+        columns, rows = frame_size_from_json(d)
         try:
             g = d["general"]
             hom = np.asarray(g["homography"], dtype=np.float64)
@@ -358,13 +383,16 @@ class GeneralCalibration:
             paper = Calibration.from_json_dict(d) if "hinge_px" in d else None
             sigma = {k: (math.nan if v is None else float(v)) for k, v in g.get("field_sigma_mm", {}).items()}
             return cls(camera=camera_from_json(g["camera"]), homography=hom,
-                       columns=int(d.get("columns", 0)), rows=int(d.get("rows", 0)),
-                       plate_height_mm=float(d.get("plate_height_mm", 89.0)),
+                       columns=columns, rows=rows, plate_height_mm=float(d.get("plate_height_mm", 89.0)),
                        n_frames=int(d.get("n_frames", 0)),
                        residual_rms_px=float(g.get("residual_rms_px") or math.nan),
                        field_sigma_mm=sigma, paper=paper, selection=d.get("selection", {}))
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise CalibrationError(f"general calibration data lacks or garbles a field: {exc!r}") from None
+        except CalibrationError:
+            raise
+        except KeyError as exc:
+            raise CalibrationError(f"general calibration data lacks the field {exc.args[0]!r}") from None
+        except (TypeError, ValueError, IndexError) as exc:
+            raise CalibrationError(f"general calibration data garbles a field: {exc}") from None
 
 
 def _json_float(x):

@@ -8,6 +8,13 @@ export, or any JSON/YAML with ``camera_matrix``, ``dist_coeffs`` and
 :func:`scheimpflug.calibration.fabscan.read_fabscan`).  Calibration
 files written before the calibration became a package (``model`` absent or
 ``"paper"``, ``"general"``) read as they always did.
+
+Every file records the frame size it was made for and every reader checks the
+record (:func:`scheimpflug.calibration.model.frame_size_from_json`): an OpenCV
+export is read by its ``"format"``, whatever model made it (its ``image_size``
+is its size; before, an export of a target calibration was read as a target
+calibration file and lost it).  A file of an earlier version without a size
+still loads; applying it to frames warns that the size cannot be checked.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from pathlib import Path
 from scheimpflug.calibration.fabscan import is_fabscan_config, read_fabscan
 from scheimpflug.calibration.general import GeneralCalibration
 from scheimpflug.calibration.model import MODELS
+from scheimpflug.calibration.opencv import FORMAT as OPENCV_FORMAT
 from scheimpflug.calibration.opencv import YAML_SUFFIXES, read_opencv
 from scheimpflug.calibration.paper import Calibration
 from scheimpflug.calibration.target import TargetCalibration
@@ -82,8 +90,8 @@ def load_sheet_model(path: str | Path):
     d = _read_json(p)
     if is_fabscan_config(d):
         return read_fabscan(p)
-    if "camera_matrix" in d and d.get("model") != "target":
-        return read_opencv(p)
+    if d.get("format") == OPENCV_FORMAT or ("camera_matrix" in d and d.get("model") != "target"):
+        return read_opencv(p)         # our export (whatever its "model" says) or a foreign OpenCV file
     return _from_dict(p, d)
 
 

@@ -41,6 +41,7 @@ import numpy as np
 from scipy import optimize, special
 from scipy.ndimage import uniform_filter1d
 
+from scheimpflug.calibration.detectability import lattice_views
 from scheimpflug.calibration.pattern import aruco_dictionary, charuco_board, charuco_layout
 from scheimpflug.errors import CalibrationError
 from scheimpflug.stripe import extract_stripes, image_pixels, oriented, saturated_fraction
@@ -779,12 +780,29 @@ def _extends_beyond(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]
     return False
 
 
-def _chessboard_corners(gray: np.ndarray, spec) -> np.ndarray | None:
+#: Rectified views (after the lattice view) that the slow pass of a chessboard's detector is run on
+#: (``cv2.findChessboardCornersSB``, ≈ 0.1–0.3 s a view; the quick pass, the quadrilateral detector
+#: with its quick check, ≈ 0.03 s, runs on every view) [-].
+SADDLE_VIEWS = 4
+
+
+def _chessboard_corners(gray: np.ndarray, spec, mode: str = "full") -> np.ndarray | None:
+    """The whole chessboard's inner corners in an 8-bit image (OpenCV's order), or None.
+
+    ``mode`` "full" (the frame itself): ``cv2.findChessboardCornersSB`` (exhaustive, accurate),
+    else ``cv2.findChessboardCorners`` (adaptive threshold); "quads" (a rectified view): the
+    latter with its quick check only; "saddles" (a rectified view): the former without its
+    exhaustive search and accuracy pass.  A grid that goes on past the spec's
+    (:func:`_extends_beyond`) is a larger board: None.
+    """
     size = spec.grid_shape
-    ok, c = cv2.findChessboardCornersSB(gray, size, cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
-    if not ok:
+    ok, c = False, None
+    if mode in ("full", "saddles"):
+        flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY if mode == "full" else 0
+        ok, c = cv2.findChessboardCornersSB(gray, size, flags)
+    if not ok and mode in ("full", "quads"):
         flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-        ok, c = cv2.findChessboardCorners(gray, size, flags)
+        ok, c = cv2.findChessboardCorners(gray, size, flags | (cv2.CALIB_CB_FAST_CHECK if mode == "quads" else 0))
     if not ok:
         return None
     c = c.reshape(-1, 2).astype(np.float64)
@@ -866,7 +884,85 @@ def _consistent_with_grid(spec, ids: np.ndarray, corners: np.ndarray) -> tuple[n
     return ids[keep], corners[keep]
 
 
-def detect_pattern(frame: np.ndarray, spec, *, refine: str = "model", file: str = "") -> PatternDetection | None:
+def _find_grid(gray: np.ndarray, spec, mode: str = "full") -> tuple[np.ndarray, np.ndarray] | None:
+    """OpenCV's detector of the pattern's kind on one 8-bit image: corner ids and positions, or None.
+
+    ``mode`` is the chessboard's pass (:func:`_chessboard_corners`); the other kinds have one
+    detector, run in the "full" and "quads" passes.
+    """
+    if spec.kind == "chessboard":
+        c = _chessboard_corners(gray, spec, mode)
+        return None if c is None else (np.arange(len(c), dtype=np.int64), c)
+    if mode == "saddles":
+        return None
+    if spec.kind == "circles":
+        ok, c = cv2.findCirclesGrid(gray, spec.grid_shape, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+        if not ok:
+            ok, c = cv2.findCirclesGrid(255 - gray, spec.grid_shape, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
+        return (np.arange(len(spec.corner_ids())), c.reshape(-1, 2).astype(np.float64)) if ok else None
+    return _charuco_corners(gray, spec)
+
+
+def _inside(corners: np.ndarray, shape) -> np.ndarray:
+    """Corners at least 1 px inside the frame's pixel centres (2 px from the far edges)."""
+    return ((corners[:, 0] > 1) & (corners[:, 1] > 1) & (corners[:, 0] < shape[1] - 2)
+            & (corners[:, 1] < shape[0] - 2))
+
+
+def _attempts(gray: np.ndarray, spec, views):
+    """(view, pass) in the order tried: frame, lattice views, every view's quick pass, the first views' slow one.
+
+    The lattice views (:func:`scheimpflug.calibration.detectability.lattice_views`) are the first
+    view (or the frame) corrected by the print's own lattice, three readings of it: tried first
+    with the quick pass, the most likely with the slow one too.
+    """
+    yield None, "full"
+    lattice = lattice_views(gray, views[0] if views else None) if spec.kind != "circles" else []
+    for view in lattice:
+        yield view, "quads"
+    for view in lattice[:1]:
+        yield view, "saddles"
+    for view in views:
+        yield view, "quads"
+    for view in views[:SADDLE_VIEWS]:
+        yield view, "saddles"
+
+
+def _find_in_views(gray: np.ndarray, spec, views) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pattern in the frame, else in the first view that shows it, corners mapped back to the frame.
+
+    A chessboard or circle grid counts where all its corners map inside the frame; a ChArUco
+    board is looked for in every view until one shows all its corners, and the view with the
+    most corners wins (a partial board in the frame may be whole in a view).
+    """
+    best, n_all, warped = None, len(spec.corner_ids()), {}
+    for view, mode in _attempts(gray, spec, tuple(views)):
+        if view is None:
+            found = _find_grid(gray, spec, mode)
+        else:
+            if id(view) not in warped:
+                warped[id(view)] = view.warp(gray)
+            found = _find_grid(warped[id(view)], spec, mode)
+        if found is None:
+            continue
+        ids, c = found
+        if view is not None:
+            c = view.image_from_view(c)
+            if spec.kind == "chessboard" and _extends_beyond(gray, c, spec.grid_shape):
+                continue            # a sub-board in the frame itself (the view's margin may have hidden it)
+        if spec.kind != "charuco":
+            if spec.kind == "circles" or _inside(c, gray.shape).all():
+                return ids, c
+            continue
+        if best is None or len(ids) > len(best[0]):
+            best = (ids, c)
+        if len(ids) == n_all:
+            break
+    return best
+
+
+def detect_pattern(frame: np.ndarray, spec, *, refine: str = "model", file: str = "",
+                   views=()) -> PatternDetection | None:
     """Find a printed pattern's corners in one flood-lit frame (OpenCV's detectors, sub-pixel).
 
     Chessboard: ``cv2.findChessboardCornersSB`` (exhaustive, accurate), else
@@ -874,10 +970,15 @@ def detect_pattern(frame: np.ndarray, spec, *, refine: str = "model", file: str 
     marks that tell which corner is which in a partial view).  ChArUco: the ArUco
     markers found (any number ≥ 2; partly visible boards) place each inner corner
     near them (:func:`_charuco_corners`).  Circles: ``cv2.findCirclesGrid`` (symmetric
-    grid; its blob centres, not refined).  Chessboard and ChArUco corners are then
-    refined by :func:`refine_corners_model` (``refine="model"``, the default: unbiased by
-    defocus; a corner it loses is dropped) or by ``cv2.cornerSubPix``
-    (``refine="subpix"``, :func:`refine_corners` with the window of :func:`corner_windows_px`).
+    grid; its blob centres, not refined).  Where the frame itself does not show the
+    pattern, each of ``views`` is tried in turn (a frame rectified by a homography:
+    :func:`scheimpflug.calibration.detectability.print_views` for a Scheimpflug rig's
+    oblique, sheared view of a print); the corners found in a view are mapped back to the
+    frame by the view's inverse homography.  Chessboard and ChArUco corners are then
+    refined on the frame itself by :func:`refine_corners_model` (``refine="model"``, the
+    default: unbiased by defocus; a corner it loses is dropped) or by ``cv2.cornerSubPix``
+    (``refine="subpix"``, :func:`refine_corners` with the window of :func:`corner_windows_px`):
+    the resampling of a view never enters a corner's sub-pixel position.
 
     Parameters
     ----------
@@ -889,6 +990,9 @@ def detect_pattern(frame: np.ndarray, spec, *, refine: str = "model", file: str 
         The sub-pixel refinement (above).
     file : str, default ""
         The frame's file, recorded.
+    views : sequence of PatternView, default ()
+        Rectified views to try after the frame
+        (:class:`scheimpflug.calibration.detectability.PatternView`).
 
     Returns
     -------
@@ -903,31 +1007,15 @@ def detect_pattern(frame: np.ndarray, spec, *, refine: str = "model", file: str 
     if refine not in ("model", "subpix"):
         raise ValueError(f"refine must be 'model' or 'subpix', got {refine!r}")
     gray = _to_uint8(frame)
-    if spec.kind == "circles":
-        ok, c = cv2.findCirclesGrid(gray, spec.grid_shape, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
-        if not ok:
-            ok, c = cv2.findCirclesGrid(255 - gray, spec.grid_shape, flags=cv2.CALIB_CB_SYMMETRIC_GRID)
-        if not ok:
-            return None
-        n = len(spec.corner_ids())
-        return PatternDetection(np.arange(n), c.reshape(-1, 2).astype(np.float64), np.zeros(n, np.int64), file)
-    if spec.kind == "chessboard":
-        c = _chessboard_corners(gray, spec)
-        if c is None:
-            return None
-        ids = np.arange(len(c), dtype=np.int64)
-    else:
-        found = _charuco_corners(gray, spec)
-        if found is None:
-            return None
-        ids, c = found
-    inside = (c[:, 0] > 1) & (c[:, 1] > 1) & (c[:, 0] < gray.shape[1] - 2) & (c[:, 1] < gray.shape[0] - 2)
-    if spec.kind == "charuco":
-        ids, c = ids[inside], c[inside]
-    elif not inside.all():
+    found = _find_in_views(gray, spec, views)
+    if found is None:
         return None
+    ids, c = found
+    if spec.kind == "circles":
+        return PatternDetection(ids, c, np.zeros(len(ids), np.int64), file)
     if spec.kind == "charuco":
-        ids, c = _consistent_with_grid(spec, ids, c)
+        keep = _inside(c, gray.shape)
+        ids, c = _consistent_with_grid(spec, ids[keep], c[keep])
         if len(ids) < 4:
             return None
     win = corner_windows_px(spec, ids, c)

@@ -28,6 +28,18 @@ turned to point away from the camera (the propagation direction of a sheet the
 camera looks along); the origin where the optical axis meets the plane, so
 that ``h = 0`` is the sheet's line in the plane of the optical axis — the
 meridian plane of a rig whose rows are vertical.
+
+Frame size
+----------
+A calibration holds for frames of one size: another binning or region of
+interest maps every pixel to a wrong sheet point without any error.  Every
+calibration file therefore records the frame size it was made for (``columns``
+and ``rows`` [px]; the OpenCV export ``image_size`` = [columns, rows];
+FabScan's ``camera.resolution``), every reader checks it
+(:func:`frame_size_from_json`) and every model's ``problem(columns, rows)``
+refuses frames of another size (:func:`size_problem`).  A file written before
+the size was recorded still loads; applying it warns that the size cannot be
+checked (:func:`unknown_size_note`).
 """
 
 from __future__ import annotations
@@ -39,18 +51,25 @@ import numpy as np
 from scheimpflug.errors import CalibrationError
 
 __all__ = [
+    "MAX_SIDE_PX",
     "MODELS",
     "SheetModel",
     "check_laser_plane",
+    "frame_size_from_json",
     "metric_error",
+    "numbers_text",
     "plane_from_sheet_frame",
     "sheet_frame_from_plane",
+    "size_problem",
+    "unknown_size_note",
 ]
 
 #: The calibration models a calibration file's ``"model"`` may name.
 MODELS = ("paper", "general", "target")
 
 _UNIT_TOL = 1e-6      # a laser plane's normal may differ from unit length by this much [-]
+MAX_SIDE_PX = 65535
+"""Largest frame side a calibration file may record (a frame folder's limit too) [px]."""
 
 
 # A Protocol is never instantiated: its (*args, **kwargs) constructor has nothing to document.
@@ -163,7 +182,7 @@ def check_laser_plane(plane, what: str = "laser plane") -> np.ndarray:
     """
     p = np.asarray(plane, np.float64).ravel()
     if p.size != 4 or not np.all(np.isfinite(p)):
-        raise CalibrationError(f"{what} must be 4 finite numbers [a, b, c, d], got {plane!r:.60}")
+        raise CalibrationError(f"{what} must be 4 finite numbers [a, b, c, d], got {numbers_text(plane)}")
     norm = float(np.linalg.norm(p[:3]))
     if abs(norm - 1.0) > _UNIT_TOL:
         raise CalibrationError(f"{what}'s normal (a, b, c) has length {norm:.6g}, not 1: a·X + b·Y + c·Z + d = 0 "
@@ -218,14 +237,19 @@ def sheet_frame_from_plane(plane, axis_dir=None, *, axis_up: bool = False) -> tu
     Raises
     ------
     CalibrationError
-        A plane containing the optical axis's direction (the camera sees it edge-on), or an up
-        direction perpendicular to the plane.
+        A plane containing the optical axis's direction (the camera sees it edge-on), a plane
+        meeting the optical axis behind the camera (a sheet the camera sees lies in front of
+        it: the sign of d is wrong), or an up direction perpendicular to the plane.
     """
     p = check_laser_plane(plane)
     n, d = p[:3], p[3]
     if abs(n[2]) < 1e-9:
         raise CalibrationError("the laser plane is parallel to the optical axis: the camera sees it edge-on")
     origin = np.array([0.0, 0.0, -d / n[2]])
+    if origin[2] <= 0:
+        raise CalibrationError(f"the laser plane {numbers_text(p)} meets the optical axis behind the camera "
+                               f"(at Z = {origin[2]:.6g} mm): the sheet a camera sees lies in front of it; is "
+                               "the sign of the plane's distance wrong?")
     up = np.array([0.0, -1.0, 0.0]) if axis_dir is None else np.asarray(axis_dir, np.float64)
     up = up - (up @ n) * n
     if np.linalg.norm(up) < 1e-6:
@@ -254,3 +278,128 @@ def metric_error(e_s, e_h) -> float:
     """
     a, b = np.asarray(e_s, np.float64), np.asarray(e_h, np.float64)
     return float(max(abs(np.linalg.norm(a) - 1.0), abs(np.linalg.norm(b) - 1.0), abs(a @ b)))
+
+
+def numbers_text(values, digits: int = 6) -> str:
+    """Numbers for a message: ``[0.8, nan, 0.6]`` (never ``np.float64(nan)`` or ``array(...)``).
+
+    Parameters
+    ----------
+    values : array_like or object
+        The numbers (any nesting); anything that is not numeric is shown by ``repr`` (cut at 60).
+    digits : int, default 6
+        Significant digits.
+
+    Returns
+    -------
+    str
+        The text.
+    """
+    try:
+        a = np.asarray(values, np.float64)
+    except (TypeError, ValueError):
+        return f"{values!r:.60}"
+    if a.ndim == 0:
+        return f"{float(a):.{digits}g}"
+    return "[" + ", ".join(numbers_text(x, digits) for x in a) + "]"
+
+
+def _side(value, key: str) -> int:
+    """A frame side [px]: an integer in [0, MAX_SIDE_PX] (an integral float is fine; 0 = unknown)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise CalibrationError(f"{key} = {value!r:.40} must be a whole number of pixels")
+    v = float(value)
+    if not (np.isfinite(v) and v.is_integer() and 0 <= v <= MAX_SIDE_PX):
+        raise CalibrationError(f"{key} = {numbers_text(v)} must be a whole number of pixels in [0, {MAX_SIDE_PX}]")
+    return int(v)
+
+
+def _image_size(value) -> tuple[int, int]:
+    a = np.asarray(value, dtype=object).ravel() if value is not None else np.empty(0)
+    if a.size != 2:
+        raise CalibrationError(f"image_size must be [columns, rows], got {numbers_text(value)}")
+    size = (_side(a[0], "image_size[0] (columns)"), _side(a[1], "image_size[1] (rows)"))
+    if 0 in size:
+        raise CalibrationError(f"image_size = {list(size)} must be two sides > 0 [px]")
+    return size
+
+
+def frame_size_from_json(d: dict) -> tuple[int, int]:
+    """The frame size a calibration file records: ``columns`` and ``rows``, or ``image_size``.
+
+    Parameters
+    ----------
+    d : dict
+        The file's content (``columns``/``rows`` [px]; ``image_size`` = [columns, rows] [px];
+        either or both, agreeing).
+
+    Returns
+    -------
+    columns, rows : int
+        [px]; (0, 0) when the file records none (written before sizes were recorded).
+
+    Raises
+    ------
+    CalibrationError
+        A side that is not a whole number in [0, 65535], one of ``columns``/``rows`` without
+        the other, or ``image_size`` and ``columns``/``rows`` that disagree.
+    """
+    cols, rows = d.get("columns"), d.get("rows")
+    if (cols is None) != (rows is None):
+        given = "columns" if rows is None else "rows"
+        raise CalibrationError(f"the calibration gives {given} but not {'rows' if rows is None else 'columns'}: "
+                               "the frame size needs both")
+    size = (0, 0) if cols is None else (_side(cols, "columns"), _side(rows, "rows"))
+    if (size[0] == 0) != (size[1] == 0):
+        raise CalibrationError(f"columns = {size[0]}, rows = {size[1]}: a frame size needs both sides > 0 "
+                               "(or both 0: unknown)")
+    if d.get("image_size") is None:
+        return size
+    image = _image_size(d["image_size"])
+    if all(size) and image != size:
+        raise CalibrationError(f"image_size {list(image)} and columns × rows {size[0]} × {size[1]} disagree")
+    return image
+
+
+def size_problem(model, columns: int | None, rows: int | None) -> str | None:
+    """Why a calibration does not fit frames of this size, or None (also when either size is unknown).
+
+    Parameters
+    ----------
+    model : SheetModel
+        The calibration (``columns``, ``rows``; 0 = unknown).
+    columns, rows : int or None
+        The frames' size [px] (None: unknown).
+
+    Returns
+    -------
+    str or None
+        Both sizes (rows × columns) and, when the sides scale alike, the binning it suggests.
+    """
+    cal = (int(getattr(model, "rows", 0) or 0), int(getattr(model, "columns", 0) or 0))
+    if not (all(cal) and columns and rows) or cal == (rows, columns):
+        return None
+    ratio = columns / cal[1]                       # binning grows as the image shrinks
+    hint = f" (a calibration made at {ratio:g} × this binning)" if ratio == rows / cal[0] else ""
+    return (f"the calibration was made for {cal[0]} × {cal[1]} frames, the frames are {rows} × {columns} "
+            f"(rows × columns){hint}")
+
+
+def unknown_size_note(columns: int, rows: int) -> str:
+    """The warning for a calibration that records no frame size (a file of an earlier version).
+
+    Parameters
+    ----------
+    columns, rows : int
+        The frames' size [px].
+
+    Returns
+    -------
+    str
+        What cannot be checked and how to fix it.
+    """
+    return (f"the calibration records no frame size (a file written before the size was recorded, or a "
+            f"foreign one without image_size): whether it was made for these {rows} × {columns} frames "
+            "(rows × columns) cannot be checked, and one of another binning gives wrong points without "
+            "an error; add \"columns\" and \"rows\" (or \"image_size\": [columns, rows]) to the file, "
+            "or calibrate again")

@@ -67,7 +67,12 @@ from scheimpflug.calibration.camera import (
     ideal_camera,
 )
 from scheimpflug.calibration.general import GeneralCalibration
-from scheimpflug.calibration.model import check_laser_plane, metric_error, sheet_frame_from_plane
+from scheimpflug.calibration.model import (
+    check_laser_plane,
+    frame_size_from_json,
+    metric_error,
+    sheet_frame_from_plane,
+)
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
 
@@ -118,7 +123,8 @@ def opencv_dict(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
     Returns
     -------
     dict
-        ``camera_matrix``, ``dist_coeffs`` (14), ``image_size``, ``laser_plane``, ``sheet_frame``
+        ``camera_matrix``, ``dist_coeffs`` (14), ``image_size`` ([columns, rows]; None for a
+        calibration that records no frame size), ``laser_plane``, ``sheet_frame``
         (with ``metric_error``: how far its axes are from orthonormal, 0 to rounding for a
         calibration of this version; a general model written before issue 25 shows its
         0.1–0.3 %), ``model``, ``assumptions``, ``format``.
@@ -136,7 +142,7 @@ def opencv_dict(calibration, focal_length_mm: float = DEFAULT_FOCAL_LENGTH_MM,
     return {"format": FORMAT, "model": model,
             "camera_matrix": gen.camera.camera_matrix.tolist(),
             "dist_coeffs": gen.camera.dist_coeffs.tolist(),
-            "image_size": [int(gen.columns), int(gen.rows)],
+            "image_size": [int(gen.columns), int(gen.rows)] if gen.columns and gen.rows else None,
             "laser_plane": [*map(float, n), float(-n @ origin)],
             "sheet_frame": {"origin_mm": origin.tolist(), "stage_axis": e_s.tolist(),
                             "height_axis": e_h.tolist(),
@@ -165,8 +171,16 @@ def write_opencv(path: str | Path, calibration, focal_length_mm: float = DEFAULT
     -------
     dict
         What was written (:func:`opencv_dict`).
+
+    Raises
+    ------
+    CalibrationError
+        A calibration that records no frame size: the export must say which frames it holds for.
     """
     d = opencv_dict(calibration, focal_length_mm, pixel_pitch_um, assumed)
+    if d["image_size"] is None:
+        raise CalibrationError(f"{str(path)!r}: the calibration records no frame size (columns × rows): an "
+                               "OpenCV export must carry the image_size its frames had")
     p = Path(path)
     if p.suffix.lower() not in YAML_SUFFIXES:
         write_json_atomic(p, d)
@@ -195,8 +209,6 @@ def _read_any(p: Path) -> dict:
     d = {k: mat(k) for k in ("camera_matrix", "dist_coeffs", "image_size", "laser_plane")}
     frame = {k: mat(f"sheet_{k}") for k in ("origin_mm", "stage_axis", "height_axis")}
     fs.release()
-    if any(v is None for k, v in d.items() if k != "image_size"):
-        raise ValueError("a key is missing (camera_matrix, dist_coeffs and laser_plane are needed)")
     if all(v is not None for v in frame.values()):
         d["sheet_frame"] = frame
     return d
@@ -230,29 +242,38 @@ def read_opencv(path: str | Path) -> GeneralCalibration:
     ----------
     path : str or Path
         A file written by :func:`write_opencv` (JSON, YAML or XML), or any JSON with
-        ``camera_matrix``, ``dist_coeffs`` and ``laser_plane`` (module docstring).
+        ``camera_matrix``, ``dist_coeffs`` and ``laser_plane`` (module docstring); ``image_size``
+        [columns, rows] (the frames it holds for) is read and checked where the file has it.
 
     Returns
     -------
     GeneralCalibration
-        Camera and sheet homography ``G = [stage_axis, height_axis, origin]``.
+        Camera and sheet homography ``G = [stage_axis, height_axis, origin]``; ``columns``,
+        ``rows`` from ``image_size`` (0 without one: applying it warns that the size cannot be
+        checked, :func:`scheimpflug.calibration.paper.applicability_problem`).
 
     Raises
     ------
     CalibrationError
-        A missing or unreadable file, a missing key, a singular camera matrix, a laser plane with a
-        non-unit normal, or a sheet frame off the laser plane.
+        A missing or unreadable file, a missing key (named), a singular or non-finite camera matrix, a
+        non-finite distortion term (named), a laser plane with a non-unit normal or behind the camera,
+        a malformed ``image_size``, or a sheet frame off the laser plane.
     """
     p = Path(path)
     if not p.is_file():
         raise CalibrationError(f"OpenCV calibration {str(p)!r} does not exist")
     try:
         d = _read_any(p)
+        missing = [k for k in ("camera_matrix", "dist_coeffs", "laser_plane") if d.get(k) is None]
+        if missing:
+            raise CalibrationError(f"the key{'s' * (len(missing) > 1)} {', '.join(missing)} "
+                                   f"{'are' if len(missing) > 1 else 'is'} missing (camera_matrix, dist_coeffs "
+                                   "and laser_plane are needed)")
+        columns, rows = frame_size_from_json({"image_size": d.get("image_size")})
         cam = _camera(np.asarray(d["camera_matrix"], np.float64),
                       np.asarray(d["dist_coeffs"], np.float64).ravel())
         plane = check_laser_plane(d["laser_plane"])
         g = _sheet_homography(d, plane)
-        size = np.asarray(d.get("image_size") if d.get("image_size") is not None else [0, 0]).ravel()
     except CalibrationError as exc:
         raise CalibrationError(f"OpenCV calibration {str(p)!r}: {exc}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError,
@@ -262,5 +283,4 @@ def read_opencv(path: str | Path) -> GeneralCalibration:
     if g.shape != (3, 3) or not math.isfinite(off) or off > 1e-6 * max(1.0, abs(plane[3])):
         raise CalibrationError(f"OpenCV calibration {str(p)!r}: the sheet frame's origin is not on the "
                                f"laser plane (off by {off:.3g} mm)")
-    return GeneralCalibration(camera=cam, homography=g / g[2, 2], columns=int(size[0]),
-                              rows=int(size[1]))
+    return GeneralCalibration(camera=cam, homography=g / g[2, 2], columns=columns, rows=rows)

@@ -76,6 +76,7 @@ from scheimpflug.calibration.measure import (
     check_plate_orientation,
     measure_plate_frame,
 )
+from scheimpflug.calibration.model import frame_size_from_json, size_problem, unknown_size_note
 from scheimpflug.callbacks import report
 from scheimpflug.errors import CalibrationError
 from scheimpflug.io.atomic import write_json_atomic
@@ -357,16 +358,20 @@ class Calibration:
         Raises
         ------
         CalibrationError
-            A required field is missing or not a number.
+            A required field is missing or not a number, or the frame size is malformed
+            (:func:`scheimpflug.calibration.model.frame_size_from_json`).
         """
+        try:
+            columns, rows = frame_size_from_json(d)
+        except CalibrationError as exc:
+            raise CalibrationError(f"calibration data garbles a field: {exc}") from None
         try:
             r2 = d.get("endpoint_fit_r2") or [None, None]
             return cls(hinge_u_px=_num(d["hinge_px"][0]), hinge_v_px=_num(d["hinge_px"][1]),
                        F2_px_mm=_num(d["F2_px_mm"]), F2_sigma_px_mm=_float(d, "F2_sigma_px_mm"),
                        d0_mm=_num(d["d0_mm"]), C_mm=_num(d["C_mm"]), C_sigma_mm=_float(d, "C_sigma_mm"),
                        endpoint_fit_r2=(_float(r2, 0), _float(r2, 1)),
-                       method=str(d.get("method", "paper")), columns=_whole(d.get("columns", 0)),
-                       rows=_whole(d.get("rows", 0)),
+                       method=str(d.get("method", "paper")), columns=columns, rows=rows,
                        plate_height_mm=_num(d.get("plate_height_mm", 89.0)),
                        n_frames=_whole(d.get("n_frames", 0)),
                        hinge_u_sigma_px=_float(d, "hinge_u_sigma_px"),
@@ -420,24 +425,30 @@ class Calibration:
             raise CalibrationError(f"calibration file {str(p)!r}: {problem}")
         return cal
 
-    def problem(self, columns: int | None = None) -> str | None:
-        """What makes this calibration impossible, or None (the checks of a loaded file).
+    def problem(self, columns: int | None = None, rows: int | None = None) -> str | None:
+        """What makes this calibration impossible, or inapplicable to frames of a size, or None.
 
         Parameters
         ----------
         columns : int, optional
             Columns of the frames it will be applied to [px]; default the
             calibration's own (0: unknown, the hinge check is skipped).
+        rows : int, optional
+            Rows of those frames [px]; with ``columns``, frames of another size than
+            the calibration records are refused (:func:`~scheimpflug.calibration.model.size_problem`).
 
         Returns
         -------
         str or None
-            The first problem, naming the field: a non-finite constant, a σ
-            that is negative or infinite, F² ≥ 0, C ≤ 0, a value beyond any
-            rig (|u_h|, |v_h| > 1e7 px, |d0| > 1e6 mm), the image hinge not
-            beyond the last column (the sensor would contain the hinge), a
-            plate height not > 0; None if none.
+            The first problem, naming the field: frames of another size, a
+            non-finite constant, a σ that is negative or infinite, F² ≥ 0,
+            C ≤ 0, a value beyond any rig (|u_h|, |v_h| > 1e7 px, |d0| > 1e6
+            mm), the image hinge not beyond the last column (the sensor would
+            contain the hinge), a plate height not > 0; None if none.
         """
+        size = size_problem(self, columns, rows)
+        if size:
+            return size
         names = ("hinge_u_px", "hinge_v_px", "F2_px_mm", "d0_mm", "C_mm")
         for name, value in zip(names, self.constants()):
             if not math.isfinite(value):
@@ -1397,16 +1408,19 @@ def _plate_height_notes(cal: Calibration, geo: HingeGeometry) -> tuple[str, ...]
 def applicability_problem(calibration, folder: FrameFolder) -> str | None:
     """Why a calibration cannot be applied to a folder's frames, or None.
 
-    Checked: the image size the calibration was made with (when it records one);
-    the calibration's own consistency (:meth:`Calibration.problem`); the pixel
+    Checked: the frame size the calibration was made with
+    (:func:`~scheimpflug.calibration.model.size_problem`; a calibration that
+    records none — a file of an earlier version — is applied with a warning,
+    :func:`~scheimpflug.calibration.model.unknown_size_note`); the
+    calibration's own consistency (its ``problem(columns, rows)``); the pixel
     pitch it records against the manifest rig's (another binning); its image
     hinge ``u_h`` against the rig's ``hinge_column`` (within 25 %: another
     binning or sensor, also for calibrations that record no size).
 
     Parameters
     ----------
-    calibration : Calibration or GeneralCalibration
-        The calibration (a general model is checked through its paper estimate).
+    calibration : SheetModel
+        The calibration (a general model is also checked through its paper estimate).
     folder : FrameFolder
         The frames.
 
@@ -1414,15 +1428,19 @@ def applicability_problem(calibration, folder: FrameFolder) -> str | None:
     -------
     str or None
         The reason, naming both values.
+
+    Warns
+    -----
+    UserWarning
+        The calibration records no frame size: it cannot be checked.
     """
-    cal_shape = (calibration.rows, calibration.columns)
-    if all(cal_shape) and cal_shape != (folder.rows, folder.columns):
-        ratio = folder.columns / calibration.columns            # binning grows as the image shrinks
-        hint = (f" (a calibration made at {ratio:g} × this binning)" if ratio == folder.rows / calibration.rows
-                else "")
-        return (f"the calibration was made for {cal_shape[0]} × {cal_shape[1]} frames, the frames are "
-                f"{folder.rows} × {folder.columns} (rows × columns){hint}")
-    problem = calibration.problem(folder.columns) if hasattr(calibration, "problem") else None
+    problem = size_problem(calibration, folder.columns, folder.rows)
+    if problem:
+        return problem
+    if not (calibration.columns and calibration.rows):
+        warnings.warn(unknown_size_note(folder.columns, folder.rows), stacklevel=2)
+    if hasattr(calibration, "problem"):
+        problem = calibration.problem(folder.columns, folder.rows)
     paper = calibration if isinstance(calibration, Calibration) else getattr(calibration, "paper", None)
     if problem is None and paper is not None:
         problem = _pitch_or_hinge_problem(paper, folder)

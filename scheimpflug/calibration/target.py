@@ -60,9 +60,23 @@ import cv2
 import numpy as np
 
 from scheimpflug.calibration.camera import OpenCVCamera, camera_from_sensor_pose
+from scheimpflug.calibration.detectability import frame_views, pattern_advice, rig_from_manifest
 from scheimpflug.calibration.general import GeneralCalibration
-from scheimpflug.calibration.measure import detect_pattern, stripe_points
-from scheimpflug.calibration.model import check_laser_plane, sheet_frame_from_plane
+from scheimpflug.calibration.laser_background import (
+    BACKGROUND_MODES,
+    SHARED_FRACTION,
+    board_mask,
+    difference_noise,
+    frame_noise_dn,
+    line_points,
+    noise_map,
+    same_light,
+    shared_fraction,
+    subtract_background,
+    within_board,
+)
+from scheimpflug.calibration.measure import detect_pattern
+from scheimpflug.calibration.model import check_laser_plane, frame_size_from_json, sheet_frame_from_plane, size_problem
 from scheimpflug.calibration.pattern import parse_pattern
 from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import CalibrationError
@@ -96,6 +110,21 @@ _STDERR_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5
                  "s1", "s2", "s3", "s4", "tau_x", "tau_y")
 _OUTLIER_PX = 1.0          # corners off by more than max(this, 5 robust σ) are dropped and refitted [px]
 _LASER_OUTLIER_SIGMAS = 4.0
+#: Repeated flood frames of one pose whose corners differ by more than this RMS show different poses [px]
+#: (a board on a stand re-photographed moves < 0.1 px; the corners' own noise is ≈ 0.05 px).
+REPEAT_PX = 1.0
+#: A laser point belongs to its pose's line within this distance, in its own pixels: the stripe's centre is
+#: good to ≈ 0.1 px, a noise peak picked where the line is faint lands anywhere across the board [px].
+LINE_TOL_PX = 1.5
+#: Fewer points on a straight line are no laser line on the board [-].
+MIN_LINE_POINTS = 10
+#: … and so is a line holding less than this fraction of the points found on the board: the laser's
+#: trace holds most of them (the twin's: 40–100 %), a line through noise or the print's edges a few
+#: (9–10 % in a room-lit set searched without its laser-off frames) [-].
+MIN_LINE_FRACTION = 0.3
+#: A pose's laser line whose points lie a median distance beyond this many pixels of its footprint off
+#: the plane of all poses' lines is not on it [px] (the twin's lines: < 0.5 px).
+OFF_PLANE_PX = 3.0
 
 
 # ---------------------------------------------------------------- the sheet model
@@ -216,19 +245,23 @@ class TargetCalibration(GeneralCalibration):
         self._need_plane()
         return super().pixel_from_stage(stage_mm, h_mm)
 
-    def problem(self, columns: int | None = None) -> str | None:
-        """What keeps this calibration from mapping frames to the sheet, or None.
+    def problem(self, columns: int | None = None, rows: int | None = None) -> str | None:
+        """What keeps this calibration from mapping frames of a size to the sheet, or None.
 
         Parameters
         ----------
-        columns : int, optional
-            Unused (the interface of :meth:`scheimpflug.calibration.paper.Calibration.problem`).
+        columns, rows : int, optional
+            The frames' size [px]; frames of another size than the calibration records
+            are refused (:func:`~scheimpflug.calibration.model.size_problem`).
 
         Returns
         -------
         str or None
-            "no laser plane …" for a camera calibration only.
+            Frames of another size, or "no laser plane …" for a camera calibration only.
         """
+        size = size_problem(self, columns, rows)
+        if size:
+            return size
         return None if self.laser_plane is not None else (
             "the target calibration has no laser plane (made without laser frames): a camera calibration only")
 
@@ -244,7 +277,7 @@ class TargetCalibration(GeneralCalibration):
             ``sheet_frame``, ``stderr``, ``tilt``, ``pattern``, ``columns``, ``rows``.
         """
         d: dict[str, Any] = {"model": "target", "pattern": self.pattern, **self.camera.to_json_dict(),
-                             "image_size": [int(self.columns), int(self.rows)],
+                             "image_size": [int(self.columns), int(self.rows)] if self.columns and self.rows else None,
                              "columns": int(self.columns), "rows": int(self.rows),
                              "reprojection_rms_px": _num(self.reprojection_rms_px),
                              "poses_used": [dict(p) for p in self.poses_used],
@@ -276,13 +309,16 @@ class TargetCalibration(GeneralCalibration):
         Raises
         ------
         CalibrationError
-            A missing or malformed field, a laser plane with a non-unit normal, a sheet frame off it.
+            A missing or malformed field, a laser plane with a non-unit normal, a sheet frame off it,
+            a malformed frame size (``columns``/``rows`` or ``image_size``:
+            :func:`~scheimpflug.calibration.model.frame_size_from_json`).
         """
         try:
+            columns, rows = frame_size_from_json(d)
             camera = OpenCVCamera.from_json_dict(d)
             plane = None if d.get("laser_plane") is None else check_laser_plane(d["laser_plane"])
             g = _homography_of(d.get("sheet_frame"), plane)
-            return cls(camera=camera, homography=g, columns=int(d.get("columns", 0)), rows=int(d.get("rows", 0)),
+            return cls(camera=camera, homography=g, columns=columns, rows=rows,
                        n_frames=int(d.get("n_frames", 0)), laser_plane=plane, pattern=str(d.get("pattern", "")),
                        reprojection_rms_px=_float(d.get("reprojection_rms_px")),
                        poses_used=tuple(d.get("poses_used") or ()), poses_skipped=tuple(d.get("poses_skipped") or ()),
@@ -290,8 +326,10 @@ class TargetCalibration(GeneralCalibration):
                        laser_points=int(d.get("laser_points", 0)), axis=d.get("axis"), tilt=dict(d.get("tilt") or {}))
         except CalibrationError:
             raise
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise CalibrationError(f"target calibration data lacks or garbles a field: {exc!r}") from None
+        except KeyError as exc:
+            raise CalibrationError(f"target calibration data lacks the field {exc.args[0]!r}") from None
+        except (TypeError, ValueError, IndexError) as exc:
+            raise CalibrationError(f"target calibration data garbles a field: {exc}") from None
 
 
 def _num(x):
@@ -329,7 +367,17 @@ class TargetResult:
     laser_points_mm : dict
         Pose index → (n, 3) laser points lifted onto that pose's plane, camera frame [mm].
     warnings : tuple of str
-        What the user should know (poses skipped, the tilt held, …).
+        What the user should know (poses skipped, the tilt held, a line missing, figures far from
+        the rig's, …).
+    laser_poses : tuple of dict
+        Per pose with laser frames: ``pose`` (the manifest's id), ``laser_frames``, ``background``
+        (what was subtracted from each, and why), ``points_found`` (the whole frame),
+        ``points_on_board`` (on the printed pattern), ``points_in_plane_fit`` (not rejected by
+        the plane fit), and a ``note`` where the pose adds nothing to the plane.
+    nominal : dict
+        The calibration against the frame folder's rig (``plane_distance_mm``,
+        ``lens_focal_length_mm``, ``principal_distance_mm``: calibrated, nominal, relative,
+        tolerance — :class:`NominalTolerances`); empty without a rig.
     """
 
     calibration: TargetCalibration
@@ -337,6 +385,8 @@ class TargetResult:
     camera_from_pattern: dict = field(repr=False)
     laser_points_mm: dict = field(repr=False)
     warnings: tuple = ()
+    laser_poses: tuple = ()
+    nominal: dict = field(default_factory=dict)
 
     @property
     def model(self) -> TargetCalibration:
@@ -593,11 +643,15 @@ def rotary_axis_from_planes(planes: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 
 @dataclass(frozen=True)
 class _Pose:
-    index: int
-    flood: int | None                  # frame index of the flood-lit frame
+    index: int                         # the manifest's pose id (frames without one: ids after the largest)
+    flood: int | None                  # frame index of the (first) flood-lit frame
     laser: tuple[int, ...] = ()        # laser frames
     background: int | None = None      # laser-off frame of the laser view
     angle_deg: float | None = None     # table angle, for table poses
+    repeats: tuple[int, ...] = ()      # more flood-lit frames of the same pose
+    laser_off: tuple = ()              # per laser frame: the frame subtracted from it, or None (_paired)
+    laser_noise: tuple = ()            # per laser frame: σ [DN], or (levels, σ) of a difference (_paired)
+    laser_skip: tuple = ()             # per laser frame: why it holds no findable line, or None
 
 
 def _light(rec) -> str:
@@ -607,45 +661,83 @@ def _light(rec) -> str:
     return light
 
 
-def _group_poses(ff: FrameFolder) -> list[_Pose]:
-    """The folder's frames by pose (manifest ``pose``; a frame without one is a flood frame of its own)."""
+def _pose_id(rec) -> int | None:
+    key = rec.extra.get("pose")
+    if key is None:
+        return None
+    if isinstance(key, bool) or not isinstance(key, int) or key < 0:
+        raise CalibrationError(f"{rec.file}: pose {key!r:.30} is not an integer >= 0")
+    return key
+
+
+def _pose_slots(ff: FrameFolder) -> dict[int, dict]:
+    """Frame indices per pose id and light; a frame without a pose is a flood frame of its own."""
+    ids = [_pose_id(rec) for rec in ff.frames]
+    auto = max((k for k in ids if k is not None), default=-1) + 1
     poses: dict[int, dict] = {}
-    auto = 0
-    for i, rec in enumerate(ff.frames):
+    for i, (rec, key) in enumerate(zip(ff.frames, ids)):
         light = _light(rec)
-        key = rec.extra.get("pose")
         if key is None:
             if light != "flood":
                 raise CalibrationError(f"{rec.file}: a {light} frame needs the 'pose' of its flood-lit frame in "
                                        "the manifest")
-            key, auto = f"auto{auto}", auto + 1
-        slot = poses.setdefault(key, {"flood": None, "laser": [], "background": None, "angle": rec.angle_deg})
-        if light == "flood":
-            slot["flood"] = i if slot["flood"] is None else slot["flood"]
-        elif light == "background":
-            slot["background"] = i
-        else:
-            slot["laser"].append(i)
+            key, auto = auto, auto + 1
+        slot = poses.setdefault(key, {"flood": [], "laser": [], "background": [], "angle": None})
+        slot["laser" if light == "both" else light].append(i)
         if rec.angle_deg is not None:
             slot["angle"] = rec.angle_deg
-    out = [_Pose(k, v["flood"], tuple(v["laser"]), v["background"], v["angle"]) for k, v in enumerate(poses.values())]
-    orphans = [ff.frames[p.laser[0]].file for p in out if p.flood is None and p.laser]
-    if orphans:
+    return poses
+
+
+def _group_poses(ff: FrameFolder, notes: list | None = None) -> list[_Pose]:
+    """The folder's frames by pose (manifest ``pose``), in pose-id order.
+
+    With ``notes`` (a room-light set), laser frames without a flood-lit frame of their pose —
+    without their laser-off partner — are left out and named there instead of refused.
+
+    Raises
+    ------
+    CalibrationError
+        Laser frames without a flood-lit frame of their pose (without ``notes``), two laser-off
+        frames of one pose, a pose id that is not an integer >= 0.
+    """
+    out, orphans = [], []
+    for key, v in sorted(_pose_slots(ff).items()):
+        if len(v["background"]) > 1:
+            raise CalibrationError(f"pose {key} has {len(v['background'])} laser-off frames ('background': "
+                                   + ", ".join(ff.frames[i].file for i in v["background"][:3])
+                                   + "): one per pose, or give each its own pose")
+        if not v["flood"]:
+            orphans += [ff.frames[i].file for i in v["laser"]]
+            continue
+        out.append(_Pose(key, v["flood"][0], tuple(v["laser"]), (v["background"] or [None])[0], v["angle"],
+                         tuple(v["flood"][1:])))
+    if orphans and notes is not None:
+        notes += [f"{f}: a laser frame without its laser-off partner (no flood-lit frame of its pose): left out"
+                  for f in orphans]
+    elif orphans:
         raise CalibrationError(f"{len(orphans)} laser frame(s) without their flood-lit pose frame (the pattern "
                                f"seen with the flood light; same 'pose' in the manifest): {', '.join(orphans[:3])}"
                                + (" …" if len(orphans) > 3 else ""))
-    return [p for p in out if p.flood is not None]
+    return out
 
 
 # ---------------------------------------------------------------- finding the pattern
 
 
 def _detect_all(ff: FrameFolder, poses, spec, refine: str, progress) -> tuple[dict, list]:
+    """The pattern in each pose's flood frame, in the frame or in views rectified by the folder's rig.
+
+    The views (:func:`scheimpflug.calibration.detectability.frame_views`): the manifest rig's
+    print planes when it has one at the frames' size (a Scheimpflug camera's oblique view of a
+    print), else the frame stretched along its distance axis.
+    """
     found, skipped = {}, []
+    views = frame_views(ff.rig, (ff.rows, ff.columns), spec, ff.stripe_along)
     for k, pose in enumerate(poses):
         report(progress, k, len(poses))
         rec = ff.frames[pose.flood]
-        det = detect_pattern(ff.read(pose.flood), spec, refine=refine, file=rec.file)
+        det = detect_pattern(ff.read(pose.flood), spec, refine=refine, file=rec.file, views=views)
         if det is None:
             skipped.append({"pose": pose.index, "file": rec.file, "reason": f"pattern {spec.text} not found"})
         elif len(det) < 6:
@@ -656,9 +748,69 @@ def _detect_all(ff: FrameFolder, poses, spec, refine: str, progress) -> tuple[di
     return found, skipped
 
 
+def _merged(dets: list, files: list[str], pose: int) -> tuple:
+    """One detection from repeated flood frames of one pose: corners averaged, or an error if they moved."""
+    first = dets[0]
+    for det, file in zip(dets[1:], files[1:]):
+        common, ia, ib = np.intersect1d(first.ids, det.ids, return_indices=True)
+        if len(common) == 0:
+            continue
+        rms = float(np.sqrt(np.mean(np.sum((first.corners_px[ia] - det.corners_px[ib]) ** 2, axis=1))))
+        if rms > REPEAT_PX:
+            raise CalibrationError(f"pose {pose} has flood-lit frames showing the pattern in different places "
+                                   f"({files[0]} and {file}: corners {rms:.2g} px apart RMS): one flood frame "
+                                   "per pose, or give each its own pose id")
+    ids = np.unique(np.concatenate([d.ids for d in dets]))
+    sums, counts = np.zeros((len(ids), 2)), np.zeros(len(ids))
+    for det in dets:
+        k = np.searchsorted(ids, det.ids)
+        np.add.at(sums, k, det.corners_px)
+        np.add.at(counts, k, 1.0)
+    windows = np.zeros(len(ids), np.int64)
+    for det in dets[::-1]:
+        windows[np.searchsorted(ids, det.ids)] = det.window_px
+    return replace(first, ids=ids, corners_px=sums / counts[:, None], window_px=windows)
+
+
+def _merge_repeats(ff: FrameFolder, poses, dets: dict, skipped: list, spec, refine: str, notes: list) -> None:
+    """Fold each pose's repeated flood frames into its detection (in place): never one dropped unsaid."""
+    for pose in poses:
+        if not pose.repeats:
+            continue
+        frames = [pose.flood, *pose.repeats]
+        files = [ff.frames[i].file for i in frames]
+        found = [(dets[pose.index], files[0])] if pose.index in dets else []
+        views = frame_views(ff.rig, (ff.rows, ff.columns), spec, ff.stripe_along)
+        for i, file in zip(pose.repeats, files[1:]):
+            det = detect_pattern(ff.read(i), spec, refine=refine, file=file, views=views)
+            if det is not None and len(det) >= 6:
+                found.append((det, file))
+        if not found:
+            notes.append(f"pose {pose.index}: pattern found in none of its {len(frames)} flood-lit frames")
+            continue
+        dets[pose.index] = _merged([d for d, _ in found], [f for _, f in found], pose.index)
+        skipped[:] = [s for s in skipped if s["pose"] != pose.index]
+        notes.append(f"pose {pose.index}: {len(frames)} flood-lit frames ({', '.join(files)}); the pattern found in "
+                     f"{len(found)}" + (", their corners averaged" if len(found) > 1 else ""))
+
+
 def _size_hint(ff: FrameFolder, poses, spec) -> str:
-    """What pattern the first frames show when the spec's is found in none of them (chessboards, ChArUco)."""
+    """Why the spec's pattern is found in no frame: what the manifest's rig says, what the first frame shows.
+
+    With a rig read out at the frames' size that cannot show the pattern whole and resolved
+    (:meth:`PatternAdvice.problem <scheimpflug.calibration.detectability.PatternAdvice.problem>`),
+    the rig's reason (:meth:`~scheimpflug.calibration.detectability.PatternAdvice.hint`): a grid of
+    another size found in such frames would be no evidence (a sub-board of the real one is found as
+    readily).  Otherwise the grid sizes near the spec's that the first frame shows (chessboards) or
+    its ChArUco markers, and with a rig, where the rig says the pattern is found.
+    """
+    rig = rig_from_manifest(ff.rig)
+    advice = pattern_advice(rig, spec) if rig is not None and (rig.sensor.rows, rig.sensor.columns) == (
+        ff.rows, ff.columns) else None
+    if advice is not None and advice.problem() is not None:
+        return "; " + advice.hint()
     frame = ff.read(poses[0].flood)
+    seen = ""
     if spec.kind == "chessboard":
         from scheimpflug.calibration.measure import _chessboard_corners, _to_uint8
 
@@ -668,8 +820,8 @@ def _size_hint(ff: FrameFolder, poses, spec) -> str:
                              key=lambda t: (abs(t[0]) + abs(t[1]), abs(t[0] - t[1]), -t[0] - t[1])):
             size = (c + dc, r + dr)
             if min(size) >= 2 and _chessboard_corners(gray, replace(spec, cols=size[0], rows=size[1])) is not None:
-                return f"; is the pattern {size[0]} × {size[1]} (inner corners)?"
-        return ""
+                seen = f"; is the pattern {size[0]} × {size[1]} (inner corners)?"
+                break
     if spec.kind == "charuco":
         from scheimpflug.calibration.pattern import aruco_dictionary
 
@@ -678,12 +830,12 @@ def _size_hint(ff: FrameFolder, poses, spec) -> str:
         n = 0 if ids is None else len(ids)
         held = (spec.cols * spec.rows) // 2
         if n and int(ids.max()) >= held:
-            return (f"; {n} {spec.dictionary} markers seen with ids up to {int(ids.max())}, a {spec.cols} × "
+            seen = (f"; {n} {spec.dictionary} markers seen with ids up to {int(ids.max())}, a {spec.cols} × "
                     f"{spec.rows} board holds {held} (ids 0–{held - 1}): is the board larger?")
-        if n:
-            return (f"; {n} {spec.dictionary} markers seen, not where a {spec.cols} × {spec.rows} board with "
+        elif n:
+            seen = (f"; {n} {spec.dictionary} markers seen, not where a {spec.cols} × {spec.rows} board with "
                     f"{spec.pitch_mm:g} mm squares puts them: is the board smaller or another layout?")
-    return ""
+    return seen or ("; " + advice.hint() if advice is not None else "")
 
 
 def _check_not_parallel(dets: dict, spec, size) -> None:
@@ -726,6 +878,71 @@ def _rig_camera(ff: FrameFolder) -> OpenCVCamera | None:
     d = np.zeros(14)
     d[0], d[1], d[12], d[13] = rig.lens.k1, rig.lens.k2, cam.tau_x_rad, cam.tau_y_rad
     return OpenCVCamera(cam.camera_matrix, d)
+
+
+@dataclass(frozen=True)
+class NominalTolerances:
+    """How far a target calibration may lie from the frame folder's rig before it is warned about.
+
+    A pattern whose square size is given wrong by x % scales every distance the calibration
+    measures by x % — the poses, the laser plane — while the reprojection error stays as it
+    was: only the rig's own figures can tell.  Each tolerance is what a built rig keeps from
+    its design.
+
+    Parameters
+    ----------
+    plane_distance : float, default 0.02
+        The laser plane's distance from the lens centre against the rig's sheet (d·cos φ):
+        a line laser mounted within a few millimetres of its place at 150 mm [-].
+    lens_focal_length : float, default 0.02
+        The lens's focal length found by the focus condition against the rig's (a lens's
+        marked focal length holds to about 1–2 %) [-].
+    principal_distance : float, default 0.02
+        The camera's principal distance ``fx · pitch`` against the design camera's [-].
+    """
+
+    plane_distance: float = 0.02
+    lens_focal_length: float = 0.02
+    principal_distance: float = 0.02
+
+
+def _rig_sheet_distance_mm(ff: FrameFolder) -> float | None:
+    """The rig's sheet distance from the lens centre, d·cos φ [mm], or None without a (valid) rig."""
+    if not isinstance(ff.rig, dict):
+        return None
+    try:
+        from scheimpflug.model.rig import rig_from_dict
+
+        laser = rig_from_dict(ff.rig).laser
+    except (ValueError, TypeError, KeyError, ArithmeticError):
+        return None
+    return laser.scheimpflug_distance_mm * math.cos(math.atan(laser.tan_phi))
+
+
+def _nominal_check(ff: FrameFolder, fit: _Fit, plane, tilt_info: dict, pitch_um: float | None,
+                   tol: NominalTolerances = NominalTolerances()) -> tuple[dict, list[str]]:
+    """The calibration against the frame folder's rig: each figure, its nominal value, and warnings."""
+    rig_cam = _rig_camera(ff)
+    pairs = {}
+    if plane is not None and _rig_sheet_distance_mm(ff):
+        pairs["plane_distance"] = (abs(float(plane[3])), _rig_sheet_distance_mm(ff), "mm",
+                                   "the laser plane's distance from the lens centre")
+    if "lens_focal_length_mm" in tilt_info and ff.rig_value("lens", "focal_length_mm"):
+        pairs["lens_focal_length"] = (tilt_info["lens_focal_length_mm"], ff.rig_value("lens", "focal_length_mm"),
+                                      "mm", "the lens's focal length (focus condition)")
+    if rig_cam is not None and pitch_um:
+        pairs["principal_distance"] = (fit.camera.focal_px * pitch_um * 1e-3, rig_cam.focal_px * pitch_um * 1e-3,
+                                       "mm", "the principal distance fx·pitch")
+    out, notes = {}, []
+    for key, (got, nominal, unit, what) in pairs.items():
+        rel = got / nominal - 1.0
+        limit = getattr(tol, key)
+        out[key + "_" + unit] = {"calibrated": got, "nominal": nominal, "relative": rel, "tolerance": limit}
+        if abs(rel) > limit:
+            notes.append(f"{what} is {got:.4g} {unit}, the rig's {nominal:.4g} {unit} ({100 * rel:+.2f} %, beyond "
+                         f"{100 * limit:g} %): is the pattern's square size right? A size wrong by x % scales every "
+                         "distance by x % and leaves the reprojection error as it is")
+    return out, notes
 
 
 def _centred(camera: OpenCVCamera, size) -> OpenCVCamera:
@@ -845,16 +1062,25 @@ def _calibrate_once(dets: dict, spec, size, start: OpenCVCamera, flags: int) -> 
     obj = {k: spec.object_points()[dets[k].ids] for k in keys}
     img = {k: dets[k].corners_px.astype(np.float32) for k in keys}
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 300, 1e-12)
+    last = (keys, obj, img)
     for attempt in range(3):
-        out = cv2.calibrateCameraExtended([obj[k] for k in keys], [img[k] for k in keys], tuple(size),
-                                          start.camera_matrix.copy(), start.dist_coeffs.copy(), flags=flags,
-                                          criteria=crit)
+        try:
+            out = cv2.calibrateCameraExtended([obj[k] for k in keys], [img[k] for k in keys], tuple(size),
+                                              start.camera_matrix.copy(), start.dist_coeffs.copy(), flags=flags,
+                                              criteria=crit)
+        except cv2.error as exc:
+            if attempt == 0:
+                raise CalibrationError(f"OpenCV's camera fit failed on {len(keys)} poses: "
+                                       f"{str(exc).strip().splitlines()[-1]}") from None
+            keys, obj, img = last       # the refit without the outliers left the image (ill-posed): keep the last
+            break
         rms, kk, dd, rvecs, tvecs, sd_int = out[:6]
         res = _reprojection(obj, img, keys, rvecs, tvecs, kk, dd)
         allr = np.concatenate(list(res.values()))
         limit = max(_OUTLIER_PX, 5.0 * 1.4826 * float(np.median(allr)))
         if allr.max() <= limit or attempt == 2:
             break
+        last = (keys, dict(obj), dict(img))
         for k in keys:
             keep = res[k] <= limit
             obj[k], img[k] = obj[k][keep], img[k][keep]
@@ -873,18 +1099,133 @@ def _calibrate_once(dets: dict, spec, size, start: OpenCVCamera, flags: int) -> 
 # ---------------------------------------------------------------- the laser
 
 
-def _lift(camera: OpenCVCamera, pose: np.ndarray, u, v, spec) -> np.ndarray:
-    """Laser pixels lifted onto a pose's plane, kept where they fall on the printed pattern [mm]."""
+def _lift_local(camera: OpenCVCamera, pose: np.ndarray, u, v) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels lifted onto a pose's plane: camera-frame points [mm] and pattern-frame (x, y) [mm] (NaN behind)."""
     x, y = camera.normalized_from_pixel(u, v)
     ray = np.stack([x, y, np.ones_like(x)], axis=-1)
     n, o = pose[:3, 2], pose[:3, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (n @ o) / (ray @ n)
+    t = np.where(t > 0, t, np.nan)
     pts = ray * t[:, None]
-    local = (pts - o) @ pose[:3, :3]
+    return pts, ((pts - o) @ pose[:3, :3])[:, :2]
+
+
+def _lift(camera: OpenCVCamera, pose: np.ndarray, u, v, spec) -> tuple[np.ndarray, int]:
+    """Laser pixels lifted onto a pose's plane and kept where they fall on the printed pattern.
+
+    Returns the points on one straight line there (the laser's trace on a flat board:
+    :func:`_line_inliers`; none if fewer than ``MIN_LINE_POINTS`` or ``MIN_LINE_FRACTION`` of
+    those on the pattern) [mm], and how many fell on the pattern.
+    """
+    u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    pts, local = _lift_local(camera, pose, u, v)
     x0, y0, x1, y1 = spec.extent_mm()
-    on = (local[:, 0] >= x0) & (local[:, 0] <= x1) & (local[:, 1] >= y0) & (local[:, 1] <= y1) & (t > 0)
-    return pts[on & np.isfinite(t)]
+    with np.errstate(invalid="ignore"):
+        on = (local[:, 0] >= x0) & (local[:, 0] <= x1) & (local[:, 1] >= y0) & (local[:, 1] <= y1)
+    if on.sum() < MIN_LINE_POINTS:
+        return pts[:0], int(on.sum())
+    scale = np.maximum(*(np.linalg.norm(_lift_local(camera, pose, u[on] + du, v[on] + dv)[1] - local[on], axis=1)
+                         for du, dv in ((1.0, 0.0), (0.0, 1.0))))
+    keep = _line_inliers(local[on], scale)
+    line = keep.sum() >= max(MIN_LINE_POINTS, MIN_LINE_FRACTION * on.sum())
+    return (pts[on][keep] if line else pts[:0]), int(on.sum())
+
+
+def _line_inliers(xy: np.ndarray, scale_mm: np.ndarray, tol_px: float = LINE_TOL_PX, trials: int = 256) -> np.ndarray:
+    """The points of the one straight line most of them lie on (RANSAC, then total least squares).
+
+    Parameters
+    ----------
+    xy : (n, 2) float
+        Points in the board's plane [mm].
+    scale_mm : (n,) float
+        Each point's footprint: millimetres per pixel there [mm/px].
+    tol_px : float
+        A point belongs to the line within this distance, in its own pixels [px].
+    trials : int
+        Point pairs tried (seeded: the same points give the same answer).
+
+    Returns
+    -------
+    (n,) bool
+        The line's points.
+    """
+    n = len(xy)
+    if n < 2:
+        return np.zeros(n, bool)
+    rng = np.random.default_rng(0x1A5E)
+    i, j = rng.integers(0, n, trials), rng.integers(0, n, trials)
+    d = xy[j] - xy[i]
+    length = np.hypot(d[:, 0], d[:, 1])
+    ok = length > 0
+    normal = np.c_[-d[ok, 1], d[ok, 0]] / length[ok, None]
+    if not ok.any():
+        return np.zeros(n, bool)
+    r = np.abs(np.einsum("tk,tnk->tn", normal, xy[None, :, :] - xy[i[ok], None, :])) / scale_mm
+    best = r[np.argmax((r < tol_px).sum(axis=1))] < tol_px
+    for _ in range(4):
+        if best.sum() < 2:
+            break
+        c = xy[best].mean(axis=0)
+        nrm = np.linalg.svd(xy[best] - c, full_matrices=False)[2][1]
+        new = np.abs((xy - c) @ nrm) / scale_mm < tol_px
+        if np.array_equal(new, best):
+            break
+        best = new
+    return best
+
+
+def _board_outline_px(camera: OpenCVCamera, pose: np.ndarray, spec, per_side: int = 16) -> np.ndarray:
+    """The printed area's outline in the image (its sides sampled, so that distortion bends them) [px]."""
+    x0, y0, x1, y1 = spec.extent_mm()
+    s = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    xs, ys = x0 + s * (x1 - x0), y0 + s * (y1 - y0)
+    xy = np.concatenate([np.c_[xs, np.full_like(s, y0)], np.c_[np.full_like(s, x1), ys],
+                         np.c_[xs[::-1] + (x1 - x0) / per_side, np.full_like(s, y1)],
+                         np.c_[np.full_like(s, x0), ys[::-1] + (y1 - y0) / per_side]])
+    p = np.c_[xy, np.zeros(len(xy))] @ pose[:3, :3].T + pose[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = camera.pixel_from_normalized(p[:, 0] / p[:, 2], p[:, 1] / p[:, 2])
+    return np.where((p[:, 2] > 0)[:, None], np.c_[u, v], np.nan)
+
+
+def _laser_image(ff: FrameFolder, i: int, laser_off: int | None, noise) -> tuple[np.ndarray, np.ndarray, Any]:
+    """A laser frame with its laser-off frame subtracted (or as it is), the frame, and the noise (σ or a map)."""
+    frame = ff.read(i)
+    if laser_off is None:
+        return frame, frame, noise
+    off = ff.read(laser_off)
+    return subtract_background(frame, off), frame, noise_map(off, noise)
+
+
+def _pose_laser(ff: FrameFolder, pose: _Pose, fit: _Fit, spec, along: str, detector: str,
+                counts: dict | None = None) -> np.ndarray:
+    """One pose's laser points on the board's line, lifted onto its plane [mm].
+
+    ``counts`` gets ``found`` (the whole frame), ``on_board`` (on the printed pattern) and
+    ``on_line`` (on its straight line).
+    """
+    mask = board_mask(_board_outline_px(fit.camera, fit.poses[pose.index], spec), (ff.rows, ff.columns))
+    pts = []
+    for i, off, noise, skip in zip(pose.laser, pose.laser_off, pose.laser_noise, pose.laser_skip):
+        if skip:
+            continue
+        img, frame, noise = _laser_image(ff, i, off, noise)
+        sat = ff.saturation_dn(frame)
+        if counts is not None:
+            counts["found"] = counts.get("found", 0) + len(line_points(img, noise, along=along, detector=detector,
+                                                                       saturation_dn=sat)[0])
+        u, v = line_points(within_board(img, mask, along), noise, along=along, detector=detector, saturation_dn=sat)
+        if len(u):
+            line, on_board = _lift(fit.camera, fit.poses[pose.index], u, v, spec)
+            pts.append(line)
+            if counts is not None:
+                counts["on_board"] = counts.get("on_board", 0) + on_board
+    out = np.concatenate(pts) if pts else np.zeros((0, 3))
+    if counts is not None:
+        counts["on_line"] = len(out)
+    return out
 
 
 def _laser_points(ff: FrameFolder, poses, fit: _Fit, spec, along: str, detector: str) -> dict:
@@ -892,17 +1233,186 @@ def _laser_points(ff: FrameFolder, poses, fit: _Fit, spec, along: str, detector:
     for pose in poses:
         if pose.index not in fit.poses or not pose.laser:
             continue
-        bg = ff.read(pose.background) if pose.background is not None else None
-        pts = []
-        for i in pose.laser:
-            frame = ff.read(i)
-            u, v = stripe_points(frame, background=bg, along=along, detector=detector,
-                                 saturation_dn=ff.saturation_dn(frame))
-            if len(u):
-                pts.append(_lift(fit.camera, fit.poses[pose.index], u, v, spec))
-        if pts and sum(len(p) for p in pts) >= 3:
-            out[pose.index] = np.concatenate(pts)
+        pts = _pose_laser(ff, pose, fit, spec, along, detector)
+        if len(pts) >= 3:
+            out[pose.index] = pts
     return out
+
+
+def _laser_off_of(ff: FrameFolder, pose: _Pose, i: int, mode: str, room_light: bool) -> tuple[int | None, str]:
+    """The laser-off frame subtracted from laser frame ``i`` of a pose, and why.
+
+    See the module docstring of :mod:`scheimpflug.calibration.laser_background`.
+    """
+    if mode == "none":
+        return None, "none (--laser-background none)"
+    if pose.background is not None:
+        return pose.background, f"its laser-off frame {ff.frames[pose.background].file}"
+    flood = ff.frames[pose.flood].file
+    if mode == "pose":
+        return pose.flood, f"its pose's flood frame {flood} (--laser-background pose)"
+    match = same_light(ff.read(i), ff.read(pose.flood))
+    if room_light:
+        return pose.flood, f"its pose's flood frame {flood} (room light; {match.reason()})"
+    if match.agree:
+        return pose.flood, f"its pose's flood frame {flood} (the same light: {match.reason()})"
+    return None, f"none: its pose's flood frame {flood} was taken under other light ({match.reason()})"
+
+
+def _paired(ff: FrameFolder, poses: list[_Pose], mode: str, room_light: bool,
+            along: str) -> tuple[list[_Pose], dict]:
+    """The poses with each laser frame's laser-off frame chosen, and what was chosen per laser frame."""
+    if mode not in BACKGROUND_MODES:
+        raise CalibrationError(f"--laser-background {mode!r}: one of {', '.join(BACKGROUND_MODES)}")
+    out, used = [], {}
+    for pose in poses:
+        chosen = [_laser_off_of(ff, pose, i, mode, room_light) for i in pose.laser]
+        used.update({i: why for i, (_, why) in zip(pose.laser, chosen)})
+        noise = [frame_noise_dn(ff.read(i)) if off is None else difference_noise(ff.read(i), ff.read(off))
+                 for i, (off, _) in zip(pose.laser, chosen)]
+        skip = [None if off is not None else _scene_not_laser(ff, pose, i, along) for i, (off, _) in
+                zip(pose.laser, chosen)]
+        out.append(replace(pose, laser_off=tuple(off for off, _ in chosen), laser_noise=tuple(noise),
+                           laser_skip=tuple(skip)))
+    return out, used
+
+
+def _scene_not_laser(ff: FrameFolder, pose: _Pose, i: int, along: str) -> str | None:
+    """Why laser frame ``i``, found without a subtraction, shows the scene and not the laser, or None."""
+    off = pose.background if pose.background is not None else pose.flood
+    frame = ff.read(i)
+    shared = shared_fraction(frame, ff.read(off), along=along, saturation_dn=ff.saturation_dn(frame))
+    if shared <= SHARED_FRACTION:
+        return None
+    return (f"no laser line: {100 * shared:.0f} % of what it shows is in its pose's laser-off frame "
+            f"{ff.frames[off].file} too (the print, not the laser), and no laser-off frame was subtracted")
+
+
+def _laser_report(ff: FrameFolder, poses, fit: _Fit, spec, along: str, detector: str, used: dict,
+                  plane) -> tuple[list[dict], list[str]]:
+    """Per laser pose: its frames, the background used, the points found, on the board and in the plane fit."""
+    rows, notes, pts = [], [], {}
+    for pose in poses:
+        if not pose.laser:
+            continue
+        files = [ff.frames[i].file for i in pose.laser]
+        row = {"pose": pose.index, "laser_frames": files, "background": [used[i] for i in pose.laser],
+               "points_found": 0, "points_on_board": 0, "points_on_line": 0, "points_in_plane_fit": 0}
+        if pose.index not in fit.poses:
+            row["note"] = "the pattern was not found in its flood-lit frame: no plane to lift the line onto"
+        else:
+            counts: dict = {}
+            pts[pose.index] = _pose_laser(ff, pose, fit, spec, along, detector, counts)
+            row.update(points_found=counts.get("found", 0), points_on_board=counts.get("on_board", 0),
+                       points_on_line=counts.get("on_line", 0))
+            if len(pts[pose.index]) >= 3:
+                row["line_residual_mm"] = _line_residual(pts[pose.index])
+            if row["points_on_line"] < 3:
+                row["note"] = _no_line(row, pose)
+                notes.append(f"pose {pose.index} ({', '.join(files)}): {row['note']}")
+        rows.append(row)
+    if plane is not None:
+        _count_plane_inliers(rows, pts, plane)
+    for row in rows:
+        if plane is None:
+            row["points_in_plane_fit"] = None
+        row["dropped"] = {"off_the_pattern": max(row["points_found"] - row["points_on_board"], 0),
+                          "off_its_line": row["points_on_board"] - row["points_on_line"],
+                          "plane_fit_outliers": None if plane is None else
+                          row["points_on_line"] - row["points_in_plane_fit"]}
+    return rows, notes
+
+
+def _no_laser_anywhere(ff: FrameFolder, poses) -> None:
+    """Refuse laser frames of which none had a laser-off frame subtracted and none shows the line."""
+    laser = [(pose, i, off) for pose in poses for i, off in zip(pose.laser, pose.laser_off)]
+    if not laser or any(off is not None for _, _, off in laser):
+        return
+    shown = "; ".join(f"pose {p.index}: {ff.frames[i].file}" for p, i, _ in laser[:4])
+    shown += " …" if len(laser) > 4 else ""
+    raise CalibrationError(
+        f"no laser line on the pattern in any of the {len(laser)} laser frame(s), and none had a laser-off frame "
+        "subtracted: on a lit board the line is only the difference of a laser frame and the same view with the "
+        "laser off. Take each pose twice with the same exposure, laser off and laser on, and give both the pose's "
+        "id (light 'flood' and 'laser'; import --room-light), or --laser-background pose (" + shown + ")")
+
+
+def _line_residual(points_mm: np.ndarray) -> dict:
+    """How straight a pose's laser points are: distances from their total-least-squares 3-D line [mm]."""
+    c = points_mm.mean(axis=0)
+    d = np.linalg.svd(points_mm - c, full_matrices=False)[2][0]
+    r = np.linalg.norm(np.cross(points_mm - c, d), axis=1)
+    return {"median": float(np.median(r)), "rms": float(np.sqrt(np.mean(r**2))), "p95": float(np.percentile(r, 95)),
+            "length": float(np.ptp((points_mm - c) @ d))}
+
+
+def _no_line(row: dict, pose: _Pose) -> str:
+    skips = [s for s in pose.laser_skip if s]
+    if skips:
+        return skips[0]
+    if row["points_found"] == 0:
+        bg = "" if any(off is not None for off in pose.laser_off) else " (no laser-off frame subtracted)"
+        return f"no laser line found{bg}: it adds nothing to the laser plane"
+    return (f"{row['points_found']} laser points found, {row['points_on_board']} on the printed pattern, "
+            f"{row['points_on_line']} on one straight line there: it adds nothing to the laser plane")
+
+
+def _count_plane_inliers(rows: list[dict], pts: dict, plane) -> None:
+    """Each pose's points within the plane fit's outlier threshold (the same rule as :func:`fit_laser_plane`)."""
+    used = {k: v for k, v in pts.items() if len(v) >= 3}
+    if not used:
+        return
+    allp = np.concatenate(list(used.values()))
+    try:
+        _, keep = fit_laser_plane(allp)
+    except CalibrationError:
+        return
+    start = 0
+    for k, v in used.items():
+        n = int(keep[start:start + len(v)].sum())
+        start += len(v)
+        next(r for r in rows if r["pose"] == k)["points_in_plane_fit"] = n
+
+
+def _lines_on_one_plane(points: dict, poses: list, fit: _Fit, notes: list) -> tuple[dict, list]:
+    """The poses whose laser line lies on the plane the lines share; the others left out, said.
+
+    A pose's line lies off the plane when its points' median distance from the robust plane
+    of all exceeds ``OFF_PLANE_PX`` pixels of the pose's footprint (``z / f``): a pattern's
+    edge or a reflection taken for the line, a pose's plane found wrong.
+
+    With two poses there is no majority: either line off their common plane refuses both.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 2 poses' lines on one plane.
+    """
+    if len(points) < 2:
+        return points, poses
+    plane = _plane_and_spread(points)[0]
+    off = {}
+    for k, p in points.items():
+        footprint_mm = float(np.median(p[:, 2])) / fit.camera.focal_px
+        px = float(np.median(np.abs(p @ plane[:3] + plane[3]))) / footprint_mm
+        if px > OFF_PLANE_PX:
+            off[k] = px
+    if not off:
+        return points, poses
+    if len(points) - len(off) < 2 or (len(points) == 2 and off):
+        corners = sorted(fit.used.values())
+        raise CalibrationError(f"the laser lines found on {len(points)} poses do not lie on one plane (median "
+                               f"{min(off.values()):.3g} … {max(off.values()):.3g} px off the plane of all): either "
+                               "what was found is not the laser's line (on a lit board subtract each pose's laser-off "
+                               "frame: --laser-background auto or pose) or the poses' planes are off (a pattern too "
+                               f"small to fix each pose: {corners[0]}–{corners[-1]} corners per pose, reprojection "
+                               f"{fit.rms_px:.3g} px RMS)")
+    for k, px in sorted(off.items()):
+        notes.append(f"pose {k}: its laser line lies {px:.3g} px (median) off the plane the other poses' lines "
+                     "share: left out")
+    why = "its line lies off the plane the other poses' lines share"
+    poses = [replace(p, laser_skip=tuple(why for _ in p.laser)) if p.index in off else p for p in poses]
+    return {k: v for k, v in points.items() if k not in off}, poses
 
 
 def _plane_and_spread(points: dict) -> tuple[np.ndarray, float, int, dict]:
@@ -1065,9 +1575,10 @@ def _table_planes(poses, fit: _Fit, table: FrameFolder | None, spec, refine: str
     if table is None:
         return planes
     k, d = fit.camera.camera_matrix, fit.camera.dist_coeffs
+    views = frame_views(table.rig, (table.rows, table.columns), spec, table.stripe_along)
     for pose in _group_poses(table):
         rec = table.frames[pose.flood]
-        det = detect_pattern(table.read(pose.flood), spec, refine=refine, file=rec.file)
+        det = detect_pattern(table.read(pose.flood), spec, refine=refine, file=rec.file, views=views)
         if det is None or len(det) < 6:
             notes.append(f"table {rec.file}: skipped: pattern {spec.text} not found")
             continue
@@ -1097,6 +1608,7 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
                             pixel_pitch_um: float | None = None, f_number: float | None = None,
                             distortion: str = "k1k2", refine: str = "model",
                             detector: str = "cog", stripe_along: str | None = None, table=None,
+                            laser_background: str = "auto", room_light: bool | None = None,
                             progress: ProgressCallback | None = None) -> TargetResult:
     """Calibrate the camera and the laser plane from a folder of pattern frames (module docstring).
 
@@ -1129,6 +1641,15 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
         A folder of the pattern standing on the rotary table (``render target --on-table``): its poses,
         found with the calibrated camera, give the rotary axis (:func:`rotary_axis_from_planes`).
         Table poses (``angle_deg``) in ``folder`` itself count too.
+    laser_background : {"auto", "pose", "none"}, default "auto"
+        What is subtracted from a laser frame before its line is found: a pose's laser-off frame
+        (``light`` "background") always, unless "none"; otherwise its flood-lit frame — "pose":
+        always, "auto": when the two were taken under the same light
+        (:func:`scheimpflug.calibration.laser_background.same_light`) or in room light.
+    room_light : bool, optional
+        The set was taken in room light: each pose's flood frame is its laser frames' laser-off
+        frame (a warning where their light disagrees).  Default: the manifest's
+        ``scenario_params.room_light``.
     progress : ProgressCallback, optional
         ``progress(done, total)`` over the flood frames.
 
@@ -1142,7 +1663,9 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
     CalibrationError
         One line naming the problem: the pattern found in no frame (with the size it seems to
         have), fewer than 3 usable poses, parallel poses, laser frames without their flood-lit
-        frame, the laser on fewer than 2 poses, an unknown tilt or distortion mode.
+        frame, the laser on fewer than 2 poses, an unknown tilt, distortion or laser-background
+        mode, flood frames of one pose showing it in different places, laser frames of which none
+        had its laser-off frame subtracted and none shows the line (take laser-off frames).
     MeshError
         A bad pattern spec.
     """
@@ -1150,10 +1673,15 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
     spec = parse_pattern(pattern)
     if distortion not in DISTORTION_MODELS:
         raise CalibrationError(f"unknown distortion model {distortion!r} (known: {', '.join(DISTORTION_MODELS)})")
-    poses = _group_poses(ff)
+    if room_light is None:
+        room_light = bool(ff.scenario_params.get("room_light", False))
+    notes: list[str] = []
+    poses = _group_poses(ff, notes if room_light else None)
     if not poses:
         raise CalibrationError(f"{str(ff.path)!r} holds no flood-lit frame of the pattern (light 'flood')")
+    poses, background_used = _paired(ff, poses, laser_background, room_light, stripe_along or ff.stripe_along)
     dets, skipped = _detect_all(ff, poses, spec, refine, progress)
+    _merge_repeats(ff, poses, dets, skipped, spec, refine, notes)
     if not dets:
         raise CalibrationError(f"pattern {spec.text} found in 0 of {len(poses)} flood-lit frames"
                                + _size_hint(ff, poses, spec))
@@ -1166,11 +1694,12 @@ def calibrate_target_folder(folder: str | Path | FrameFolder, pattern: str, *, t
     pitch = pixel_pitch_um or ff.rig_value("sensor", "pixel_pitch_um")
     has_laser = any(p.laser and p.index in dets for p in poses)
     mode = _tilt_mode(tilt, rig_cam, has_laser, pitch)
-    notes = [f"{s['file']}: skipped: {s['reason']}" for s in skipped]
+    notes += [f"{s['file']}: skipped: {s['reason']}" for s in skipped]
     f_number = f_number or ff.rig_value("lens", "f_number")
     table_ff = None if table is None else (table if isinstance(table, FrameFolder) else open_frame_folder(table))
     return _calibrate_found(ff, poses, dets, skipped, spec, size, rig_cam, pitch, mode, distortion,
-                            detector, stripe_along or ff.stripe_along, notes, f_number, table_ff, refine)
+                            detector, stripe_along or ff.stripe_along, notes, f_number, table_ff, refine,
+                            background_used)
 
 
 def _untilted(camera: OpenCVCamera) -> OpenCVCamera:
@@ -1196,14 +1725,20 @@ def _start_camera(dets: dict, spec, size, rig_cam: OpenCVCamera | None, mode: st
 
 
 def _calibrate_found(ff, poses, dets, skipped, spec, size, rig_cam, pitch, mode, distortion, detector, along,
-                     notes, f_number, table=None, refine="model") -> TargetResult:
+                     notes, f_number, table=None, refine="model", background_used=None) -> TargetResult:
     flags = _flags(distortion, mode == "free", square=mode in ("focus", "rig"))
     fit = _calibrate(dets, spec, size, _start_camera(dets, spec, size, rig_cam, mode), flags)
     points = _laser_points(ff, poses, fit, spec, along, detector)
     plane, plane_rms, n_laser, plane_sigma, tilt_info = None, math.nan, 0, {}, {"mode": mode}
     if not points and any(p.laser for p in poses):
+        _no_laser_anywhere(ff, poses)
         notes.append("no laser point on the pattern in any laser frame: a camera calibration only")
+    if len(points) == 1:
+        notes.append(f"the laser line on one pose only (pose {next(iter(points))}): no laser plane (it needs the line "
+                     "on 2 poses or more); its points are in laser_poses")
+        points = {}
     if points:
+        points, poses = _lines_on_one_plane(points, poses, fit, notes)
         plane = _plane_and_spread(points)[0]
         if mode == "focus":
             fit, plane = _refocus(ff, poses, dets, spec, size, fit, plane, pitch, flags, along, detector)
@@ -1232,7 +1767,10 @@ def _calibrate_found(ff, poses, dets, skipped, spec, size, rig_cam, pitch, mode,
         notes.append(f"{len(planes)} table pose(s) found: the rotary axis needs at least 3")
     cal = _calibration(fit, plane, planes, spec, size, skipped + lost, used, plane_rms, n_laser,
                        {**fit.stderr, **plane_sigma}, tilt_info, len(ff))
-    return TargetResult(cal, dets, fit.poses, points, tuple(notes))
+    laser_poses, laser_notes = _laser_report(ff, poses, fit, spec, along, detector, background_used or {}, plane)
+    nominal, nominal_notes = _nominal_check(ff, fit, plane, tilt_info, pitch)
+    return TargetResult(cal, dets, fit.poses, points, tuple(notes + laser_notes + nominal_notes), laser_poses,
+                        nominal)
 
 
 def _calibration(fit: _Fit, plane, table_planes, spec, size, skipped, used, plane_rms, n_laser, stderr, tilt_info,

@@ -44,8 +44,8 @@ from pathlib import Path
 from scheimpflug.errors import LockError, ScheimpflugError
 from scheimpflug.io.atomic import write_text_atomic
 
-__all__ = ["LEDGER_NAME", "LOCK_NAME", "MANAGED_NAMES", "PROBE_PREFIX", "FileLedger", "FolderLock", "file_record",
-           "make_writable_folder", "unwritable_reason"]
+__all__ = ["LEDGER_NAME", "LOCK_NAME", "MANAGED_NAMES", "PROBE_PREFIX", "FileLedger", "FolderLock", "bytes_mismatch",
+           "describe_owner", "file_record", "lock_owner", "make_writable_folder", "unwritable_reason"]
 
 LOCK_NAME = ".scheimpflug.lock"
 """Lock file of a folder being written (:class:`FolderLock`)."""
@@ -113,7 +113,19 @@ def _owner() -> dict:
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "program": " ".join(sys.argv)[:200]}
 
 
-def _describe(owner: dict | None) -> str:
+def describe_owner(owner: dict | None) -> str:
+    """A lock owner in words: pid, host, start and program (:func:`lock_owner`).
+
+    Parameters
+    ----------
+    owner : dict or None
+        The lock file's content.
+
+    Returns
+    -------
+    str
+        E.g. "pid 41 on host 'lab' since 2025-01-02T03:04:05+0000 (scheimpflug render …)".
+    """
     if not owner:
         return "another process (no owner recorded)"
     return (f"pid {owner.get('pid')} on host {owner.get('host')!r} since {owner.get('started')} "
@@ -130,6 +142,31 @@ def _pid_alive(pid) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def lock_owner(folder: str | os.PathLike) -> tuple[dict | None, bool]:
+    """Who holds or held a folder's lock, and whether that process still runs (read only).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder.
+
+    Returns
+    -------
+    owner : dict or None
+        The lock file's owner (pid, host, started, program); None without a lock file.
+    alive : bool
+        The owner runs on this host now (its pid exists); False for a lock left by a killed
+        writer (stale) or one of another host (unknown).
+    """
+    try:
+        data = json.loads((Path(folder) / LOCK_NAME).read_text("utf-8") or "null")
+    except (OSError, ValueError):
+        return None, False
+    if not isinstance(data, dict):
+        return None, False
+    return data, data.get("host") == socket.gethostname() and _pid_alive(data.get("pid"))
 
 
 class FolderLock:
@@ -175,7 +212,7 @@ class FolderLock:
         return data if isinstance(data, dict) else None
 
     def _busy(self, owner: dict | None) -> ScheimpflugError:
-        return self.error(f"folder {str(self.folder)!r} is being written by {_describe(owner)}: "
+        return self.error(f"folder {str(self.folder)!r} is being written by {describe_owner(owner)}: "
                           "one writer at a time; wait for it to finish or stop it (a lock left by a "
                           f"crashed writer is taken over automatically; {LOCK_NAME} names the owner)")
 
@@ -293,6 +330,28 @@ def file_record(path: str | os.PathLike) -> dict:
     return {"bytes": size, "sha256": digest}
 
 
+def bytes_mismatch(data: bytes, want: dict) -> str | None:
+    """Why a file's content is not the one a ledger recorded, or None (size, then SHA-256).
+
+    Parameters
+    ----------
+    data : bytes
+        The file's content.
+    want : dict
+        Its record, ``{"bytes": int, "sha256": str}``.
+
+    Returns
+    -------
+    str or None
+        "N bytes, recorded M" or "content differs from its record (SHA-256)"; None when it matches.
+    """
+    if len(data) != want.get("bytes"):
+        return f"{len(data)} bytes, recorded {want.get('bytes')}"
+    if hashlib.sha256(data).hexdigest() != want.get("sha256"):
+        return "content differs from its record (SHA-256)"
+    return None
+
+
 class FileLedger:
     """The ``checksums.jsonl`` of a folder: what each finished frame's files must be.
 
@@ -382,6 +441,18 @@ class FileLedger:
             if file_record(p)["sha256"] != want.get("sha256"):
                 return f"{rel}: content differs from its record (SHA-256)"
         return None
+
+    def by_file(self) -> dict[str, dict]:
+        """Every recorded file's record, by its path relative to the folder.
+
+        Returns
+        -------
+        dict of str to dict
+            ``"frames/00005.png"`` → ``{"bytes", "sha256"}`` (the last record of a frame wins).
+        """
+        with self._mutex:
+            return {rel: dict(rec) for i in sorted(self.records) for rel, rec in self.records[i].items()
+                    if isinstance(rec, dict)}
 
     def write_sorted(self) -> None:
         """Rewrite the ledger atomically, one line per frame in frame order."""

@@ -12,6 +12,22 @@ frame or an unsupported dtype (only 8- and 16-bit grayscale), values above the
 manifest's ADC range (``adc_bits``; MSB-aligned codes — every value a multiple of
 ``2**(16 − adc_bits)`` — are accepted and saturate at ``(2**adc_bits − 1) ·
 2**(16 − adc_bits)``), a frame listed twice (:func:`check_distinct_frames`).
+
+Edited or interrupted folders:
+
+* a manifest saying ``"complete": false`` (a render interrupted, or still
+  running) is refused, saying how to resume it (the render's own command, from
+  its lock file when one was left) or naming the process still writing it;
+  ``allow_incomplete=True`` uses the frames present, with a warning;
+* a frame that ``checksums.jsonl`` records (what ``render`` wrote:
+  :class:`scheimpflug.io.folder.FileLedger`) is verified when it is read — its
+  size, then its SHA-256 — and a frame replaced or altered since is refused,
+  naming it (a few ms per frame: the file is read once, hashed and decoded from
+  memory);
+* in a rotary scan (scenario ``rotary``) two frames at one ``angle_deg`` are
+  warned about, naming them, and so are angles out of frame order in a folder
+  written by ``render`` or ``import`` (both list frames in angle order: two
+  angles swapped by an edit).
 """
 
 from __future__ import annotations
@@ -20,6 +36,7 @@ import hashlib
 import json
 import math
 import os
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -31,6 +48,7 @@ import cv2
 import numpy as np
 
 from scheimpflug.errors import FrameError
+from scheimpflug.io.folder import LEDGER_NAME, FileLedger, bytes_mismatch, describe_owner, lock_owner
 from scheimpflug.model.rig import KEY_RANGES, key_in_range
 
 __all__ = ["MAX_SIDE_PX", "STRIPE_ALONG", "FrameFolder", "FrameRecord", "check_distinct_frames", "open_frame_folder",
@@ -97,6 +115,9 @@ class FrameFolder:
         Which way the laser stripe runs in the frames (the manifest's ``stripe_along``,
         default "columns": down the image, one stripe point per row; "rows": across it,
         one point per column — :func:`scheimpflug.stripe.oriented`).
+    checksums : dict, optional
+        Frame file (relative, as the manifest lists it) → ``{"bytes", "sha256"}`` recorded in the
+        folder's ``checksums.jsonl`` when it was written; :meth:`read` verifies a frame against it.
     """
 
     path: Path
@@ -108,6 +129,7 @@ class FrameFolder:
     columns: int
     adc_bits: int | None = None
     stripe_along: str = "columns"
+    checksums: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -146,11 +168,33 @@ class FrameFolder:
             If the file is missing, unreadable, corrupt, not grayscale, not 8-
             or 16-bit, or not of the folder's shape (see :func:`read_frame`), or
             holds values above the manifest's ADC range ``2**adc_bits − 1`` that
-            are not MSB-aligned codes (every value a multiple of the shift).
+            are not MSB-aligned codes (every value a multiple of the shift), or
+            is not the file ``checksums.jsonl`` records (size or SHA-256).
         """
-        frame = read_frame(self.frame_path(i), (self.rows, self.columns))
+        want = self.checksums.get(self.frames[i].file)
+        if want is None:
+            frame = read_frame(self.frame_path(i), (self.rows, self.columns))
+        else:
+            frame = self._read_verified(i, want)
         self._check_adc_range(i, frame)
         return frame
+
+    def _read_verified(self, i: int, want: dict) -> np.ndarray:
+        """Read a frame's bytes once, check them against their ledger record, decode them."""
+        p = self.frame_path(i)
+        try:
+            data = p.read_bytes()
+        except FileNotFoundError:
+            raise FrameError(f"frame {str(p)!r} does not exist") from None
+        except OSError as exc:
+            raise FrameError(f"frame {str(p)!r} cannot be read: {exc.strerror or exc}") from None
+        reason = bytes_mismatch(data, want)
+        if reason:
+            raise FrameError(f"frame {str(p)!r} is not the file that was written there ({reason}, "
+                             f"{LEDGER_NAME}): it was replaced or altered since; render the folder again with "
+                             "the same command (frames that do not match their record are rendered again)")
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+        return _checked_image(p, img, (self.rows, self.columns))
 
     def _check_adc_range(self, i: int, frame: np.ndarray) -> None:
         """Refuse values above the manifest's ADC range unless they are MSB-aligned codes."""
@@ -366,7 +410,11 @@ def read_frame(path: str | Path, expected_shape: tuple[int, int] | None = None) 
     p = Path(path)
     if not p.is_file():
         raise FrameError(f"frame {str(p)!r} does not exist")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    return _checked_image(p, cv2.imread(str(p), cv2.IMREAD_UNCHANGED), expected_shape)
+
+
+def _checked_image(p: Path, img: np.ndarray | None, expected_shape: tuple[int, int] | None) -> np.ndarray:
+    """A decoded frame checked as :func:`read_frame` says (None: not decodable)."""
     if img is None:
         raise FrameError(f"frame {str(p)!r} is unreadable or corrupt (not a PNG OpenCV can decode)")
     if img.ndim == 3 and img.shape[2] == 1:
@@ -458,16 +506,23 @@ def _sensor_shape(mpath: Path, rig: Any) -> tuple[int, int, int | None] | None:
     return rows, cols, _whole(mpath, sensor, "adc_bits", 1, 16, False)
 
 
-def open_frame_folder(path: str | Path) -> FrameFolder:
+def open_frame_folder(path: str | Path, *, allow_incomplete: bool = False, opt_in: str | None = None) -> FrameFolder:
     """Open and validate a frame folder (manifest and file list; frames read lazily).
 
     Every listed frame must exist; the first one is decoded to check (or, with
-    no rig in the manifest, to set) the frame size.
+    no rig in the manifest, to set) the frame size.  The folder's
+    ``checksums.jsonl``, where there is one, is kept to verify each frame when it
+    is read (:meth:`FrameFolder.read`).
 
     Parameters
     ----------
     path : str or Path
         The folder holding ``manifest.json`` and ``frames/`` (docs/reference/interface.md).
+    allow_incomplete : bool, default False
+        Open a folder whose manifest says ``"complete": false`` (an interrupted
+        render) with the frames present, and warn; by default it is refused.
+    opt_in : str, optional
+        How the caller's user allows that (e.g. "pass --allow-incomplete"), said in the refusal.
 
     Returns
     -------
@@ -479,14 +534,23 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     FrameError
         Naming the file and the reason: a missing folder or manifest, bad JSON,
         a missing or empty ``frames`` list, a malformed entry or non-finite
-        number, a missing frame file, a rig without integer sensor rows and
-        columns, a non-object ``scenario_params``, or a bad first frame
-        (:func:`read_frame`).
+        number, a manifest saying ``"complete": false`` (how to resume the render,
+        or which process still writes it), a missing frame file, a rig without
+        integer sensor rows and columns, a non-object ``scenario_params``, or a
+        bad first frame (:func:`read_frame`).
+
+    Warns
+    -----
+    UserWarning
+        An unfinished folder opened with ``allow_incomplete``; in a rotary scan, two
+        frames at one angle or angles out of frame order (module docstring); frames that
+        ``checksums.jsonl`` does not record (not verified).
     """
     folder = Path(path)
     data = _load_manifest(folder)
     mpath = folder / "manifest.json"
     records = tuple(_record(mpath, i, e) for i, e in enumerate(data["frames"]))
+    records = _complete_records(folder, data, records, allow_incomplete, opt_in)
     for rec in records:
         if not (folder / rec.file).is_file():
             raise FrameError(f"frame {str(folder / rec.file)!r} listed in {str(mpath)!r} does not exist")
@@ -502,9 +566,96 @@ def open_frame_folder(path: str | Path) -> FrameFolder:
     along = data.get("stripe_along", "columns")
     if along not in STRIPE_ALONG:
         raise FrameError(f"{str(mpath)!r}: stripe_along = {along!r:.40} must be one of {', '.join(STRIPE_ALONG)}")
+    for note in _angle_notes(data, records):
+        warnings.warn(f"{str(mpath)!r}: {note}", stacklevel=2)
     return FrameFolder(path=folder, rig=data.get("rig"), scenario=data.get("scenario"),
                        scenario_params=params, frames=records, rows=int(rows), columns=int(cols),
-                       adc_bits=bits, stripe_along=along)
+                       adc_bits=bits, stripe_along=along, checksums=_checksums(folder, records))
+
+
+def _complete_records(folder: Path, data: dict, records: tuple, allow: bool, opt_in: str | None) -> tuple:
+    """The records to use: all of a finished folder; of an unfinished one, refused or the frames present."""
+    complete = data.get("complete")
+    if complete is None or complete is True:
+        return records
+    if complete is not False:
+        raise FrameError(f"{str(folder / 'manifest.json')!r}: complete = {complete!r:.40} must be true or false")
+    present = tuple(r for r in records if (folder / r.file).is_file())
+    text = _unfinished(folder, records, present)
+    if not present:
+        raise FrameError(f"{text}; no frame is written yet")
+    if not allow:
+        raise FrameError(text + (f"; or {opt_in} to use the {len(present)} frames present" if opt_in else ""))
+    warnings.warn(f"{text}; using the {len(present)} frames present", stacklevel=3)
+    return present
+
+
+def _unfinished(folder: Path, records: tuple, present: tuple) -> str:
+    """Why a folder whose manifest says "complete": false is unfinished, and what to do."""
+    missing = next((r.file for r in records if not (folder / r.file).is_file()), None)
+    head = (f"frame folder {str(folder)!r} is unfinished: its manifest.json says \"complete\": false "
+            f"({len(present)} of {len(records)} frames written" + (f", first missing {missing})" if missing else ")"))
+    owner, alive = lock_owner(folder)
+    if alive:
+        return f"{head}: it is being written now by {describe_owner(owner)}; wait for it to finish"
+    command = (owner or {}).get("program")
+    how = (f"run its command again to resume it: {command}" if command else
+           "run the same `scheimpflug render` command again to resume it")
+    since = f" (pid {owner.get('pid')}, started {owner.get('started')}, no longer runs)" if owner else ""
+    return (f"{head}: the render that writes it was interrupted{since}; {how} — frames already finished are "
+            f"kept (verified against {LEDGER_NAME})")
+
+
+def _checksums(folder: Path, records: tuple) -> dict:
+    """The ledger's record of each listed frame; warns about frames it does not record."""
+    if not (folder / LEDGER_NAME).is_file():
+        return {}
+    recorded = FileLedger(folder).by_file()
+    sums = {r.file: recorded[r.file] for r in records if r.file in recorded}
+    unrecorded = [r.file for r in records if r.file not in recorded]
+    if unrecorded:
+        warnings.warn(f"{str(folder / LEDGER_NAME)!r} does not record {len(unrecorded)} of the {len(records)} "
+                      f"frames (first {unrecorded[0]}): they are used unverified", stacklevel=3)
+    return sums
+
+
+def _angle_notes(data: dict, records: tuple) -> list[str]:
+    """Warnings about a rotary scan's angles: two frames at one angle; angles out of frame order."""
+    if data.get("scenario") != "rotary":
+        return []
+    indexed = [(i, r) for i, r in enumerate(records) if r.angle_deg is not None]
+    notes = _same_angle_note(indexed)
+    if "render" in data or data.get("source") == "scheimpflug import":   # writers that list frames in angle order
+        notes += _order_note(indexed, "render" if "render" in data else "import")
+    return notes
+
+
+def _same_angle_note(indexed: list) -> list[str]:
+    seen: dict[float, tuple[int, str]] = {}
+    pairs = []
+    for i, r in indexed:
+        if r.angle_deg in seen:
+            pairs.append((*seen[r.angle_deg], i, r))
+        seen.setdefault(r.angle_deg, (i, r.file))
+    if not pairs:
+        return []
+    j, first, i, r = pairs[0]
+    more = f" ({len(pairs)} such frames)" if len(pairs) > 1 else ""
+    return [f"frames[{j}] ({first}) and frames[{i}] ({r.file}) are at the same angle_deg = {r.angle_deg:g}{more}: "
+            "one view counted twice, or a typo in the manifest"]
+
+
+def _order_note(indexed: list, writer: str) -> list[str]:
+    a = np.array([r.angle_deg for _, r in indexed])
+    step = np.diff(a)
+    if not (np.any(step > 0) and np.any(step < 0)):
+        return []
+    sign = 1.0 if np.sum(step > 0) >= np.sum(step < 0) else -1.0
+    k = int(np.flatnonzero(step * sign < 0)[0])
+    (i0, r0), (i1, r1) = indexed[k], indexed[k + 1]
+    return [f"the angles are out of frame order: frames[{i1}] ({r1.file}) at {r1.angle_deg:g}° follows frames[{i0}] "
+            f"({r0.file}) at {r0.angle_deg:g}°, though `{writer}` lists frames in angle order: was the manifest "
+            "edited (angles swapped)?"]
 
 
 def scenario_number(folder: FrameFolder, key: str, default: float, lo: float, hi: float) -> float:

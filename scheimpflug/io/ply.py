@@ -13,6 +13,8 @@ Point clouds are binary little-endian PLY with one ``vertex`` element::
     property float incidence_laser_deg   angle between surface normal and laser ray [deg]
     property float incidence_camera_deg  angle between surface normal and line of sight [deg]
     property uchar sweep_edge         1: a partly lit edge of the sheet's sweep, 0: not, 255: unknown
+    property uchar saturated          1: the stripe's peak was clipped in the point's row, 0: not, 255: unknown
+    property float centre_sigma_px    standard uncertainty of the stripe centre from the noise [px]
 
 (the point quality, :mod:`scheimpflug.point_quality`; NaN where a quality is
 unknown) which any viewer (MeshLab, CloudCompare, Open3D) shows coloured, and
@@ -58,8 +60,10 @@ __all__ = [
 _CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
                          ("blue", "u1"), ("angle_deg", "<f4"), ("row", "<i4"), ("intensity", "<f4"),
                          ("frame", "<i4"), ("stripe_width_px", "<f4"), ("snr", "<f4"),
-                         ("incidence_laser_deg", "<f4"), ("incidence_camera_deg", "<f4"), ("sweep_edge", "u1")])
-_QUALITY_FLOATS = ("stripe_width_px", "snr", "incidence_laser_deg", "incidence_camera_deg")
+                         ("incidence_laser_deg", "<f4"), ("incidence_camera_deg", "<f4"), ("sweep_edge", "u1"),
+                         ("saturated", "u1"), ("centre_sigma_px", "<f4")])
+_QUALITY_FLOATS = ("stripe_width_px", "snr", "incidence_laser_deg", "incidence_camera_deg", "centre_sigma_px")
+_QUALITY_FLAGS = ("sweep_edge", "saturated")
 _EDGE_UNKNOWN = 255
 _PLY_NAME = {"f4": "float", "u1": "uchar", "i4": "int"}
 
@@ -106,7 +110,8 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     cloud : PointCloud
         Points in the part frame [mm] with angle, row, intensity and frame
         index (stored as float32 / int32; frame −1 when unknown), and the
-        point quality (float32, NaN when unknown; ``sweep_edge`` uchar, 255 unknown).
+        point quality (float32, NaN when unknown; ``sweep_edge`` and ``saturated`` uchar,
+        255 unknown).
     comment : str, optional
         Extra header comment (one line: whitespace runs are collapsed, and
         non-ASCII characters escaped as Python's ``backslashreplace`` does, a
@@ -127,7 +132,9 @@ def write_point_cloud(path: str | os.PathLike, cloud: PointCloud, comment: str =
     data["frame"] = cloud.frame if cloud.frame is not None else -1
     for name in _QUALITY_FLOATS:
         data[name] = getattr(cloud, name) if getattr(cloud, name) is not None else np.nan
-    data["sweep_edge"] = _EDGE_UNKNOWN if cloud.sweep_edge is None else np.asarray(cloud.sweep_edge, bool)
+    for name in _QUALITY_FLAGS:
+        flag = getattr(cloud, name)
+        data[name] = _EDGE_UNKNOWN if flag is None else np.asarray(flag, bool)
     lines = ["ply", "format binary_little_endian 1.0",
              "comment scheimpflug point cloud; part frame; units mm; colour = height (viridis)"]
     lines += [f"comment {_ascii(comment)}"] if comment else []
@@ -297,7 +304,8 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
         Points (n, 3) float64 [mm] (part frame for the clouds this toolkit
         writes); ``angle_deg`` and ``intensity`` NaN and ``row`` and
         ``frame`` −1 where the file lacks them; each quality field None
-        where the file lacks it (``sweep_edge`` also when every value is 255, unknown).
+        where the file lacks it (``sweep_edge`` and ``saturated`` also when every value is 255,
+        unknown).
 
     Raises
     ------
@@ -319,9 +327,10 @@ def read_point_cloud(path: str | os.PathLike) -> PointCloud:
 
     xyz = np.column_stack([get("x", 0), get("y", 0), get("z", 0)])
     quality = {name: data[name].astype(np.float64) for name in _QUALITY_FLOATS if name in data}
-    edge = data.get("sweep_edge")
-    if edge is not None and np.any(edge != _EDGE_UNKNOWN):
-        quality["sweep_edge"] = edge == 1
+    for name in _QUALITY_FLAGS:
+        flag = data.get(name)
+        if flag is not None and np.any(flag != _EDGE_UNKNOWN):
+            quality[name] = flag == 1
     return PointCloud(xyz_mm=xyz, angle_deg=get("angle_deg", np.nan),
                       row=get("row", -1).astype(np.int64), intensity=get("intensity", np.nan),
                       frame=get("frame", -1).astype(np.int64), **quality)

@@ -9,7 +9,11 @@
   the same command (or a file a frame folder manages), or an existing file
   without ``--force`` (:func:`add_force_option`), and an unwritable folder;
 * :func:`print_json`: exactly one JSON object on stdout, with ``null`` where a
-  value is undefined (JSON has no NaN or infinity).
+  value is undefined (JSON has no NaN or infinity);
+* frame folders: :func:`add_allow_incomplete_option` (``--allow-incomplete``) and
+  :func:`open_frames`, which opens a folder as the option says (an unfinished
+  render — manifest ``"complete": false`` — is refused with how to resume it,
+  or used as far as it got with a warning).
 """
 
 from __future__ import annotations
@@ -28,8 +32,8 @@ from scheimpflug.io.atomic import finite_json
 from scheimpflug.io.folder import MANAGED_NAMES, unwritable_reason
 from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig
 
-__all__ = ["PLOT_FORMATS", "add_force_option", "add_rig_options", "check_output", "check_plot",
-           "finite_json", "integer", "number", "print_json", "rig_from_args"]
+__all__ = ["PLOT_FORMATS", "add_allow_incomplete_option", "add_force_option", "add_rig_options", "check_output",
+           "check_plot", "finite_json", "integer", "number", "open_frames", "print_json", "rig_from_args"]
 
 
 def add_rig_options(parser: argparse.ArgumentParser) -> None:
@@ -177,3 +181,40 @@ def check_plot(path: str | os.PathLike | None, option: str = "--plot", **kwargs)
         raise ScheimpflugError(f"{option} {str(path)!r}: unknown image format {shown} "
                                f"(known: {', '.join('.' + e for e in PLOT_FORMATS)})")
     check_output(path, option, **kwargs)
+
+
+# ------------------------------------------------------------------ frame folders
+
+
+def add_allow_incomplete_option(parser: argparse.ArgumentParser) -> None:
+    """``--allow-incomplete``: use the frames present in a folder whose render was interrupted."""
+    parser.add_argument("--allow-incomplete", action="store_true",
+                        help="use the frames present in a frame folder whose render was interrupted (its "
+                             "manifest says \"complete\": false); default: refused, saying how to resume it")
+
+
+def open_frames(path: str | os.PathLike, args: argparse.Namespace):
+    """Open a frame folder as ``--allow-incomplete`` says; the warnings it gives printed as one line each.
+
+    Returns
+    -------
+    FrameFolder
+        :func:`scheimpflug.io.frames.open_frame_folder` of ``path``.
+
+    Raises
+    ------
+    FrameError
+        As :func:`~scheimpflug.io.frames.open_frame_folder`; an unfinished folder without the option
+        says how to resume it, and that ``--allow-incomplete`` uses the frames present.
+    """
+    import warnings
+
+    from scheimpflug.io.frames import open_frame_folder
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        folder = open_frame_folder(path, allow_incomplete=bool(getattr(args, "allow_incomplete", False)),
+                                   opt_in="pass --allow-incomplete" if hasattr(args, "allow_incomplete") else None)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    return folder

@@ -32,7 +32,8 @@ def add_quality_options(p) -> None:
                    help=f"smallest stripe peak over the background noise of a point [-] (default "
                         f"{d.min_snr:g}: the centre's Cramér–Rao bound is then 0.1 px for a σ = 1.5 px "
                         f"stripe; with --no-quality-filter the detection threshold, default "
-                        f"{DETECTION_SNR:g})")
+                        f"{DETECTION_SNR:g}); a saturated point, whose clipped peak's SNR says nothing of "
+                        "its centre, is kept when its centre's σ is at most that bound for its width")
     g.add_argument("--keep-sweep-edges", action="store_true",
                    help="keep the points where the sheet enters or leaves the surface partly lit (the "
                         "same row empty in an adjacent frame and the point under half as bright as "

@@ -64,6 +64,10 @@ def add_target_options(p: argparse.ArgumentParser) -> None:
                    help="height range of the poses' centres (default: the view)")
     g.add_argument("--lights", help="frames per pose: flood,laser (default both)")
     g.add_argument("--laser-flood", type=number(0, 1e3), help="flood level in laser frames, 0 = off (default 0)")
+    g.add_argument("--room-light", type=number(0, 1e5, lo_open=True, unit="W/m²"), metavar="W_M2",
+                   help="the set as users take it in a lit room: the flood light (the room's) at W_M2 in every "
+                        "frame, the laser frames at the flood frames' exposure, so that each pose's flood frame is "
+                        "its laser frame's laser-off frame (calibrate --laser-background)")
     g.add_argument("--flood-exposure-ms", type=number(0, 1e6, lo_open=True, unit="ms"),
                    help="exposure of the flood frames (default: white paper at half the full well)")
     g.add_argument("--plate-mm", type=_pair("x", "mm"), metavar="WxH", help="plate size (default: pattern + border)")
@@ -105,14 +109,19 @@ def target_options(args) -> dict:
     Raises
     ------
     ScheimpflugError
-        Without ``--pattern``, with ``--on-table`` and ``--poses`` together, or ``--on-table``
-        without ``--step-deg``.
+        Without ``--pattern``, with ``--on-table`` and ``--poses`` together, ``--on-table``
+        without ``--step-deg``, or ``--room-light`` and another ``--flood-w-m2``.
     """
     if not args.pattern:
         raise ScheimpflugError("render target needs --pattern SPEC (e.g. chessboard:10x8:7)")
     if args.on_table and args.poses is not None:
         raise ScheimpflugError("--on-table and --poses exclude each other (the table's angles are the poses)")
     opts = {kw: getattr(args, opt) for opt, kw in TARGET_OPTIONS.items() if getattr(args, opt, None) is not None}
+    if getattr(args, "room_light", None) is not None:
+        if args.flood_w_m2 is not None and args.flood_w_m2 != args.room_light:
+            raise ScheimpflugError(f"--room-light {args.room_light:g} and --flood-w-m2 {args.flood_w_m2:g}: the room's "
+                                   "light is the flood light in room light; give one")
+        opts["room_light"] = True
     if args.on_table:
         if args.step_deg is None:
             raise ScheimpflugError("--on-table needs --step-deg D (the table's step) [deg]")
@@ -140,7 +149,7 @@ def camera_rig(args, rig, scenario: str):
     from sim.camera_pass import DEFAULT_SPP
     from sim.target import DEFAULT_FLOOD_W_M2
 
-    flood = args.flood_w_m2
+    flood = args.flood_w_m2 if getattr(args, "room_light", None) is None else args.room_light
     spp = args.camera_spp
     if scenario == "target":
         if flood is None and rig.environment.flood_irradiance_w_m2 == 0:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from scheimpflug.app.commands._common import number, print_json
+from scheimpflug.app.commands._common import add_allow_incomplete_option, number, open_frames, print_json
 
 
 def add_parser(sub):
@@ -24,8 +24,19 @@ def add_parser(sub):
                    help="cross-check: frame folder of a cylinder turning on the stage")
     p.add_argument("--cylinder-radius-mm", type=number(0, 1e4, lo_open=True, unit="mm"), default=50.0,
                    help="radius of that cylinder [mm] (default 50: the paper's Ø100 mm)")
+    add_allow_incomplete_option(p)
     p.set_defaults(func=_run)
     return p
+
+
+def _check_stripe_direction(calibration, folder) -> None:
+    """Refuse a folder whose stripe_along contradicts the calibration (issue 34 item 3)."""
+    from scheimpflug.calibration.direction import stripe_direction_problem
+    from scheimpflug.errors import CalibrationError
+
+    problem = stripe_direction_problem(calibration, folder.columns, folder.rows, folder.stripe_along)
+    if problem:
+        raise CalibrationError(f"the calibration cannot be applied to {str(folder.path)!r}: {problem}")
 
 
 def _run(args) -> int:
@@ -33,11 +44,16 @@ def _run(args) -> int:
     from scheimpflug.calibration import load_calibration
 
     cal = load_calibration(args.calibration)
-    res = locate_axis(args.dir, cal, blocker_thickness_mm=args.blocker_thickness_mm)
+    blocker = open_frames(args.dir, args)
+    cylinder = open_frames(args.cylinder_scan, args) if args.cylinder_scan else None
+    for folder in (blocker, cylinder):
+        if folder is not None:
+            _check_stripe_direction(cal, folder)
+    res = locate_axis(blocker, cal, blocker_thickness_mm=args.blocker_thickness_mm)
     out = res.to_json_dict()
     cyl = None
     if args.cylinder_scan:
-        cyl = locate_axis_from_cylinder(args.cylinder_scan, cal, args.cylinder_radius_mm)
+        cyl = locate_axis_from_cylinder(cylinder, cal, args.cylinder_radius_mm)
         out["cylinder"] = cyl.to_json_dict()
         out["cylinder_minus_blocker_mm"] = cyl.axis_mm - res.axis_mm
     for name, reason in res.skipped:

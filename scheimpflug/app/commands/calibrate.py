@@ -7,11 +7,13 @@ import sys
 import warnings
 
 from scheimpflug.app.commands._common import (
+    add_allow_incomplete_option,
     add_force_option,
     check_output,
     check_plot,
     finite_json,
     number,
+    open_frames,
     print_json,
 )
 
@@ -79,6 +81,11 @@ def add_parser(sub):
                    help="which way the laser line runs in the image: columns (down the image, one point per "
                         "row) or rows (default: the frame folder's, as import --stripe-along recorded it; "
                         "else columns)")
+    t.add_argument("--laser-background", choices=("auto", "pose", "none"), default="auto",
+                   help="what is subtracted from a laser frame before its line is found: its pose's laser-off "
+                        "frame (light 'background') always, unless none; else its pose's flood-lit frame — pose: "
+                        "always, auto (default): when the two were taken under the same light (their difference "
+                        "outside the line within the noise) or the set in room light (import --room-light)")
     g = p.add_argument_group("stated accuracy (a warning when 2 standard errors exceed it)")
     g.add_argument("--accuracy-hinge-px", type=float, default=0.5, help="u_h and v_h [px] (default 0.5)")
     g.add_argument("--accuracy-relative", type=float, default=5e-4,
@@ -86,6 +93,7 @@ def add_parser(sub):
     g.add_argument("--accuracy-d0-resolution", type=float, default=0.1,
                    help="d0, in units of the distance resolution at the centre column (default 0.1)")
     add_force_option(p)
+    add_allow_incomplete_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=_run)
     return p
@@ -167,11 +175,23 @@ def _target_summary(res) -> str:
                      f"{c.laser_points} points, {c.laser_plane_rms_mm:.4f} mm RMS; σ normal "
                      f"{pm('laser_plane_normal_deg')[3:] or '–'}°, "
                      f"distance {pm('laser_plane_distance_mm')[3:] or '–'} mm")
+    lines += _laser_pose_lines(res.laser_poses)
     if c.axis:
         lines.append(f"  axis     axis_mm = {c.axis['axis_mm']:.3f} mm ({c.axis['poses']} table poses; "
                      f"{c.axis['angle_to_sheet_deg']:.3f}° to the sheet, "
                      f"{c.axis['distance_to_sheet_mm']:.3f} mm off it)")
     return "\n".join(lines)
+
+
+def _laser_pose_lines(laser_poses) -> list[str]:
+    """One line per laser pose: points found, on the board, in the plane fit, and what was subtracted."""
+    out = []
+    for row in laser_poses:
+        bg = row["background"][0].split(" (")[0] if row["background"] else "none"
+        out.append(f"           pose {row['pose']}: {row['points_found']} found, {row['points_on_board']} on the "
+                   f"pattern, {row['points_on_line']} on its line, {row['points_in_plane_fit'] or 0} in the plane fit; "
+                   f"subtracted: {bg}")
+    return out
 
 
 def _run_target(args) -> int:
@@ -190,15 +210,19 @@ def _run_target(args) -> int:
         from scheimpflug.model.rig import load_rig
 
         pitch = load_rig(args.rig).sensor.pixel_pitch_um
+    folder = open_frames(args.dir, args)
     with Progress(0, label="calibrate", quiet=args.quiet) as bar:
-        res = calibrate_target_folder(args.dir, args.pattern, tilt=args.tilt, pixel_pitch_um=pitch,
+        res = calibrate_target_folder(folder, args.pattern, tilt=args.tilt, pixel_pitch_um=pitch,
                                       distortion=args.distortion, refine=args.refine, detector=args.detector,
                                       stripe_along=args.stripe_along, table=args.on_table,
-                                      f_number=args.f_number, progress=bar)
+                                      f_number=args.f_number, laser_background=args.laser_background,
+                                      progress=bar)
     for w in res.warnings:
         print(f"warning: {w}", file=sys.stderr)
     d = finite_json(res.calibration.to_json_dict())
     d["warnings"] = list(res.warnings)
+    d["laser_poses"] = finite_json(list(res.laser_poses))
+    d["nominal"] = finite_json(res.nominal)
     if args.out:
         write_json_atomic(args.out, d)
     if args.opencv:
@@ -220,7 +244,6 @@ def _run(args) -> int:
     from scheimpflug.app.progress import Progress
     from scheimpflug.calibration import CalibrationAccuracy
     from scheimpflug.io.atomic import write_json_atomic
-    from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.sheet_model import calibrate_sheet_folder
 
     acc = CalibrationAccuracy(hinge_px=args.accuracy_hinge_px, relative=args.accuracy_relative,
@@ -228,7 +251,7 @@ def _run(args) -> int:
     check_output(args.out, "--out", force=args.force, inputs=[args.rig], folders=[args.dir])
     check_output(args.opencv, "--opencv", force=args.force, inputs=[args.rig, args.out], folders=[args.dir])
     check_plot(args.plot, force=args.force, inputs=[args.rig, args.out, args.opencv], folders=[args.dir])
-    folder = open_frame_folder(args.dir)
+    folder = open_frames(args.dir, args)
     f_mm, p_um, assumed = _optics(args, folder)
     with warnings.catch_warnings(), Progress(0, label="calibrate", quiet=args.quiet) as bar:
         warnings.simplefilter("ignore")

@@ -15,6 +15,7 @@ from scheimpflug.app.commands._common import (
     print_json,
     rig_from_args,
 )
+from scheimpflug.calibration.detectability import format_square_advice, square_advice
 from scheimpflug.errors import RigError
 from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.rig import Rig, rig_to_toml
@@ -45,7 +46,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "design",
         help="design report of a rig (tilt, hinge, ranges, resolution) or an inverse design",
         description="Print the hinge-rule design of a rig: sensor tilt, hinge, calibration constants, "
-                    "depth and height ranges, resolutions (docs/explanation/design-notes.md §3, paper Eqs. 5, 11, 12). "
+                    "depth and height ranges, resolutions (docs/explanation/design-notes.md §3, paper Eqs. 5, 11, 12), "
+                    "and the printed calibration patterns it can detect at binnings 1, 2 and 4. "
                     "With --near-mm/--far-mm, find instead the sheet angle or baseline, tilt and sensor "
                     "placement that cover a wanted working range with the rig's lens and sensor.",
     )
@@ -76,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         rig = _inverse(args, rig)
         source = (f"inverse design for {args.near_mm:g}–{args.far_mm:g} mm along the sheet, "
                   f"lens and sensor of {source}")
-    report = design_report(rig)
+    report = {**design_report(rig), "pattern_advice": square_advice(rig)}
     for w in report["warnings"]:
         print(f"scheimpflug design: warning: {w}", file=sys.stderr)
     if args.plot:
@@ -111,7 +113,11 @@ def _inverse(args: argparse.Namespace, rig: Rig) -> Rig:
 
 
 def format_report(rig: Rig, rep: dict, source: str) -> str:
-    """Human-readable design table with units and the paper's equation numbers."""
+    """Human-readable design table with units and the paper's equation numbers.
+
+    With ``rep["pattern_advice"]`` (:func:`scheimpflug.calibration.detectability.square_advice`),
+    the printed patterns the rig can detect at binnings 1, 2 and 4 close the table.
+    """
     L, S, s = rig.lens, rig.laser, rig.sensor
     lines = [
         f"Scheimpflug design — rig: {source}",
@@ -140,6 +146,7 @@ def format_report(rig: Rig, rep: dict, source: str) -> str:
         "  frame: origin at the lens centre, +x optical axis, +z up; D along the sheet from the object hinge",
         "",
         *_plan_lines(rig, rep),
+        *(format_square_advice(rep["pattern_advice"]) + [""] if "pattern_advice" in rep else []),
     ]
     return "\n".join(lines)
 

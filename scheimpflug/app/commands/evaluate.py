@@ -83,6 +83,13 @@ def _select(args, cloud):
     return xyz, dropped
 
 
+def _mismatch(xyz, vertices, distance_mm) -> str | None:
+    """A gross unit, scale or placement mismatch of cloud and mesh (``scale_warning``), or None."""
+    from scheimpflug.scoring import placement_mismatch, scale_mismatch
+
+    return scale_mismatch(xyz, vertices) or placement_mismatch(xyz, distance_mm, vertices)
+
+
 def _run(args) -> int:
     import numpy as np
 
@@ -92,13 +99,9 @@ def _run(args) -> int:
     cloud = read_point_cloud(args.cloud)
     xyz, dropped = _select(args, cloud)
     vertices, faces, ids = read_mesh(args.mesh)
-    from scheimpflug.scoring import scale_mismatch
-
-    scale = scale_mismatch(xyz, vertices)
-    if scale:
-        print(f"warning: {scale}", file=sys.stderr)
     pm = PointToMesh(vertices, faces)
     res = pm.query(xyz)
+    scale = _mismatch(xyz, vertices, res.distance_mm)
     labels_all = ids if ids is not None else body_labels(pm.faces)
     if ids is not None and len(ids) != len(pm.faces):
         from scheimpflug.errors import MeshError
@@ -129,6 +132,8 @@ def _run(args) -> int:
 
         out.update(score_model(pm, labels_all, args.model, samples=args.samples, seed=args.seed,
                                coverage_mm=args.coverage_mm))
+    if scale:
+        print(f"warning: {scale}", file=sys.stderr)
     _print(out, args)
     return 0
 

@@ -10,16 +10,19 @@ import sys
 import time
 
 from scheimpflug.app.commands._common import (
+    add_allow_incomplete_option,
     add_force_option,
     check_output,
     check_plot,
     number,
+    open_frames,
     print_json,
 )
 from scheimpflug.app.commands._model import add_model_options
 from scheimpflug.app.commands._quality import add_quality_options, detection_snr, quality_from_args
 
 _METHODS = ("gaussian3", "cog", "blais-rioux", "edge", "paper")
+_SATURATED_TEXT = {"edges": " centred on their edges", "drop": " dropped", "plateau": " centred on their plateau"}
 
 
 def add_parser(sub):
@@ -45,6 +48,7 @@ def add_parser(sub):
     axis.add_argument("--axis-from", metavar="DIR", help="locate the axis from a blocker folder")
     p.add_argument("--out", metavar="CLOUD.ply", help="output point cloud (needed for a folder)")
     add_force_option(p)
+    add_allow_incomplete_option(p)
     p.add_argument("--method", choices=_METHODS, default="cog",
                    help="sub-pixel stripe detector (default cog: the most accurate on rendered "
                         "and on speckled stripes, benchmarks/RESULTS.md; paper = the paper's red "
@@ -53,8 +57,16 @@ def add_parser(sub):
                    help="rule for rows with several peaks (inter-reflections): 'track' picks the "
                         "most continuous, narrow, bright one (default nearest)")
     add_quality_options(p)
-    p.add_argument("--keep-saturated", action="store_true",
-                   help="keep rows whose stripe peak is saturated (dropped by default: biased)")
+    sat = p.add_mutually_exclusive_group()
+    sat.add_argument("--saturated", choices=("edges", "drop", "plateau"), default="edges",
+                     help="rows whose stripe peak is saturated (cheap cameras clip the stripe): 'edges' "
+                          "(default) centres them on the midpoint of the clipped profile's two edges (at 0.3 "
+                          "of the plateau's height: scheimpflug.stripe), each point with its own uncertainty "
+                          "(PLY properties saturated, centre_sigma_px); 'drop' leaves them out (the default "
+                          "before issue 34); 'plateau' takes the middle of the run of saturated pixels (the "
+                          "old --keep-saturated)")
+    sat.add_argument("--keep-saturated", action="store_const", const="edges", dest="saturated",
+                     help="the same as --saturated edges")
     p.add_argument("--drop-isolated", action="store_true",
                    help="drop a row's stripe when neither adjacent row has one within 2 px "
                         "(lone detections: noise or stray light at a part's edge)")
@@ -70,12 +82,11 @@ def _calibration_axis(path) -> float | None:
     import math
 
     from scheimpflug.calibration import load_calibration
-    from scheimpflug.errors import ScheimpflugError
 
+    axis = getattr(load_calibration(path), "axis", None)      # a bad calibration is its own error (item 13)
     try:
-        axis = getattr(load_calibration(path), "axis", None)
         value = float(axis["axis_mm"]) if isinstance(axis, dict) else None
-    except (ScheimpflugError, OSError, ValueError, TypeError, KeyError):
+    except (ValueError, TypeError, KeyError):
         return None
     return value if value is not None and math.isfinite(value) else None
 
@@ -91,7 +102,9 @@ def _axis_mm(args, calibration, folder) -> tuple[float, str]:
         return float(args.axis_mm), "option"
     from scheimpflug.axis import locate_axis
 
-    res = locate_axis(args.axis_from, calibration)
+    blocker = open_frames(args.axis_from, args)
+    _check_stripe_direction(calibration, blocker)
+    res = locate_axis(blocker, calibration)
     for note in res.warnings:
         print(f"warning: --axis-from: {note}", file=sys.stderr)
     return float(res.axis_mm), f"located from {args.axis_from}"
@@ -122,6 +135,17 @@ def _check_folder(folder, calibration) -> None:
     problem = applicability_problem(calibration, folder)
     if problem:
         raise CalibrationError(f"the calibration cannot be applied to {str(folder.path)!r}: {problem}")
+    _check_stripe_direction(calibration, folder)
+
+
+def _check_stripe_direction(calibration, folder) -> None:
+    """Refuse a folder whose stripe_along contradicts the calibration (issue 34 item 3)."""
+    from scheimpflug.calibration.direction import stripe_direction_problem
+    from scheimpflug.errors import CalibrationError
+
+    problem = stripe_direction_problem(calibration, folder.columns, folder.rows, folder.stripe_along)
+    if problem:
+        raise CalibrationError(f"the calibration cannot be applied to {str(folder.path)!r}: {problem}")
 
 
 def _extract(folder, args):
@@ -131,7 +155,7 @@ def _extract(folder, args):
 
     with Progress(0, label="extract", quiet=args.quiet) as bar:
         return extract_folder_stripes(folder, args.method, min_snr=detection_snr(args),
-                                      keep_saturated=args.keep_saturated, progress=bar,
+                                      saturated=args.saturated, progress=bar,
                                       multi_peak=args.multi_peak, drop_isolated=args.drop_isolated)
 
 
@@ -171,13 +195,12 @@ def _check_outputs(args, is_cloud: bool) -> None:
 def _from_folder(args, t0: float):
     from scheimpflug.calibration import load_calibration
     from scheimpflug.errors import FrameError
-    from scheimpflug.io.frames import open_frame_folder
     from scheimpflug.io.ply import write_point_cloud
     from scheimpflug.reconstruct import reconstruct_profiles
 
     quality_from_args(args)                      # contradictory filter options: refused before any work
     calibration = load_calibration(args.calibration)
-    folder = open_frame_folder(args.dir)
+    folder = open_frames(args.dir, args)
     _check_folder(folder, calibration)
     axis_mm, axis_source = _axis_mm(args, calibration, folder)
     st = _extract(folder, args)
@@ -188,7 +211,8 @@ def _from_folder(args, t0: float):
     own_axis = args.axis_mm is None and not args.axis_from     # the calibration's, a line in 3-D
     cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in folder.frames], calibration,
                                  None if own_axis else axis_mm, intensity=st.peak, snr=st.snr,
-                                 stripe_width_px=st.stripe_width_px, along=st.along)
+                                 stripe_width_px=st.stripe_width_px, along=st.along, saturated=st.saturated,
+                                 centre_sigma_px=st.centre_sigma_px)
     if len(cloud):
         cloud, quality = _apply_quality(args, cloud, calibration, folder, axis_mm)
         if len(cloud) == 0:
@@ -199,15 +223,17 @@ def _from_folder(args, t0: float):
         saturated = (f"; {stats['saturated_frames']} of them saturated (most pixels at the saturation "
                      "level): lower the exposure" if stats["saturated_frames"] else "")
         raise FrameError(f"{args.dir}: no stripe found in any of the {len(folder)} frames "
-                         f"({stats['saturated_rows']} saturated rows dropped{saturated}): no usable frame")
+                         f"({stats['saturated_rows']} saturated rows{_SATURATED_TEXT[args.saturated]}{saturated}): "
+                         "no usable frame")
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
-               **stats, "quality_filter": quality, "seconds": round(time.perf_counter() - t0, 3)}
+               "saturated": args.saturated, **stats, "saturated_points": int(cloud.saturated.sum()),
+               "quality_filter": quality, "seconds": round(time.perf_counter() - t0, 3)}
     kept = (f"; quality filter: {_dropped_text(quality)} dropped of {quality['n_points']}"
             if quality["filter"] else "; no quality filter")
     print(f"reconstruct: {summary['n_points']} points from {summary['n_frames']} frames "
           f"({stats['blank_frames']} without stripe, {stats['saturated_rows']} saturated rows"
-          f"{' kept' if args.keep_saturated else ' dropped'}{kept}), axis {axis_mm:.3f} mm "
+          f"{_SATURATED_TEXT[args.saturated]}{kept}), axis {axis_mm:.3f} mm "
           f"({axis_source}), {summary['seconds']:.1f} s → {args.out}", file=sys.stderr)
     return cloud, folder, summary, lambda: write_point_cloud(
         args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
@@ -230,6 +256,7 @@ def _apply_quality(args, cloud, calibration, folder, axis_mm: float):
 
 def _dropped_text(q: dict) -> str:
     return (f"{q['n_points'] - q['n_kept']} ({q['low_snr']} SNR < {q['filter']['min_snr']:g}, "
+            f"{q['uncertain_saturated']} saturated with a centre less certain than that SNR gives, "
             f"{q['laser_incidence']} laser and {q['camera_incidence']} camera incidence > "
             f"{q['filter']['max_incidence_deg']:g}°, {q['sweep_edge']} on the sweep edge)")
 

@@ -30,6 +30,8 @@ import sys
 
 from scheimpflug.app.commands._common import add_rig_options, integer, number, print_json, rig_from_args
 from scheimpflug.app.commands._target import TARGET_OPTIONS, add_target_options, camera_rig, target_options
+from scheimpflug.calibration.detectability import format_pattern_advice, pattern_advice
+from scheimpflug.calibration.pattern import parse_pattern
 from scheimpflug.errors import RenderError, ScheimpflugError
 
 __all__ = ["CONFIRM_BYTES", "CONFIRM_FRAMES", "add_parser"]
@@ -46,7 +48,7 @@ _APPLIES = {
     "steps": ("calibration",), "step_mm": ("calibration",), "start_mm": ("calibration",),
     "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary", "target"),
     "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"),
-    "blocker_thickness_mm": ("blocker",),
+    "blocker_thickness_mm": ("blocker",), "room_light": ("target",),
     **{k: ("target",) for k in TARGET_OPTIONS},
     **{k: ("blocker", "rotary") for k in ("background", "background_material", "background_height_mm",
                                           "background_distance_mm")},
@@ -251,6 +253,8 @@ def _run(args) -> int:
     _check_spp(args.spp, rig)
     workers = _check_job(args, rig, opts)
     _check_out(args.out)
+    if args.scenario == "target":
+        _pattern_advice(args, rig, opts)
 
     def warn(msg):
         print(f"scheimpflug render: warning: {msg}", file=sys.stderr)
@@ -261,6 +265,28 @@ def _run(args) -> int:
     if args.json:
         print_json(_summary(args, stats, manifest, workers))
     return 0
+
+
+def _pattern_advice(args, rig, opts: dict) -> None:
+    """Say, before anything is rendered, whether this rig and read-out can find the pattern (stderr).
+
+    The scenario's options are checked first (:func:`sim.scenarios.build_scenario`: a bad option is
+    the one line of its error, not after the advice).  The advice of
+    :func:`scheimpflug.calibration.detectability.pattern_advice`: the squares' size in pixels over
+    the depth range and where the whole print fits; a pattern the rig cannot show whole and
+    resolved anywhere is a warning (it is legal to render it), printed with ``--quiet`` too.
+    """
+    from sim.scenarios import build_scenario
+
+    build_scenario("target", rig, seed=args.seed, **opts)
+    pattern, quiet = opts["pattern"], args.quiet
+    advice = pattern_advice(rig, parse_pattern(pattern))
+    if not quiet:
+        for line in format_pattern_advice(advice):
+            print(f"scheimpflug render: {line}", file=sys.stderr)
+    if advice.problem():
+        print(f"scheimpflug render: warning: {advice.problem()}; calibrate --method target will find it in few "
+              "poses, if any", file=sys.stderr)
 
 
 def _summary(args, stats, manifest, workers: int) -> dict:
