@@ -784,6 +784,41 @@ def _extends_beyond(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]
 #: (``cv2.findChessboardCornersSB``, ≈ 0.1–0.3 s a view; the quick pass, the quadrilateral detector
 #: with its quick check, ≈ 0.03 s, runs on every view) [-].
 SADDLE_VIEWS = 4
+#: Seed of OpenCV's global RNG before each chessboard search: ``findChessboardCornersSB`` draws from it,
+#: so without a seed its answer for one frame depended on what OpenCV did before in the process.
+CHESSBOARD_RNG_SEED = 0x5EED
+
+
+def _outer_ring_alternates(gray: np.ndarray, corners: np.ndarray, size: tuple[int, int]) -> bool:
+    """Whether a found grid sits on the squares: its outermost ring of squares alternates as its inner ones do.
+
+    Through the grid's homography, the centres of the squares between the corners alternate dark and
+    light with the board's contrast, and so do those of the outermost ring (half a step outside the
+    outer corners) on every side.  A grid OpenCV's quick passes lay across the print at a slant
+    (found where a board of another size is seen obliquely) samples that ring half on squares,
+    half on their edges: its contrast falls below half the inner squares'.
+    """
+    nc, nr = size
+    j, i = np.mgrid[0:nr, 0:nc]
+    h, _ = cv2.findHomography(np.c_[i.ravel(), j.ravel()].astype(np.float64), corners, 0)
+    if h is None:
+        return False
+
+    def sample(pts):
+        q = np.c_[pts, np.ones(len(pts))] @ h.T
+        uv = np.rint(q[:, :2] / q[:, 2:]).astype(np.int64)
+        inside = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < gray.shape[1]) & (uv[:, 1] < gray.shape[0])
+        return gray[uv[inside, 1], uv[inside, 0]].astype(np.float64) if inside.all() else None
+
+    inner = [sample(np.c_[np.arange(nc - 1) + 0.5, np.full(nc - 1, r + 0.5)]) for r in range(nr - 1)]
+    contrast = np.mean([np.abs(np.diff(v)).mean() for v in inner if v is not None and len(v) > 1] or [0.0])
+    rings = [np.c_[np.arange(-1, nc) + 0.5, np.full(nc + 1, pos)] for pos in (-0.5, nr - 0.5)]
+    rings += [np.c_[np.full(nr + 1, pos), np.arange(-1, nr) + 0.5] for pos in (-0.5, nc - 0.5)]
+    for ring in rings:
+        v = sample(ring)
+        if v is not None and np.abs(np.diff(v)).mean() < 0.5 * contrast:
+            return False
+    return contrast > 0
 
 
 def _chessboard_corners(gray: np.ndarray, spec, mode: str = "full") -> np.ndarray | None:
@@ -797,6 +832,7 @@ def _chessboard_corners(gray: np.ndarray, spec, mode: str = "full") -> np.ndarra
     """
     size = spec.grid_shape
     ok, c = False, None
+    cv2.setRNGSeed(CHESSBOARD_RNG_SEED)     # the detector draws from OpenCV's global RNG: the same answer always
     if mode in ("full", "saddles"):
         flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY if mode == "full" else 0
         ok, c = cv2.findChessboardCornersSB(gray, size, flags)
@@ -947,6 +983,8 @@ def _find_in_views(gray: np.ndarray, spec, views) -> tuple[np.ndarray, np.ndarra
             continue
         ids, c = found
         if view is not None:
+            if spec.kind == "chessboard" and not _outer_ring_alternates(warped[id(view)], c, spec.grid_shape):
+                continue            # a grid laid across the print at a slant, not on its squares
             c = view.image_from_view(c)
             if spec.kind == "chessboard" and _extends_beyond(gray, c, spec.grid_shape):
                 continue            # a sub-board in the frame itself (the view's margin may have hidden it)
