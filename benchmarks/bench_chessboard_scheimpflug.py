@@ -123,13 +123,11 @@ def _sharp(spec, z) -> bool:
     return bool(np.all(z["pattern_blur_px"] <= SHARP * step.ravel()))
 
 
-def _truth_plane(folder: Path, cam: dict) -> np.ndarray:
-    rig = rig_from_dict(json.loads((folder / "manifest.json").read_text())["rig"])
-    c = np.array(cam["camera_from_rig"])
-    g = hinge_geometry(rig)
-    n = c[:3, :3] @ g.sheet_normal
-    p = c[:3, :3] @ g.rig_from_sheet(600.0, 0.0) + c[:3, 3]
-    return np.array([*n, -n @ p]) if n @ p > 0 else -np.array([*n, -n @ p])
+def _truth_plane(folder: Path) -> np.ndarray:
+    """The twin's sheet in the camera frame of ``truth/rig_truth.json``'s ``opencv``."""
+    from sim.truth import opencv_laser_plane
+
+    return opencv_laser_plane(rig_from_dict(json.loads((folder / "manifest.json").read_text())["rig"]))
 
 
 def _poses(folder: Path, spec, cam: dict) -> dict:
@@ -190,7 +188,7 @@ def _figures(folder: Path, pattern: str) -> dict:
                reprojection_rms_px=d["reprojection_rms_px"], poses_used=len(d["poses_used"]),
                corner_rms_px=float(np.sqrt(np.nanmean(np.concatenate(errs) ** 2))) if errs else None)
     if d["laser_plane"] is not None:
-        pl, plane = np.array(d["laser_plane"]), _truth_plane(folder, cam)
+        pl, plane = np.array(d["laser_plane"]), _truth_plane(folder)
         row.update(plane_normal_deg=math.degrees(math.acos(min(1.0, abs(pl[:3] @ plane[:3])))),
                    plane_distance_mm=float(pl[3] - plane[3]), laser_points=d["laser_points"])
     return row

@@ -193,18 +193,15 @@ def _even(n_total: int, n: int) -> set:
 
 def _truth(folder: Path) -> dict:
     """The rig's sheet and axis in the twin's camera frame, and the camera-from-stage transform."""
-    from scheimpflug.model.hinge import hinge_geometry
     from scheimpflug.model.rig import rig_from_dict
     from sim.stages import rig_from_stage
+    from sim.truth import opencv_laser_plane
 
     m = json.loads((folder / "manifest.json").read_text())
     rt = json.loads((folder / "truth" / "rig_truth.json").read_text())
     rig = rig_from_dict(m["rig"])
     c = np.array(rt["opencv"]["camera_from_rig"])
-    g = hinge_geometry(rig)
-    n = c[:3, :3] @ g.sheet_normal
-    p = c[:3, :3] @ g.rig_from_sheet(600.0, 0.0) + c[:3, 3]
-    plane = np.array([*n, -n @ p]) if n @ p > 0 else -np.array([*n, -n @ p])
+    plane = opencv_laser_plane(rig)
     rs = rig_from_stage(rig)
     cs = c @ rs
     return {"plane": plane, "axis_point": cs[:3, 3], "axis_dir": cs[:3, 2], "camera_from_rig": c,

@@ -93,6 +93,7 @@ __all__ = [
     "TruthTolerances",
     "laser_origin_mm",
     "opencv_camera",
+    "opencv_laser_plane",
     "pixel_directions",
     "pixel_truth",
     "SECONDARY_PEAKS",
@@ -681,6 +682,28 @@ def opencv_camera(rig: Rig):
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = rot, -rot @ c
     return cam, m
+
+
+def opencv_laser_plane(rig: Rig) -> np.ndarray:
+    """The rig's laser sheet in the OpenCV camera frame of :func:`opencv_camera` (what a target calibration finds).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    (4,) float64
+        ``[a, b, c, d]``: the sheet's unit normal and its distance term, ``a·X + b·Y + c·Z + d = 0``,
+        with d < 0 (the normal points away from the camera) [-, mm].  The nominal sheet
+        (:func:`scheimpflug.model.hinge.hinge_geometry`): a frame's pointing drift is not in it.
+    """
+    _, camera_from_rig = opencv_camera(rig)
+    g = hinge_geometry(rig)
+    n = camera_from_rig[:3, :3] @ g.sheet_normal
+    p = camera_from_rig[:3, :3] @ g.rig_from_sheet(600.0, 0.0) + camera_from_rig[:3, 3]
+    return np.array([*n, -n @ p]) if n @ p > 0 else -np.array([*n, -n @ p])
 
 
 def _opencv_truth(rig: Rig) -> dict:

@@ -169,3 +169,13 @@ def calibration_folder(path, geo=Geometry(), scene=PlateScene(), cam=Camera(), *
     write_folder(path, frames, recs, rig=rig_dict(geo, cam),
                  scenario_params={"plate_height_mm": scene.height_mm})
     return Path(path), truths
+
+
+def grey_pngs(folder, names, shape=(20, 30), dtype=np.uint16) -> list[Path]:
+    """Flat grey PNG files, one per name, each of its own level (100, 101, …: no two alike) [DN]."""
+    paths = []
+    for k, n in enumerate(names):
+        p = Path(folder) / n
+        assert cv2.imwrite(str(p), np.full(shape, 100 + k, dtype))
+        paths.append(p)
+    return paths

@@ -302,3 +302,21 @@ def test_numbers_in_messages_are_numbers_not_numpy_reprs():
     with pytest.raises(CalibrationError) as info:
         check_laser_plane([np.float64(math.nan), np.float64(0.6), np.float64(0.8), np.float64(-10.0)])
     assert "np.float64" not in str(info.value) and "[nan, 0.6, 0.8, -10]" in str(info.value)
+
+
+def test_a_library_warning_is_one_line_on_the_command_line(tmp_path, capsys):
+    """A warning the command does not print itself (here: an old file's unknown frame size) is one line
+    naming the command, without Python's file, line number and source line (scheimpflug.app.cli)."""
+    path = _files(tmp_path)["paper"]
+    d = json.loads(path.read_text())
+    del d["columns"], d["rows"]
+    path.write_text(json.dumps(d))
+    scan = write_folder(tmp_path / "scan", [np.zeros((H, W), np.uint8)] * 3,
+                        [{"angle_deg": 10.0 * i} for i in range(3)], scenario="rotary")
+    capsys.readouterr()
+    main(["reconstruct", str(scan), "--calibration", str(path), "--axis-mm", "150", "--quiet",
+          "--out", str(tmp_path / "c.ply")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    warned = [x for x in lines if "records no frame size" in x]
+    assert len(warned) == 1 and warned[0].startswith("scheimpflug reconstruct: warning: "), lines
+    assert not any("UserWarning" in x or ".py:" in x for x in lines), lines

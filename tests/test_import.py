@@ -5,20 +5,14 @@ import json
 import cv2
 import numpy as np
 import pytest
+from synth_frames import grey_pngs
 
 from scheimpflug.app.cli import main
 from scheimpflug.errors import FrameError
 from scheimpflug.io.frames import open_frame_folder
 from scheimpflug.io.importer import import_frames, positions_from_csv, positions_from_names, target_frames
 
-
-def _frames(tmp_path, names, shape=(20, 30), dtype=np.uint16):
-    paths = []
-    for k, n in enumerate(names):
-        p = tmp_path / n
-        assert cv2.imwrite(str(p), np.full(shape, 100 + k, dtype))
-        paths.append(p)
-    return paths
+_frames = grey_pngs
 
 
 def test_positions_from_names_and_csv(tmp_path):

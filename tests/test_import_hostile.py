@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from synth_frames import grey_pngs
 
 from scheimpflug.app.cli import main
 from scheimpflug.errors import FrameError
@@ -50,13 +51,7 @@ def _fails(args, capsys, *needles):
     return err
 
 
-def _grey(tmp_path, names, shape=(20, 30), dtype=np.uint16):
-    paths = []
-    for k, n in enumerate(names):
-        p = tmp_path / n
-        assert cv2.imwrite(str(p), np.full(shape, 100 + k, dtype))
-        paths.append(p)
-    return paths
+_grey = grey_pngs
 
 
 def _stripe(seed, across=False, shape=(48, 64), peak=900.0, back=None):

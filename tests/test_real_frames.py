@@ -16,7 +16,7 @@ import pytest
 from fabscan_formulae import fabscan_points, rigid_rms
 
 from scheimpflug.app.cli import main
-from scheimpflug.calibration.fabscan import fabscan_angles_deg, read_fabscan
+from scheimpflug.calibration.fabscan import read_fabscan
 from scheimpflug.fixed_lines import fixed_line, line_inliers
 from scheimpflug.io.frames import open_frame_folder
 from scheimpflug.reconstruct import extract_folder_stripes, reconstruct_profiles
@@ -24,22 +24,6 @@ from scheimpflug.stripe import image_pixels
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real frames absent ({REAL}): see its README")
-
-
-
-
-
-
-@pytest.fixture(scope="module")
-def fabscan_scan(tmp_path_factory):
-    if not REAL.is_dir():
-        pytest.skip(f"real frames absent ({REAL})")
-    files = sorted(glob.glob(str(REAL / "fabscan" / "scan-2_1" / "*.jpg")))[:200:10]   # 20 of one turn
-    angles = fabscan_angles_deg(200, 6400, resolution=2)[:200:10]
-    out = tmp_path_factory.mktemp("fabscan") / "scan"
-    assert main(["import", *files, "--channel", "r", "--stripe-along", "rows",
-                 f"--angles-deg={','.join(f'{a:g}' for a in angles)}", "--out", str(out)]) == 0
-    return out
 
 
 @needs_real

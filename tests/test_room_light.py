@@ -28,15 +28,10 @@ FAST = {"tilt": "rig", "distortion": "none"}          # the pose bookkeeping nee
 
 
 def _truth_plane(folder):
-    from scheimpflug.model.hinge import hinge_geometry
     from scheimpflug.model.rig import rig_from_dict
+    from sim.truth import opencv_laser_plane
 
-    m = json.loads((folder / "manifest.json").read_text())
-    c = np.array(json.loads((folder / "truth" / "rig_truth.json").read_text())["opencv"]["camera_from_rig"])
-    g = hinge_geometry(rig_from_dict(m["rig"]))
-    n = c[:3, :3] @ g.sheet_normal
-    p = c[:3, :3] @ g.rig_from_sheet(600.0, 0.0) + c[:3, 3]
-    return np.array([*n, -n @ p]) if n @ p > 0 else -np.array([*n, -n @ p])
+    return opencv_laser_plane(rig_from_dict(json.loads((folder / "manifest.json").read_text())["rig"]))
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,6 @@ the quality filter and ``reconstruct`` on synthetic scans, and FabScan's real fr
 saying so, without ``../shared/realdata``).
 """
 
-import glob
 import json
 import math
 from pathlib import Path
@@ -213,20 +212,6 @@ def test_reconstruct_centres_clipped_rows_on_the_cylinder(tmp_path, rng, capsys)
 # ---------------------------------------------------------------- FabScan's real frames
 
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real frames absent ({REAL}): see its README")
-
-
-@pytest.fixture(scope="module")
-def fabscan_scan(tmp_path_factory):
-    if not REAL.is_dir():
-        pytest.skip(f"real frames absent ({REAL})")
-    from scheimpflug.calibration.fabscan import fabscan_angles_deg
-
-    files = sorted(glob.glob(str(REAL / "fabscan" / "scan-2_1" / "*.jpg")))[:200:10]   # 20 of one turn
-    angles = fabscan_angles_deg(200, 6400, resolution=2)[:200:10]
-    out = tmp_path_factory.mktemp("fabscan") / "scan"
-    assert main(["import", *files, "--channel", "r", "--stripe-along", "rows", "--quiet",
-                 f"--angles-deg={','.join(f'{a:g}' for a in angles)}", "--out", str(out)]) == 0
-    return out
 
 
 def _along_scatter_px(st, saturated: bool) -> float:

@@ -186,6 +186,20 @@ class LightMatch:
                 f"±{100 * self.tolerance:.0f} %")
 
 
+def _pair(laser, laser_off, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """A laser frame and its laser-off frame as arrays of one shape (``dtype`` None: as they are).
+
+    Raises
+    ------
+    ValueError
+        Shapes that differ, naming both.
+    """
+    a, b = np.asarray(laser, dtype), np.asarray(laser_off, dtype)
+    if a.shape != b.shape:
+        raise ValueError(f"the laser frame is {a.shape}, the laser-off frame {b.shape}")
+    return a, b
+
+
 def same_light(laser, laser_off) -> LightMatch:
     """Whether ``laser_off`` is ``laser``'s view under the same light, the laser off (module docstring).
 
@@ -204,9 +218,7 @@ def same_light(laser, laser_off) -> LightMatch:
     ValueError
         Frames of different shapes.
     """
-    a, b = np.asarray(laser, np.float64), np.asarray(laser_off, np.float64)
-    if a.shape != b.shape:
-        raise ValueError(f"the laser frame is {a.shape}, the laser-off frame {b.shape}")
+    a, b = _pair(laser, laser_off)
     lit = _lit(b)
     noise = math.hypot(_noise_where(a, lit), _noise_where(b, lit))
     d = a - b
@@ -263,9 +275,7 @@ def subtract_background(frame, background) -> np.ndarray:
     ValueError
         Frames of different shapes.
     """
-    a, b = np.asarray(frame, np.float64), np.asarray(background, np.float64)
-    if a.shape != b.shape:
-        raise ValueError(f"the background is {b.shape}, the frame {a.shape}")
+    a, b = _pair(frame, background)
     return np.clip(a - b, 0.0, None)
 
 
@@ -370,9 +380,7 @@ def difference_noise(laser, laser_off, bins: int = 16) -> tuple[np.ndarray, np.n
     ValueError
         Frames of different shapes, fewer than 2 bins.
     """
-    a, b = np.asarray(laser, np.float64), np.asarray(laser_off, np.float64)
-    if a.shape != b.shape:
-        raise ValueError(f"the laser frame is {a.shape}, the laser-off frame {b.shape}")
+    a, b = _pair(laser, laser_off)
     if bins < 2:
         raise ValueError(f"bins must be >= 2, got {bins}")
     d, level = (a - b).ravel(), local_level(b).ravel()
@@ -421,9 +429,7 @@ def shared_fraction(laser, laser_off, *, along: str = "columns", detector: str =
     ValueError
         Frames of different shapes, a bad ``along``.
     """
-    a, b = np.asarray(laser), np.asarray(laser_off)
-    if a.shape != b.shape:
-        raise ValueError(f"the laser frame is {a.shape}, the laser-off frame {b.shape}")
+    a, b = _pair(laser, laser_off, None)
     mine = line_points(a, frame_noise_dn(a), along=along, detector=detector, saturation_dn=saturation_dn)
     theirs = line_points(b, frame_noise_dn(b), along=along, detector=detector, saturation_dn=saturation_dn)
     line, across = (1, 0) if along == "columns" else (0, 1)

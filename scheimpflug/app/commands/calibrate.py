@@ -84,8 +84,9 @@ def add_parser(sub):
     t.add_argument("--laser-background", choices=("auto", "pose", "none"), default="auto",
                    help="what is subtracted from a laser frame before its line is found: its pose's laser-off "
                         "frame (light 'background') always, unless none; else its pose's flood-lit frame — pose: "
-                        "always, auto (default): when the two were taken under the same light (their difference "
-                        "outside the line within the noise) or the set in room light (import --room-light)")
+                        "always, auto (default): when the two were taken under the same light (the print shows in "
+                        "their difference at no more than 25 %% of its contrast) or the set in room light "
+                        "(import --room-light)")
     g = p.add_argument_group("stated accuracy (a warning when 2 standard errors exceed it)")
     g.add_argument("--accuracy-hinge-px", type=float, default=0.5, help="u_h and v_h [px] (default 0.5)")
     g.add_argument("--accuracy-relative", type=float, default=5e-4,
