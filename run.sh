@@ -6,7 +6,8 @@
 #                                the gallery run, internal links checked; ARGS go to sphinx-build)
 #   bash run.sh CMD  [ARGS...]   any `scheimpflug` subcommand, e.g. design --preset paper
 # Set-up: Debian's libllvm19 (Mitsuba's CPU JIT needs libLLVM >= 17) when run as
-# root with apt, a virtual environment in .venv, and the project installed into it.
+# root with apt (and for `test` Debian's chromium, which the studio's browser tests drive), a virtual
+# environment in .venv, and the project installed into it.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 venv="$here/.venv"
@@ -53,6 +54,18 @@ fi
 
 job="${1:-demo}"
 [ $# -gt 0 ] && shift
+# The studio's browser tests (tests/test_studio_browser.py) drive Debian's Chromium through Playwright
+# (the test extra; its own browser download needs the internet): installed for `test` when absent.
+if [ "$job" = test ] && ! command -v chromium >/dev/null 2>&1; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        log "installing Debian's chromium (the studio's browser tests)"
+        if ! { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }; then
+            log "WARNING: could not install chromium; the studio's browser tests will be skipped"
+        fi
+    else
+        log "WARNING: no chromium and not root with apt; the studio's browser tests will be skipped"
+    fi
+fi
 cd "$here"
 case "$job" in
     test) exec "$venv/bin/python" -m pytest "$@" ;;

@@ -36,7 +36,7 @@ from scheimpflug.errors import MeshError
 from .part import MATERIALS, Part
 from .revolve import box_mesh
 
-__all__ = ["BACKGROUNDS", "BOARD_MM", "FIRST_ID", "background_parts"]
+__all__ = ["BACKGROUNDS", "BOARD_MM", "FIRST_ID", "background_parts", "oriented_board"]
 
 BACKGROUNDS = ("none", "walls", "box")
 #: thickness of a background board [mm]
@@ -57,6 +57,48 @@ def _board(name: str, centre, size, yaw_deg: float, material: str, object_id: in
     mesh.apply_transform(m)
     return Part(name, mesh, material, {"kind": "board", "size_mm": list(map(float, size)), "yaw_deg": yaw_deg,
                                        "centre_mm": list(map(float, centre)), "mesh_from_part": np.eye(4).tolist()},
+                object_id)
+
+
+def oriented_board(name: str, stage_from_board, length_mm: float, width_mm: float, thickness_mm: float,
+                   material: str, object_id: int) -> Part:
+    """A board of any orientation: its face the plane y = 0 of its own frame, the board behind it.
+
+    Parameters
+    ----------
+    name : str
+        The part's name.
+    stage_from_board : (4, 4) array_like float
+        Pose of the board frame in the stage frame: x along its length, y its face's normal
+        (toward the side seen), z along its width, the origin at the face's centre [mm].
+    length_mm, width_mm, thickness_mm : float
+        Extents along x, z and behind the face (−y) [mm], > 0.
+    material : str
+        Material tag (:data:`scenes.MATERIALS`).
+    object_id : int
+        The part's object id.
+
+    Returns
+    -------
+    Part
+        The board, its vertices in the stage frame; ``analytic`` records the pose and sizes.
+
+    Raises
+    ------
+    MeshError
+        An unknown material or a size that is not > 0.
+    """
+    if material not in MATERIALS:
+        raise MeshError(f"board {name!r}: material {material!r} unknown (known: {', '.join(MATERIALS)})")
+    sizes = (length_mm, width_mm, thickness_mm)
+    if not all(math.isfinite(x) and x > 0 for x in sizes):
+        raise MeshError(f"board {name!r}: length, width and thickness {sizes!r} mm must be > 0")
+    m = np.asarray(stage_from_board, dtype=float)
+    mesh = box_mesh(np.array([-0.5 * length_mm, -thickness_mm, -0.5 * width_mm]),
+                    np.array([0.5 * length_mm, 0.0, 0.5 * width_mm]))
+    mesh.apply_transform(m)
+    return Part(name, mesh, material, {"kind": "board", "size_mm": [float(x) for x in sizes],
+                                       "stage_from_board": m.tolist(), "mesh_from_part": np.eye(4).tolist()},
                 object_id)
 
 

@@ -23,6 +23,14 @@ sheet — the distance from the plane through that line perpendicular to the
 sheet.  The points of one wall are picked in the image (a column range) and
 kept by a seeded RANSAC line fit, so that the part's stripe where it crosses
 the range does not count.
+
+A still surface as a board of the twin's housing (:func:`wall_board`)
+    The wall's points, mapped by the calibration into its camera frame, lie on
+    one straight 3-D line (the sheet ∩ the wall).  One laser fixes that line,
+    not the wall's tilt about it; every tilt gives the same laser line, so the
+    board is taken through the line perpendicular to the sheet, its face toward
+    the camera (:class:`scheimpflug.model.housing.Board`).  Its length covers the
+    points and a margin; its width across the sheet is a choice.
 """
 
 from __future__ import annotations
@@ -31,7 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FixedLine", "fixed_line", "line_inliers"]
+from scheimpflug.model.housing import Board
+
+__all__ = ["FixedLine", "fixed_line", "line_inliers", "wall_board", "walls_of_folder"]
 
 
 @dataclass(frozen=True)
@@ -149,3 +159,101 @@ def fixed_line(stage_mm, h_mm, frame) -> FixedLine:
     return FixedLine(rms_mm=float(np.sqrt(np.mean(r ** 2))), bow_mm=float(q[0] * half ** 2),
                      stillness_mm=float(np.sqrt(np.mean(offsets ** 2))), length_mm=float(np.ptp(t)),
                      n_points=int(len(s)), n_frames=int(len(frames)))
+
+
+def wall_board(calibration, u_px, v_px, name: str, *, margin_mm: float = 10.0, width_mm: float = 60.0,
+               material: str = "cardboard") -> Board:
+    """The board of a still wall whose stripe points are given (module docstring).
+
+    Parameters
+    ----------
+    calibration : SheetModel
+        A calibration with the sheet in its camera frame (``camera_from_pixel``, ``sheet_frame``:
+        a target, general or FabScan calibration).
+    u_px, v_px : (n,) array_like float
+        The wall's stripe points, all frames (e.g. :func:`line_inliers` of a column range) [px].
+    name : str
+        The board's name.
+    margin_mm : float, default 10.0
+        Length added beyond the points at each end [mm].
+    width_mm : float, default 60.0
+        The board's extent across the sheet [mm].
+    material : str, default "cardboard"
+        Its material tag.
+
+    Returns
+    -------
+    Board
+        In the calibration's camera frame: the face through the points' 3-D line (total least
+        squares), perpendicular to the sheet, its normal toward the camera.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 finite points, or points that do not spread along a line.
+    """
+    p = np.asarray(calibration.camera_from_pixel(np.asarray(u_px, np.float64), np.asarray(v_px, np.float64)))
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < 2:
+        raise ValueError(f"a wall needs at least 2 finite points on the sheet, got {len(p)}")
+    c = p.mean(axis=0)
+    _, sv, vt = np.linalg.svd(p - c, full_matrices=False)
+    if not sv[0] > 0:
+        raise ValueError("the wall's points do not spread along a line (all at one point)")
+    d = vt[0]
+    _, e_s, e_h = calibration.sheet_frame()
+    n_sheet = np.cross(e_s, e_h)
+    normal = np.cross(n_sheet / np.linalg.norm(n_sheet), d)
+    normal /= np.linalg.norm(normal)
+    if normal @ c > 0:                       # the face toward the camera (at the origin)
+        normal = -normal
+    t = (p - c) @ d
+    centre = c + 0.5 * (t.min() + t.max()) * d
+    return Board(name, centre, normal, d, float(np.ptp(t)) + 2.0 * margin_mm, float(width_mm), 10.0, material)
+
+
+def walls_of_folder(folder, calibration, column_ranges, detector: str = "cog") -> tuple[tuple, list]:
+    """The still walls of a scan as housing boards, one column range of its frames per wall.
+
+    Parameters
+    ----------
+    folder : FrameFolder
+        The scan (:func:`scheimpflug.io.frames.open_frame_folder`; its ``stripe_along`` followed).
+    calibration : SheetModel
+        Its calibration, with the sheet in its camera frame (as :func:`wall_board`).
+    column_ranges : sequence of (float, float)
+        Image column ranges [px], one per wall, where its stripe shows.
+    detector : str, default "cog"
+        The stripe detector (:mod:`scheimpflug.stripe`).
+
+    Returns
+    -------
+    boards : tuple of Board
+        ``wall1``, ``wall2`` … in the calibration's camera frame (:func:`wall_board`).
+    figures : list of dict
+        Per wall: ``columns_px``, ``points`` and ``frames`` kept by :func:`line_inliers`, and
+        the straightness ``rms_mm`` of :func:`fixed_line`.
+
+    Raises
+    ------
+    ValueError
+        A range holding fewer than 3 stripe points.
+    """
+    from scheimpflug.reconstruct import extract_folder_stripes
+    from scheimpflug.stripe import image_pixels
+
+    st = extract_folder_stripes(folder, detector, keep_saturated=True)
+    u, v = image_pixels(np.concatenate(st.rows), np.concatenate(st.u), st.along)
+    frame = np.concatenate([np.full(len(r), i) for i, r in enumerate(st.rows)])
+    boards, figures = [], []
+    for i, (c0, c1) in enumerate(column_ranges):
+        sel = np.flatnonzero((u >= c0) & (u <= c1))
+        if len(sel) < 3:
+            raise ValueError(f"columns {c0:g}:{c1:g} hold {len(sel)} stripe points: no wall there")
+        sel = sel[line_inliers(u[sel], v[sel])]
+        boards.append(wall_board(calibration, u[sel], v[sel], f"wall{i + 1}"))
+        s, h = calibration.stage_from_pixel(u[sel], v[sel])
+        line = fixed_line(s, h, frame[sel])
+        figures.append({"columns_px": [float(c0), float(c1)], "points": int(len(sel)),
+                        "frames": line.n_frames, "rms_mm": line.rms_mm})
+    return tuple(boards), figures

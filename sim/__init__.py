@@ -5,7 +5,8 @@ Modules: :mod:`.variant` (Mitsuba variant and LLVM detection), :mod:`.scene`
 (the Gaussian light sheet), :mod:`.render` (light-tracing renderer onto the
 tilted thin-lens camera), :mod:`.sensor` (electrons → DN), :mod:`.stages`,
 :mod:`.truth` (exact ground truth from geometry), :mod:`.scenarios` and
-:mod:`.writer` (the frame folder); the physical light beyond the ideal twin:
+:mod:`.writer` (the frame folder); the camera chain of real scanners
+(:mod:`.chain`: glare, mosaic, blooming, tone, JPEG); the physical light beyond the ideal twin:
 :mod:`.lens` (the light tracer's camera connection), :mod:`.transport`
 (inter-reflections), :mod:`.subsurface` (random walks in translucent
 materials), :mod:`.speckle` (speckle attached to the lit surface).
@@ -32,6 +33,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 _EXPORTS = {
     "CameraPass": "sim.camera_pass",
     "CameraSettings": "sim.camera_pass",
+    "ChainModel": "sim.chain",
     "FrameSpec": "sim.scenarios",
     "LightSheet": "sim.lightsheet",
     "MaterialSettings": "sim.materials",
@@ -45,6 +47,7 @@ _EXPORTS = {
     "SimScene": "sim.scene",
     "StripeTruth": "sim.truth",
     "Twin": "sim.writer",
+    "apply_chain": "sim.chain",
     "apply_sensor": "sim.sensor",
     "build_scenario": "sim.scenarios",
     "frame_rng": "sim.sensor",

@@ -8,9 +8,16 @@ them with the flood light and the environment, and their stripe is in the frame'
 :func:`background_truth` cuts them by the sheet like the part and keeps, per row, the
 crossing with the smallest u as the primary (the stripe rule of :mod:`sim.truth`),
 ``stripe_count`` counting both.  ``truth/background.ply`` holds them in the stage frame.
+
+A scanner's housing (:mod:`scheimpflug.model.housing`, ``render --housing FILE``) is given in the
+instrument frame — the rig's OpenCV camera frame (:func:`sim.truth.opencv_camera`) — and placed
+in the stage frame by :func:`housing_parts`; it stands still like the walls and is in the
+truth the same way.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -18,9 +25,9 @@ from scheimpflug.model.camera import lens_centre_mm
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
-from .stages import axis_distance_mm, invert, rig_from_stage
+from .stages import axis_distance_mm, invert, ref_from_stage, rig_from_stage
 
-__all__ = ["MAX_DISTANCE_MM", "background_truth", "scan_background"]
+__all__ = ["MAX_DISTANCE_MM", "background_truth", "housing_parts", "scan_background"]
 
 
 #: farthest default distance of the background beyond the axis [mm] (a scanner's housing is that small)
@@ -48,7 +55,8 @@ def scan_background(rig: Rig, kind: str, material: str = "cardboard", height_mm:
     Returns
     -------
     tuple of scenes.Part
-        The boards (empty for ``"none"``).
+        The boards (empty for ``"none"``); for a table whose up is the stage's −z
+        (``axis_tilt_deg`` > 170), standing on the table's side, upward for the table.
 
     Raises
     ------
@@ -62,8 +70,53 @@ def scan_background(rig: Rig, kind: str, material: str = "cardboard", height_mm:
         d_far = float(max(g.distance_from_column([-0.5, rig.sensor.columns - 0.5])))
         distance_mm = min(d_far - axis_distance_mm(rig), MAX_DISTANCE_MM / 0.9)
     lens = invert(rig_from_stage(rig)) @ np.append(lens_centre_mm(rig), 1.0)     # the camera, stage frame
-    return background_parts(kind, distance_mm, rig.stage.rotary_table_z_mm, height_mm, material,
-                            view_dir=(-lens[0], -lens[1]))
+    if rig.stage.axis_tilt_deg < 90.0:
+        return background_parts(kind, distance_mm, rig.stage.rotary_table_z_mm, height_mm, material,
+                                view_dir=(-lens[0], -lens[1]))
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])      # a table up the stage's −z: built upright, turned back
+    lens = flip @ lens
+    parts = background_parts(kind, distance_mm, -rig.stage.rotary_table_z_mm, height_mm, material,
+                             view_dir=(-lens[0], -lens[1]))
+    return tuple(dataclasses.replace(q, mesh=q.mesh.copy().apply_transform(flip)) for q in parts)
+
+
+def housing_parts(rig: Rig, boards, first_id: int | None = None) -> tuple:
+    """A housing's boards as parts in the stage frame (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (its OpenCV camera frame is the boards' frame).
+    boards : sequence of scheimpflug.model.housing.Board
+        The boards, instrument (camera) frame.
+    first_id : int, optional
+        Object id of the first board (default :data:`scenes.backgrounds.FIRST_ID`).
+
+    Returns
+    -------
+    tuple of scenes.Part
+        One part per board, vertices in the stage frame.
+
+    Raises
+    ------
+    MeshError
+        An unknown material or a size that is not > 0.
+    """
+    from scenes.backgrounds import FIRST_ID, oriented_board
+
+    from .truth import opencv_camera
+
+    _, camera_from_rig = opencv_camera(rig)
+    stage_from_camera = invert(rig_from_stage(rig)) @ invert(camera_from_rig)
+    first = FIRST_ID if first_id is None else first_id
+    parts = []
+    for i, b in enumerate(boards):
+        camera_from_board = np.eye(4)
+        camera_from_board[:3, :3] = np.column_stack([b.length_dir, b.normal, np.cross(b.length_dir, b.normal)])
+        camera_from_board[:3, 3] = b.centre_mm
+        parts.append(oriented_board(b.name, stage_from_camera @ camera_from_board, b.length_mm, b.width_mm,
+                                    b.thickness_mm, b.material, first + i))
+    return tuple(parts)
 
 
 def _merge(a: dict, b: dict) -> dict:
@@ -104,7 +157,7 @@ def background_truth(rig: Rig, scenario, frame, caster, arrays: dict) -> dict:
     from .truth import stripe_truth
 
     mesh = _background_mesh(scenario)
-    bg = stripe_truth(rig, mesh[0], mesh[1], mesh[2], rig_from_stage(rig), np.eye(4), caster,
+    bg = stripe_truth(rig, mesh[0], mesh[1], mesh[2], rig_from_stage(rig), ref_from_stage(rig), caster,
                       rig_from_laser=frame.rig_from_laser).arrays()
     return _merge(arrays, bg)
 

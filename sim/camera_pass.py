@@ -65,9 +65,10 @@ import numpy as np
 
 from scheimpflug.errors import RenderError
 from scheimpflug.model.camera import SensorPose, lens_state, sensor_pose
+from scheimpflug.model.distortion import is_radial
 from scheimpflug.model.rig import Rig
 
-from .lens import floats
+from .lens import floats, undistort_tangents_dr
 from .lights import flood_light
 from .materials import channel_for_wavelength
 from .scene import SimScene
@@ -406,6 +407,9 @@ class CameraPass:
         xp = rel.x
         x = f * xp / (xp + f)
         lat = x / xp
+        if not is_radial(self.rig.lens):
+            ay, az = undistort_tangents_dr(self.rig, rel.y / xp, rel.z / xp)
+            return mi.Vector3f(x, x * ay, x * az)
         k1, k2 = self.rig.lens.k1, self.rig.lens.k2
         if k1 != 0.0 or k2 != 0.0:
             td = dr.sqrt((rel.y * rel.y + rel.z * rel.z) / (xp * xp))

@@ -23,11 +23,14 @@ import math
 import numpy as np
 
 from scheimpflug.model.camera import SensorPose, lens_state
+from scheimpflug.model.distortion import is_radial
 from scheimpflug.model.rig import Rig
 
 __all__ = [
     "LensConnection",
+    "distort_tangents_dr",
     "floats",
+    "undistort_tangents_dr",
 ]
 
 
@@ -45,6 +48,74 @@ def floats(v) -> list[float]:
         The elements in order.
     """
     return [float(c) for c in np.asarray(v, dtype=np.float64).ravel()]
+
+
+def _roll(rig: Rig) -> tuple[float, float]:
+    r = math.radians(rig.sensor.roll_deg)
+    return math.cos(r), math.sin(r)
+
+
+def _opencv_dr(lens, mx, my):
+    """OpenCV's distorted (x_d, y_d) of normalised (x, y), and the radial factor and its r²-slope."""
+    r2 = mx * mx + my * my
+    radial = 1.0 + r2 * (lens.k1 + r2 * (lens.k2 + r2 * lens.k3))
+    xd = mx * radial + 2.0 * lens.p1 * mx * my + lens.p2 * (r2 + 2.0 * mx * mx)
+    yd = my * radial + lens.p1 * (r2 + 2.0 * my * my) + 2.0 * lens.p2 * mx * my
+    slope = lens.k1 + r2 * (2.0 * lens.k2 + 3.0 * r2 * lens.k3)
+    return xd, yd, radial, slope
+
+
+def distort_tangents_dr(rig: Rig, ay, az):
+    """Distorted chief-ray tangents of object tangents in Dr.Jit (``model.distortion.distort_tangents``).
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (its lens's k1, k2, k3, p1, p2, aspect ratio; its sensor's roll).
+    ay, az : drjit Float
+        Object-side tangents y/x, z/x in the rig frame [-].
+
+    Returns
+    -------
+    tuple of drjit Float
+        The distorted tangents (a_d,y, a_d,z) [-].
+    """
+    c, s = _roll(rig)
+    xd, yd, _, _ = _opencv_dr(rig.lens, -(c * ay + s * az), -(-s * ay + c * az))
+    yd = yd * rig.lens.aspect_ratio
+    return -(c * xd - s * yd), -(s * xd + c * yd)
+
+
+def undistort_tangents_dr(rig: Rig, ady, adz, iterations: int = 10):
+    """Object tangents of distorted ones, in Dr.Jit: Newton on OpenCV's 2 × 2 model.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (lens distortion, sensor roll).
+    ady, adz : drjit Float
+        Distorted tangents in the rig frame [-].
+    iterations : int, default 10
+        Newton steps [-].
+
+    Returns
+    -------
+    tuple of drjit Float
+        The object tangents (a_y, a_z) [-].
+    """
+    lens = rig.lens
+    c, s = _roll(rig)
+    tx, ty = -(c * ady + s * adz), -(-s * ady + c * adz) / lens.aspect_ratio
+    mx, my = tx, ty
+    for _ in range(iterations):
+        xd, yd, radial, slope = _opencv_dr(lens, mx, my)
+        off = 2.0 * mx * my * slope + 2.0 * lens.p1 * mx + 2.0 * lens.p2 * my
+        ja = radial + 2.0 * mx * mx * slope + 2.0 * lens.p1 * my + 6.0 * lens.p2 * mx
+        jd = radial + 2.0 * my * my * slope + 6.0 * lens.p1 * my + 2.0 * lens.p2 * mx
+        rx, ry = xd - tx, yd - ty
+        det = ja * jd - off * off
+        mx, my = mx - (jd * rx - off * ry) / det, my - (ja * ry - off * rx) / det
+    return -(c * mx - s * my), -(s * mx + c * my)
 
 
 class LensConnection:
@@ -182,6 +253,9 @@ class LensConnection:
         k1, k2 = self.rig.lens.k1, self.rig.lens.k2
         px = p.x - cx
         mag = -f / (px - f)
+        if not is_radial(self.rig.lens):
+            ady, adz = distort_tangents_dr(self.rig, p.y / px, p.z / px)
+            return mi.Point3f(mag * px + cx, mag * px * ady, mag * px * adz)
         t2 = (p.y * p.y + p.z * p.z) / (px * px)
         dist = 1.0 + k1 * t2 + k2 * t2 * t2
         return mi.Point3f(mag * px + cx, mag * p.y * dist, mag * p.z * dist)

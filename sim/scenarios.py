@@ -67,6 +67,7 @@ from scheimpflug.model.rig import Rig, active_error_models
 from .lightsheet import pointing_pose
 from .sensor import exposure_scale
 from .stages import (
+    ref_from_stage,
     rig_from_plate,
     rig_from_stage,
     rotary_state,
@@ -527,9 +528,16 @@ def _plate_view_warnings(rig: Rig, frames) -> tuple[frozenset, tuple]:
         f"s = {listed} mm",)
 
 
+def _reference_pose(rig: Rig) -> np.ndarray:
+    """ref_from_part of the rotary part at θ = 0: stage frame or turntable frame (:func:`sim.stages.ref_from_stage`)."""
+    if rig.stage.axis_tilt_deg < 90.0:
+        return stage_from_part(rig, 0.0)           # the stage frame itself: bit for bit as before
+    return ref_from_stage(rig) @ stage_from_part(rig, 0.0)
+
+
 def _rotary_frames(rig: Rig, seed: int, angles) -> tuple:
     rig_from_st = rig_from_stage(rig)
-    ref_from_part = stage_from_part(rig, 0.0)
+    ref_from_part = _reference_pose(rig)
     return tuple(_rotary_frame(rig, seed, i, float(a), rig_from_st, ref_from_part)
                  for i, a in enumerate(angles))
 
@@ -592,31 +600,40 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
     specs = _rotary_frames(rig, seed, [0.0] * frames)
     params = {"frames": frames, "blocker_thickness_mm": thickness_mm, "part": "blocker",
               "blocker": assembly.parts[0].analytic}
-    scenario = Scenario("blocker", params, assembly, specs, stage_from_part(rig, 0.0),
+    scenario = Scenario("blocker", params, assembly, specs, _reference_pose(rig),
                         truth_pixels_every, tuple(axis_warnings(rig)))
     return _with_background(rig, scenario, background, background_material, background_height_mm,
                             background_distance_mm)
 
 
 def _with_background(rig: Rig, scenario: Scenario, kind: str, material: str, height_mm: float,
-                     distance_mm: float | None = None) -> Scenario:
-    """The scenario with background parts in the stage frame (none: unchanged, bit for bit)."""
+                     distance_mm: float | None = None, housing: str | None = None) -> Scenario:
+    """The scenario with background parts and a housing in the stage frame (none: unchanged, bit for bit)."""
     import dataclasses
 
-    from .backgrounds import background_truth, scan_background
+    from scenes.backgrounds import FIRST_ID
+    from scheimpflug.model.housing import load_housing
+
+    from .backgrounds import background_truth, housing_parts, scan_background
 
     parts = scan_background(rig, kind, material, height_mm, distance_mm)
-    if not parts:
+    boards = load_housing(housing) if housing is not None else ()
+    boxes = housing_parts(rig, boards, FIRST_ID + len(parts)) if boards else ()
+    if not parts and not boxes:
         return scenario
-    params = dict(scenario.params, background={"kind": kind, "material": material, "height_mm": height_mm,
-                                               "distance_mm": distance_mm, "parts": [p.analytic for p in parts]})
-    return dataclasses.replace(scenario, params=params, background=parts, frame_truth=background_truth)
+    params = dict(scenario.params)
+    if parts:
+        params["background"] = {"kind": kind, "material": material, "height_mm": height_mm,
+                                "distance_mm": distance_mm, "parts": [p.analytic for p in parts]}
+    if boxes:
+        params["housing"] = {"file": str(housing), "boards": [b.to_dict() for b in boards]}
+    return dataclasses.replace(scenario, params=params, background=parts + boxes, frame_truth=background_truth)
 
 
 def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: float = 0.5,
                     frames: int | None = None, truth_pixels_every: int = 30, background: str = "none",
                     background_material: str = "cardboard", background_height_mm: float = 250.0,
-                    background_distance_mm: float | None = None) -> Scenario:
+                    background_distance_mm: float | None = None, housing: str | None = None) -> Scenario:
     """A part on the rotary stage at θ_i = i·step_deg over one turn.
 
     Parameters
@@ -641,6 +658,9 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
         Its height above the table [mm].
     background_distance_mm : float, optional
         Where it stands beyond the axis (:func:`sim.backgrounds.scan_background`) [mm].
+    housing : str, optional
+        A housing file (:mod:`scheimpflug.model.housing`): boards in the instrument frame
+        that stand still beside the table (:func:`sim.backgrounds.housing_parts`).
 
     Returns
     -------
@@ -654,6 +674,8 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
         When ``step_deg`` is not > 0 or ``frames`` is not an integer ≥ 1.
     MeshError
         For an unknown part or a bad mesh or scene file, or an unknown background or material.
+    RigError
+        For a bad housing file (:func:`scheimpflug.model.housing.load_housing`).
     """
     _positive("step_deg", step_deg)
     n_turn = max(1, int(round(360.0 / step_deg)))
@@ -665,10 +687,10 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     params = {"part": part, "step_deg": step_deg, "frames": n_turn,
               "parts": [{"name": p.name, "object_id": p.object_id, "material": p.material,
                          "analytic": p.analytic} for p in assembly.parts]}
-    scenario = Scenario("rotary", params, assembly, specs, stage_from_part(rig, 0.0),
+    scenario = Scenario("rotary", params, assembly, specs, _reference_pose(rig),
                         truth_pixels_every, tuple(axis_warnings(rig)))
     return _with_background(rig, scenario, background, background_material, background_height_mm,
-                            background_distance_mm)
+                            background_distance_mm, housing)
 
 
 def frame_count(name: str, **options) -> int:

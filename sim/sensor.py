@@ -53,6 +53,11 @@ AS241 in double precision in numba), by a few 1e-7 e⁻ — a pixel's DN can
 differ by 1 where the sum falls within that of a rounding boundary.  The
 same ``(seed, frame_index)`` always gives bit-identical frames, independent of
 how many frames were rendered before and of the number of threads.
+
+The camera chain (:mod:`sim.chain`, ``[chain]`` on) runs the same steps in two
+halves around its blooming: :func:`poisson_counts` (the shot noise, from the
+frame's key), then :func:`read_out` (read noise from each pixel's stream under a
+second key of the frame's generator, analogue gain, black level, ADC).
 """
 
 from __future__ import annotations
@@ -75,6 +80,7 @@ __all__ = [
     "frame_rng",
     "full_scale_dn",
     "poisson_counts",
+    "read_out",
 ]
 
 _STREAM_SENSOR = 0x5E45  # distinguishes the sensor-noise stream from other seeded streams
@@ -809,3 +815,48 @@ def apply_sensor(electrons, model: SensorModel, rng: np.random.Generator,
                    np.float64(model.dark_offset_dn), np.float64(model.full_scale_dn), out,
                    np.zeros(0, np.float32) if dark_flat is None else dark_flat)
     return out.reshape(lam.shape)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _read_out_kernel(charge, key, read_noise, dn_per_e, offset, full_scale, out):  # pragma: no cover - compiled
+    """Read noise (AS241 quantile of each pixel's own stream), gain, offset and ADC of collected charge."""
+    for i in numba.prange(charge.shape[0]):
+        e = np.float64(charge[i])
+        if read_noise > 0.0:
+            _, u = _next_uniform(_pixel_state(key, i))
+            e += read_noise * _normal_quantile(u)
+        dn = np.rint(e * dn_per_e + offset)
+        out[i] = np.uint16(min(max(dn, 0.0), full_scale))
+
+
+def read_out(charge, model: SensorModel, rng: np.random.Generator | None, analogue_gain: float = 1.0) -> np.ndarray:
+    """The ADC codes of collected charge: read noise, analogue gain, black level, rounding and clip.
+
+    The last steps of :func:`apply_sensor` on charge already collected (and already
+    limited by the full well: :mod:`sim.blooming`), for the camera chain (:mod:`sim.chain`).
+
+    Parameters
+    ----------
+    charge : (rows, columns) float
+        Collected charge per pixel [e⁻].
+    model : SensorModel
+        Read noise, conversion gain, black level and ADC depth.
+    rng : numpy.random.Generator or None
+        The frame's generator: one 64-bit key, then every pixel's read noise from its own
+        SplitMix64 stream (the numba kernel's AS241 quantile); None = no read noise.
+    analogue_gain : float, default 1.0
+        Gain before the ADC [-], > 0.
+
+    Returns
+    -------
+    (rows, columns) uint16
+        clip(round(dark_offset_dn + G·(n_e + σ_read·z)/g), 0, 2**adc_bits − 1) [DN].
+    """
+    q = np.asarray(charge)
+    flat = np.ascontiguousarray(q if q.dtype in (np.float32, np.float64) else q.astype(np.float64)).reshape(-1)
+    out = np.empty(flat.size, dtype=np.uint16)
+    key = np.uint64(0) if rng is None else _frame_key(rng)
+    sigma = 0.0 if rng is None else float(model.read_noise_e)
+    _read_out_kernel(flat, key, sigma, float(analogue_gain) / model.gain_e_per_dn, float(model.dark_offset_dn),
+                     float(model.full_scale_dn), out)
+    return out.reshape(q.shape)

@@ -21,18 +21,24 @@ Rotary stage, imperfect (``rig.stage``):
 * ``axis_tilt_deg`` τ toward ``axis_tilt_azimuth_deg`` ψ (0 = toward +x of the
   stage frame, 90 = toward +y): the bearing axis is the unit vector
   a = (sin τ cos ψ, sin τ sin ψ, cos τ), through the table centre
-  (0, 0, rotary_table_z_mm).  The table — and the part on it — is
-  perpendicular to that axis and turns about it.
+  (0, δ, rotary_table_z_mm) (``axis_offset_mm`` δ: an axis that misses the
+  sheet).  The table — and the part on it — is perpendicular to that axis
+  and turns about it.  τ over 170° is a table whose up is the stage's −z (a
+  rig frame upside down in the world, ``[stage] axis_tilt_deg``).
 * ``runout_um`` — radial runout as a dial indicator reads it (total indicator
   reading, peak to peak over one turn): the part's own axis is displaced from
   the bearing axis by e = runout/2 along the part's +x, so the displacement
   turns with the part (once per turn).
 
-Together: ``stage_from_part(θ) = T(0, 0, z_t) · R_tilt · R_z(θ) · T(e, 0, 0)``,
+Together: ``stage_from_part(θ) = T(0, δ, z_t) · R_tilt · R_z(θ) · T(e, 0, 0)``,
 where R_tilt turns e_z onto a about the horizontal axis (−sin ψ, cos ψ, 0).
 With τ = 0 and e = 0 this is the ideal pose.  The *reference frame* of the
 truth (``truth/mesh.ply``, truth points) is the stage frame with the part at
-θ = 0: ``ref_from_part = stage_from_part(0)``.
+θ = 0: ``ref_from_part = ref_from_stage · stage_from_part(0)``, where
+:func:`ref_from_stage` is the identity for a table up the stage's +z, and for
+one up its −z (τ > 170°: an instrument's calibrated turntable) the
+turntable's own frame — z its up, as the pipeline's part frame of a
+calibrated axis.
 
 Rotary stage, error motions (:class:`RotaryState`; each off at 0): the table
 turns to θ_a = θ + A·sin θ + ε for a command θ (``rotary_eccentricity_deg`` A,
@@ -43,7 +49,7 @@ and its radial error motion the shift R·(cos 2θ_a, sin 2θ_a, 0)
 (``radial_error_um`` R), both twice per turn — the once-per-turn parts are a
 constant tilt and a centring error, which ``axis_tilt_deg`` and ``runout_um``
 already are.  With them
-``stage_from_part(θ) = T(r(θ_a)) · T(0, 0, z_t) · R(w(θ_a)) · R_tilt · R_z(θ_a) · T(e, 0, 0)``.
+``stage_from_part(θ) = T(r(θ_a)) · T(0, δ, z_t) · R(w(θ_a)) · R_tilt · R_z(θ_a) · T(e, 0, 0)``.
 The truth's reference frame stays the ideal stage at θ = 0.
 
 Translation stage: the plate's measured face at stage coordinate s lies at
@@ -77,6 +83,7 @@ __all__ = [
     "TranslationState",
     "axis_distance_mm",
     "invert",
+    "ref_from_stage",
     "rig_from_plate",
     "rig_from_stage",
     "rotary_state",
@@ -234,6 +241,39 @@ def rig_from_stage(rig: Rig) -> np.ndarray:
     return _sheet_frame(rig, g.object_hinge_mm + axis_distance_mm(rig) * g.propagation_dir)
 
 
+def ref_from_stage(rig: Rig) -> np.ndarray:
+    """The truth's reference frame from the stage frame (module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``stage.axis_tilt_deg``, ``axis_tilt_azimuth_deg``, ``axis_offset_mm``,
+        ``rotary_table_z_mm``).
+
+    Returns
+    -------
+    (4, 4) float64
+        The identity for a table whose up is the stage's +z (τ < 90°: its tilt is an error the
+        truth shows).  For one whose up is the stage's −z (τ > 170°, which only an instrument's
+        calibrated turntable gives, :mod:`scheimpflug.model.instrument`) the turntable's own
+        frame, the pipeline's part frame of a calibrated axis: z its up a, the origin on its
+        axis where it crosses the stage's z = 0 (the optical axis's height), x the propagation
+        direction made perpendicular to a, y = z × x.
+    """
+    st = rig.stage
+    if st.axis_tilt_deg < 90.0:
+        return np.eye(4)
+    tau, psi = math.radians(st.axis_tilt_deg), math.radians(st.axis_tilt_azimuth_deg)
+    z = np.array([math.sin(tau) * math.cos(psi), math.sin(tau) * math.sin(psi), math.cos(tau)])
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x /= np.linalg.norm(x)
+    rot = np.vstack([x, np.cross(z, x), z])
+    origin = np.array([0.0, st.axis_offset_mm, st.rotary_table_z_mm]) - (st.rotary_table_z_mm / z[2]) * z
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = rot, -rot @ origin
+    return m
+
+
 def rotation_vector(vector_rad) -> np.ndarray:
     """Homogeneous rotation by a rotation vector (axis × angle).
 
@@ -323,7 +363,7 @@ def stage_from_part(rig: Rig, angle_deg: float, state: RotaryState | None = None
     ----------
     rig : Rig
         The rig (``stage.rotary_table_z_mm``, ``axis_tilt_deg``,
-        ``axis_tilt_azimuth_deg``, ``runout_um``).
+        ``axis_tilt_azimuth_deg``, ``axis_offset_mm``, ``runout_um``).
     angle_deg : float
         Stage angle θ, counter-clockwise seen from above [deg].
     state : RotaryState, optional
@@ -337,7 +377,7 @@ def stage_from_part(rig: Rig, angle_deg: float, state: RotaryState | None = None
 
     Notes
     -----
-    ``T(r) · T(0, 0, z_t) · R(w) · R_tilt · R_z(θ_a) · T(runout/2, 0, 0)``
+    ``T(r) · T(0, δ, z_t) · R(w) · R_tilt · R_z(θ_a) · T(runout/2, 0, 0)``
     (module docstring), R_tilt the rotation by τ that turns e_z onto the
     bearing axis; the ideal stage (τ = 0, no runout, no state) gives
     ``R_z(θ)·T(0, 0, rotary_table_z_mm)``.
@@ -346,7 +386,7 @@ def stage_from_part(rig: Rig, angle_deg: float, state: RotaryState | None = None
     tau, psi = math.radians(st.axis_tilt_deg), math.radians(st.axis_tilt_azimuth_deg)
     tilt = _rotation_axis_angle((-math.sin(psi), math.cos(psi), 0.0), tau)
     ecc = translation((0.5 * st.runout_um * 1e-3, 0.0, 0.0))
-    table = translation((0.0, 0.0, st.rotary_table_z_mm))
+    table = translation((0.0, st.axis_offset_mm, st.rotary_table_z_mm))
     if state is None:
         return table @ tilt @ rotation_z(angle_deg) @ ecc
     wob = rotation_vector([1e-6 * state.wobble_urad[0], 1e-6 * state.wobble_urad[1], 0.0])

@@ -22,6 +22,15 @@ both in view) are counted in ``stripe_count``; the *primary* one kept in
 smallest distance D from the object hinge along the sheet (the surface nearest
 the laser/camera side of the measuring range).
 
+**Stripe along the rows.**  A camera in which a turning part's stripe runs
+along the rows (:func:`scheimpflug.model.camera.stripe_along` "rows", e.g.
+FabScan's, turned by 90°) has one stripe point per *column*: the truth is then
+per line of the :func:`scheimpflug.stripe.oriented` frame (the transposed
+frame the extraction reads) — the crossings with the column centre lines u = c,
+``stripe_u`` (columns,) holding the row v of each, the primary the smallest v —
+and the frame folder's manifest says ``stripe_along = "rows"``, as an imported
+folder's does.  Every array below then has ``columns`` in place of ``rows``.
+
 **Per-pixel truth.**  One chief ray per pixel centre (from the lens centre along
 :func:`scheimpflug.model.camera.chief_ray_from_pixel`): the first surface it meets,
 its 3-D point and object id (0 = nothing).
@@ -64,6 +73,7 @@ in it; ``truth/mesh.ply`` is the plate at the first stage position).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -76,7 +86,9 @@ from scheimpflug.model.camera import (
     lens_state,
     project_points,
     sensor_pose,
+    stripe_along,
 )
+from scheimpflug.model.distortion import is_radial
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig, active_error_models
 
@@ -268,9 +280,9 @@ def _cut_faces(above, faces):  # pragma: no cover - compiled
 # ------------------------------------------------------------------ row crossings
 
 
-def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(), pose=None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Where projected segments cross row centre lines v = r (r = 0 … rows − 1).
+def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(), pose=None,
+                  along: str = "columns") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where projected segments cross row centre lines v = r (r = 0 … rows − 1), or column lines.
 
     Parameters
     ----------
@@ -283,13 +295,17 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
         Residual and iteration limit of the secant solve.
     pose : SensorPose, optional
         Sensor pose; default :func:`scheimpflug.model.camera.sensor_pose` (rig).
+    along : {"columns", "rows"}, default "columns"
+        The stripe's direction (:func:`scheimpflug.model.camera.stripe_along`): "rows"
+        solves the column centre lines u = c instead (the lines of the
+        :func:`scheimpflug.stripe.oriented` frame).
 
     Returns
     -------
     rows : (c,) int64
-        Row index of each crossing.
+        Row index of each crossing (column index for ``along="rows"``).
     u_px : (c,) float64
-        Column of the crossing [px].
+        Column of the crossing [px] (its row for ``along="rows"``).
     points_mm : (c, 3) float64
         Point of the crossing, rig frame [mm].
     segment_index : (c,) int
@@ -306,26 +322,42 @@ def row_crossings(rig: Rig, segments_mm, tol: TruthTolerances = TruthTolerances(
     the tolerance.
     """
     pose = sensor_pose(rig) if pose is None else pose
+    ax, n_lines = _line_axis(rig, along)
     seg = np.asarray(segments_mm, dtype=np.float64).reshape(-1, 2, 3)
     k = len(seg)
     mid = seg[:, 0] + 0.5 * (seg[:, 1] - seg[:, 0])
-    v_all = project_points(rig, np.concatenate([seg.reshape(-1, 3), mid]), pose).uv_px[:, 1]
+    v_all = project_points(rig, np.concatenate([seg.reshape(-1, 3), mid]), pose).uv_px[:, ax]
     v_end, v_mid = v_all[:2 * k].reshape(k, 2), v_all[2 * k:]
     lo, hi = np.minimum(v_end[:, 0], v_end[:, 1]), np.maximum(v_end[:, 0], v_end[:, 1])
-    r_lo = np.clip(np.ceil(lo), 0, rig.sensor.rows)
-    r_hi = np.clip(np.ceil(hi), 0, rig.sensor.rows)          # exclusive
+    r_lo = np.clip(np.ceil(lo), 0, n_lines)
+    r_hi = np.clip(np.ceil(hi), 0, n_lines)          # exclusive
     ok = np.isfinite(lo) & np.isfinite(hi)
     count = np.where(ok, r_hi - r_lo, 0).astype(np.int64)
     idx = np.repeat(np.arange(len(seg)), count)
     first = np.repeat(np.cumsum(count) - count, count)
     rows = (np.repeat(r_lo, count) + np.arange(count.sum()) - first).astype(np.int64)
-    t, u = _solve_rows(rig, pose, seg[idx], v_end[idx], v_mid[idx], rows.astype(np.float64), tol)
+    t, u = _solve_rows(rig, pose, seg[idx], v_end[idx], v_mid[idx], rows.astype(np.float64), tol, ax)
     pts = seg[idx, 0] + t[:, None] * (seg[idx, 1] - seg[idx, 0])
     return rows, u, pts, idx
 
 
-def _solve_rows(rig, pose, seg, v_end, v_mid, target, tol) -> tuple[np.ndarray, np.ndarray]:
-    """Solve v(P(t)) = target on each segment, t in [0, 1]; return t and u there.
+def _line_axis(rig: Rig, along: str) -> tuple[int, int]:
+    """The pixel coordinate fixed on a line (1: v for "columns", 0: u for "rows") and the number of lines."""
+    if along == "columns":
+        return 1, rig.sensor.rows
+    if along == "rows":
+        return 0, rig.sensor.columns
+    raise ValueError(f"along must be 'columns' or 'rows', got {along!r}")
+
+
+def _across_on_sensor(rig: Rig, along: str, across: np.ndarray) -> np.ndarray:
+    """Whether positions across the lines lie on the sensor (−0.5 … size − 0.5)."""
+    size = rig.sensor.columns if along == "columns" else rig.sensor.rows
+    return (across >= -0.5) & (across <= size - 0.5)
+
+
+def _solve_rows(rig, pose, seg, v_end, v_mid, target, tol, ax: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Solve v(P(t)) = target on each segment, t in [0, 1]; return t and u there (``ax`` 0: u ↔ v).
 
     Start: the linear-fractional v(t) = (v0 + b·t)/(1 + d·t) through t = 0, ½, 1 (exact
     without lens distortion), else the linear interpolation.  Then secant steps on the
@@ -340,7 +372,7 @@ def _solve_rows(rig, pose, seg, v_end, v_mid, target, tol) -> tuple[np.ndarray, 
     t_lin = np.where(np.isfinite(t_lin), t_lin, 0.5)
     t1 = np.clip(np.where(np.isfinite(t_frac) & (t_frac >= 0) & (t_frac <= 1), t_frac, t_lin), 0.0, 1.0)
     uv = project_points(rig, seg[:, 0] + t1[:, None] * (seg[:, 1] - seg[:, 0]), pose).uv_px
-    f1, u1 = uv[:, 1] - target, uv[:, 0]
+    f1, u1 = uv[:, ax] - target, uv[:, 1 - ax]
     far = np.abs(t1 - 0.5) > 0.25                 # the other point of the first secant step
     t0 = np.where(far, 0.5, np.where(t1 < 0.5, 1.0, 0.0))
     f0 = np.where(far, vm, np.where(t1 < 0.5, v1, v0)) - target
@@ -355,8 +387,8 @@ def _solve_rows(rig, pose, seg, v_end, v_mid, target, tol) -> tuple[np.ndarray, 
         t2 = np.clip(t2, 0.0, 1.0)
         sa = seg[act]
         uv = project_points(rig, sa[:, 0] + t2[:, None] * (sa[:, 1] - sa[:, 0]), pose).uv_px
-        f2 = uv[:, 1] - target[act]
-        t0[act], f0[act], t1[act], f1[act], u1[act] = a1, b1, t2, f2, uv[:, 0]
+        f2 = uv[:, ax] - target[act]
+        t0[act], f0[act], t1[act], f1[act], u1[act] = a1, b1, t2, f2, uv[:, 1 - ax]
         act = act[np.abs(f2) > tol.row_residual_px]
     return t1, u1
 
@@ -491,20 +523,22 @@ def stripe_truth(rig: Rig, vertices_part_mm, faces, face_ids, rig_from_part, ref
     seg = transform_points(rig_from_part, seg)
     front = (seg[:, :, 0] > lens_state(rig).focal_length_mm + lens_centre_mm(rig)[0]).all(axis=1)
     seg = seg[front]
-    rows, u, pts, idx = row_crossings(rig, seg, tol)
+    along = stripe_along(rig)
+    ax, n_lines = _line_axis(rig, along)
+    rows, u, pts, idx = row_crossings(rig, seg, tol, along=along)
     ids = seg_ids[idx] if len(idx) else np.zeros(0, dtype=np.int64)
     if tri_n is not None and len(idx):      # a bowed sheet: onto the curved section, exactly
         normals = tri_n[front][idx] @ rig_from_part[:3, :3].T
         pts = _onto_bowed_section(rig, posed_sheet(light_sheet(rig), rig_from_laser), pts,
-                                  rows.astype(np.float64), normals, tol)
-        u = project_points(rig, pts).uv_px[:, 0]
+                                  rows.astype(np.float64), normals, tol, ax=ax)
+        u = project_points(rig, pts).uv_px[:, 1 - ax]
     sheet = None if rig_from_laser is None else posed_sheet(light_sheet(rig), rig_from_laser)
-    keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts, sheet)
+    keep = _across_on_sensor(rig, along, u) & _in_fan(rig, pts, sheet)
     rows, u, pts, ids = rows[keep], u[keep], pts[keep], ids[keep]
     keep = _unobstructed(caster, lens_centre_mm(rig), pts, tol)
     origin = laser_origin_mm(rig) if sheet is None else sheet.origin_mm
     keep[keep] = _unobstructed(caster, origin, pts[keep], tol)
-    return _primary_per_row(rig.sensor.rows, rows[keep], u[keep],
+    return _primary_per_row(n_lines, rows[keep], u[keep],
                             transform_points(ref_from_part @ part_from_rig, pts[keep]), ids[keep])
 
 
@@ -529,7 +563,7 @@ def _cut(rig, vertices_part_mm, faces, face_ids, part_from_rig, rig_from_laser):
     return seg, ids, n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def _onto_bowed_section(rig, sheet, pts, rows, normals, tol, iterations: int = 8):
+def _onto_bowed_section(rig, sheet, pts, rows, normals, tol, iterations: int = 8, ax: int = 1):
     """Move row crossings found on chords onto the bowed sheet, within their triangle's plane.
 
     Two conditions, two unknowns per point (a displacement a·e1 + c·e2 in the plane):
@@ -541,7 +575,7 @@ def _onto_bowed_section(rig, sheet, pts, rows, normals, tol, iterations: int = 8
     e2 = np.cross(normals, e1)
 
     def residual(p):
-        return np.stack([sheet_offset_mm(sheet, p), project_points(rig, p).uv_px[:, 1] - rows], axis=1)
+        return np.stack([sheet_offset_mm(sheet, p), project_points(rig, p).uv_px[:, ax] - rows], axis=1)
 
     p = pts.copy()
     h = 1e-4
@@ -677,7 +711,12 @@ def opencv_camera(rig: Rig):
 
     pose = sensor_pose(rig)
     c = lens_centre_mm(rig)
-    cam, rot = camera_from_sensor_pose(pose.origin_mm - c, pose.u_dir, pose.v_dir, pose.pitch_mm)
+    if rig.sensor.image_distance_mm > 0:     # an ordinary camera: its pixel axes turned by the roll, any angle
+        r = math.radians(rig.sensor.roll_deg)
+        rows = np.array([[0.0, -math.cos(r), -math.sin(r)], [0.0, math.sin(r), -math.cos(r)], [1.0, 0.0, 0.0]])
+        cam, rot = camera_from_sensor_pose(pose.origin_mm - c, pose.u_dir, pose.v_dir, pose.pitch_mm, rows)
+    else:
+        cam, rot = camera_from_sensor_pose(pose.origin_mm - c, pose.u_dir, pose.v_dir, pose.pitch_mm)
     cam = TiltedCamera(cam.focal_px, cam.principal_px, cam.tau_x_rad, cam.tau_y_rad, rig.lens.k1, rig.lens.k2)
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = rot, -rot @ c
@@ -707,10 +746,11 @@ def opencv_laser_plane(rig: Rig) -> np.ndarray:
 
 
 def _opencv_truth(rig: Rig) -> dict:
-    import math
-
     cam, camera_from_rig = opencv_camera(rig)
-    return {"camera_matrix": cam.camera_matrix.tolist(), "dist_coeffs": cam.dist_coeffs.tolist(),
+    k, dist = cam.camera_matrix.copy(), cam.dist_coeffs.copy()
+    k[1, 1] *= rig.lens.aspect_ratio          # OpenCV's terms beyond k1, k2 (model.distortion)
+    dist[2], dist[3], dist[4] = rig.lens.p1, rig.lens.p2, rig.lens.k3
+    return {"camera_matrix": k.tolist(), "dist_coeffs": dist.tolist(),
             "image_size": [rig.sensor.columns, rig.sensor.rows],
             "tau_deg": [math.degrees(cam.tau_x_rad), math.degrees(cam.tau_y_rad)],
             "camera_from_rig": camera_from_rig.tolist(),
@@ -752,8 +792,9 @@ def rig_truth(rig: Rig) -> dict:
             "tan_beta": g.tan_beta,
             "ideal": all(getattr(rig.sensor, k) == 0 for k in
                          ("roll_deg", "tilt_error_deg", "offset_u_px", "offset_v_px",
-                          "offset_normal_um")) and rig.lens.k1 == 0 and rig.lens.k2 == 0
-            and rig.stage.axis_tilt_deg == 0 and rig.stage.runout_um == 0
+                          "offset_normal_um", "image_distance_mm")) and rig.lens.k1 == 0 and rig.lens.k2 == 0
+            and is_radial(rig.lens)
+            and rig.stage.axis_tilt_deg == 0 and rig.stage.runout_um == 0 and rig.stage.axis_offset_mm == 0
             and not active_error_models(rig), "opencv": _opencv_truth(rig)}
 
 
@@ -1086,6 +1127,8 @@ class SceneTruth:
         self.rig, self.tol = rig, tol
         self.geometry = hinge_geometry(rig)
         self.pose = sensor_pose(rig)
+        self.along = stripe_along(rig)
+        self._ax, self.lines = _line_axis(rig, self.along)
         self.vertices = np.ascontiguousarray(vertices_part_mm, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.face_ids = np.asarray(face_ids)
@@ -1190,9 +1233,9 @@ class SceneTruth:
         seg = transform_points(rig_from_part, seg)
         front = (seg[:, :, 0] > rig.lens.focal_length_mm).all(axis=1)
         seg, face_of = seg[front], face_of[front]
-        rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose)
+        rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose, self.along)
         faces = face_of[idx]
-        keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts)
+        keep = _across_on_sensor(rig, self.along, u) & _in_fan(rig, pts)
         return TruthSection(rows[keep], u[keep], pts[keep], faces[keep], rig_from_part,
                             ref_from_part @ part_from_rig, np.zeros(3), laser_origin_mm(rig))
 
@@ -1216,7 +1259,7 @@ class SceneTruth:
         sec = section
         keep = self._visible_and_lit(caster, sec.points_mm, sec.lens_mm, sec.laser_mm)
         rows, u, pts, faces = sec.rows[keep], sec.u_px[keep], sec.points_mm[keep], sec.faces[keep]
-        truth, first = _primary_rows(self.rig.sensor.rows, rows, u, transform_points(sec.ref_from_rig, pts),
+        truth, first = _primary_rows(self.lines, rows, u, transform_points(sec.ref_from_rig, pts),
                                      self.face_ids[faces] if len(faces) else np.zeros(0, np.int64))
         return truth, self._extras(rows[first], pts[first], faces[first], sec.rig_from_part, sec.laser_mm)
 
@@ -1240,13 +1283,13 @@ class SceneTruth:
         c = lens_centre_mm(rig)
         front = (seg[:, :, 0] > lens_state(rig).focal_length_mm + c[0]).all(axis=1)
         seg, face_of = seg[front], face_of[front]
-        rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose)
+        rows, u, pts, idx = row_crossings(rig, seg, tol, self.pose, self.along)
         faces = face_of[idx]
         if sheet.bow_rad != 0.0 and len(idx):
             pts = _onto_bowed_section(rig, sheet, pts, rows.astype(np.float64),
-                                      self.normals[faces] @ rig_from_part[:3, :3].T, tol)
-            u = project_points(rig, pts, self.pose).uv_px[:, 0]
-        keep = (u >= -0.5) & (u <= rig.sensor.columns - 0.5) & _in_fan(rig, pts, sheet)
+                                      self.normals[faces] @ rig_from_part[:3, :3].T, tol, ax=self._ax)
+            u = project_points(rig, pts, self.pose).uv_px[:, 1 - self._ax]
+        keep = _across_on_sensor(rig, self.along, u) & _in_fan(rig, pts, sheet)
         return TruthSection(rows[keep], u[keep], pts[keep], faces[keep], rig_from_part,
                             ref_from_part @ part_from_rig, c, np.asarray(sheet.origin_mm, np.float64))
 
@@ -1294,7 +1337,7 @@ class SceneTruth:
         return ok[:n] & ok[n:]
 
     def _extras(self, rows, pts, faces, rig_from_part, laser_mm=None) -> dict:
-        n_rows = self.rig.sensor.rows
+        n_rows = self.lines
         distance = np.full(n_rows, np.nan)
         incidence = np.full(n_rows, np.nan)
         if len(rows):

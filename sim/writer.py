@@ -4,6 +4,8 @@ Layout::
 
     DIR/manifest.json        rig, scenario, parameters, one entry per frame (below)
     DIR/frames/NNNNN.png     16-bit grayscale PNG, raw ADC value (not shifted; see adc_bits)
+                             — or, with the camera chain on ([chain] format, sim/chain.py), the
+                             camera's own file: NNNNN.jpg (RGB JPEG) or NNNNN.png (8-bit RGB)
     DIR/truth/NNNNN.npz      per-frame truth (format: sim.truth module docstring)
     DIR/truth/mesh.ply       the scene in the truth reference frame (object_id per face)
     DIR/truth/mesh_NNNNN.ply calibration only: the plate at frame NNNNN's stage position
@@ -72,9 +74,12 @@ from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import RenderError
 from scheimpflug.io.atomic import atomic_path, write_json_atomic
 from scheimpflug.io.folder import LEDGER_NAME, LOCK_NAME, FileLedger
+from scheimpflug.model.camera import stripe_along
+from scheimpflug.model.chain import chain_is_on
 from scheimpflug.model.rig import Rig, is_realistic, rig_to_dict
 
 from .camera_pass import camera_pass_of, uses_camera_pass
+from .chain import ChainModel, apply_chain, encode_frame, frame_suffix
 from .jobfolder import JobKind, check_identity, create_folder, open_job, remove_temporaries
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
@@ -100,12 +105,14 @@ __all__ = [
     "encode_npz",
     "encode_png16",
     "estimate_job",
+    "frame_model",
     "frame_paths",
     "generator_info",
     "prepare_folder",
     "read_png",
     "render_folder",
     "render_scenario",
+    "write_frame_file",
     "write_png",
 ]
 
@@ -265,6 +272,7 @@ class MitsubaTwin:
         self.spp = int(getattr(settings, self.spp_field))
         self._posed = None
         self._light = (None, None)
+        self._split = (None, None, None)
 
     def describe(self) -> dict:
         """Render description for the manifest (part of a run's identity).
@@ -340,12 +348,33 @@ class MitsubaTwin:
                                    exposure_ms=frame.exposure_ms)
         light = FrameLight(flood) if frame.light == "flood" else \
             self.renderer.render_light(self._poses(frame), frame.seed, frame.rig_from_laser)
+        laser = np.zeros_like(flood) if frame.light == "flood" else None
         if frame.light != "flood":
             _expose(light, frame.exposure_ms, self._exposure_ms)
+            laser = light.image
             light.image = light.image + flood
+        self._split = (frame.index, laser, flood)
         self._posed = frame.index
         self._light = (frame.index, light)
         return light.image
+
+    def light_split(self, frame: FrameSpec):
+        """The laser's and the other light of ``frame`` apart, when the camera pass rendered it last.
+
+        Parameters
+        ----------
+        frame : FrameSpec
+            The frame.
+
+        Returns
+        -------
+        tuple of (rows, columns) float32, or None
+            (laser, flood light and environment) [e⁻]; None without a camera pass (the
+            coarse ambient light is not apart from the laser's) or if another frame was
+            rendered since.
+        """
+        index, laser, other = self._split
+        return (laser, other) if index == frame.index else None
 
     def light(self, frame: FrameSpec):
         """The light split (:class:`sim.render.FrameLight`) of ``frame`` if it was the last rendered.
@@ -405,7 +434,7 @@ def _expose(light, exposure_ms: float | None, rendered_ms: float) -> None:
             setattr(light, name, value * np.float32(k))
 
 
-def frame_paths(out: Path, index: int) -> tuple[Path, Path]:
+def frame_paths(out: Path, index: int, suffix: str = ".png") -> tuple[Path, Path]:
     """Paths of one frame's files in a frame folder.
 
     Parameters
@@ -414,15 +443,50 @@ def frame_paths(out: Path, index: int) -> tuple[Path, Path]:
         The frame folder.
     index : int
         Frame index.
+    suffix : str, default ".png"
+        The frame file's suffix (``.jpg`` for the camera chain's JPEG: :func:`sim.chain.frame_suffix`).
 
     Returns
     -------
     png : pathlib.Path
-        ``out/frames/NNNNN.png``.
+        ``out/frames/NNNNN.png`` (or the suffix given).
     truth : pathlib.Path
         ``out/truth/NNNNN.npz``.
     """
-    return out / "frames" / f"{index:05d}.png", out / "truth" / f"{index:05d}.npz"
+    return out / "frames" / f"{index:05d}{suffix}", out / "truth" / f"{index:05d}.npz"
+
+
+def _folder_suffix(manifest: dict) -> str:
+    """The suffix of a frame folder's frame files, from its manifest's file names."""
+    return ".jpg" if any(e["file"].endswith(".jpg") for e in manifest["frames"]) else ".png"
+
+
+def write_frame_file(path, image: np.ndarray, model) -> None:
+    """Write a frame as its camera writes it, atomically: 16-bit grey PNG, or the camera chain's file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Destination file (written to a temporary name, then renamed).
+    image : (rows, columns) uint16 or (rows, columns, 3) uint8
+        Raw ADC codes (:class:`sim.sensor.SensorModel`) or the chain's RGB frame [DN].
+    model : SensorModel or ChainModel
+        What made the image; a :class:`sim.chain.ChainModel` writes JPEG or 8-bit RGB PNG.
+
+    Raises
+    ------
+    RenderError
+        When the file cannot be written.
+    """
+    if not isinstance(model, ChainModel):
+        write_png(path, image)
+        return
+    data = encode_frame(image, model.chain)
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+    except OSError as exc:
+        raise RenderError(f"cannot write frame {str(path)!r}: {exc.strerror or exc}") from None
 
 
 try:  # libdeflate: a faster deflate than zlib, same format
@@ -773,7 +837,7 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
         JSON-ready manifest with the keys of the module docstring, one entry
         per frame.
     """
-    frames = [{"file": f"frames/{f.index:05d}.png", "truth": f"truth/{f.index:05d}.npz",
+    frames = [{"file": f"frames/{f.index:05d}{frame_suffix(rig.chain)}", "truth": f"truth/{f.index:05d}.npz",
                **f.stage_entry(), "exposure_ms": rig.sensor.exposure_ms if getattr(f, "exposure_ms", None) is None
                else float(f.exposure_ms), "seed": f.seed,
                "pixel_truth": scenario.wants_pixel_truth(f.index),
@@ -789,7 +853,10 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
         "seed": int(seed),
         "render": dict(render) if render else {"spp": int(spp), "variant": variant},
         "adc_bits": rig.sensor.adc_bits,
-        "pixel_value": "raw ADC code in uint16, 0 … 2**adc_bits − 1 (not shifted to 16 bit)",
+        "stripe_along": stripe_along(rig),
+        "pixel_value": "raw ADC code in uint16, 0 … 2**adc_bits − 1 (not shifted to 16 bit)"
+                       if not chain_is_on(rig.chain) else
+                       f"the camera chain's 8-bit RGB {rig.chain.format} file ([chain], sim/chain.py)",
         "truth": {
             "per_frame": "truth/NNNNN.npz: stripe_u (rows,) f64 [px], stripe_point_mm (rows, 3) "
                          "f64 [mm], stripe_object_id (rows,) i16, stripe_count (rows,) u8; "
@@ -800,7 +867,10 @@ def build_manifest(rig: Rig, scenario: Scenario, seed: int, spp: int, variant: s
                          "NaN / 0 = none. See sim/truth.py.",
             **({"pattern": TARGET_TRUTH} if scenario.name == "target" else {}),
             "reference_frame": ("stage frame with the part at angle 0" if scenario.name not in ("calibration", "target")
-                                else "stage frame (the plate moves in it)"),
+                                else "stage frame (the plate moves in it)") + (
+                ", in the turntable's own frame (its up is the stage's -z: z the table's up, origin on its axis "
+                "at the optical axis's height; sim.stages.ref_from_stage)"
+                if rig.stage.axis_tilt_deg >= 90.0 else ""),
             "stripe_rule": "sheet mid-plane ∩ mesh, visible from the lens centre and lit by the "
                            "laser, crossing each row centre; primary = smallest u; stripe_count = "
                            "number of crossings",
@@ -854,8 +924,10 @@ def _existing_run(out: Path, manifest: dict) -> set[int]:
         return set()
     # the frames stored in this folder (a dataset's Zarr sample lists chunks of its store instead)
     indices = [int(e["file"][7:-4]) for e in manifest["frames"]
-               if e["file"].startswith("frames/") and e["file"].endswith(".png") and e["file"][7:-4].isdigit()]
-    return {i for i in indices if all(p.exists() for p in frame_paths(out, i))}
+               if e["file"].startswith("frames/") and e["file"].endswith((".png", ".jpg"))
+               and e["file"][7:-4].isdigit()]
+    suffix = _folder_suffix(manifest)
+    return {i for i in indices if all(p.exists() for p in frame_paths(out, i, suffix))}
 
 
 # ------------------------------------------------------------------ the loop
@@ -954,7 +1026,11 @@ def _frame_truth(rig, scenario, frame, caster, stats, mesh, light=None, defer=No
 
 
 def _secondary_arrays(rig, split) -> dict:
-    """The secondary-light truth of a frame's light split (None: the ideal twin's empty one)."""
+    """The secondary-light truth of a frame's light split (None: the ideal twin's empty one), per stripe line."""
+    if stripe_along(rig) == "rows":       # one line per column: the transposed frame (sim/truth.py)
+        return secondary_truth(rig.sensor.columns, *(
+            (split.laser.T, None if split.secondary is None else split.secondary.T,
+             None if split.subsurface is None else split.subsurface.T) if split is not None else ()))
     return secondary_truth(rig.sensor.rows, *(
         (split.laser, split.secondary, split.subsurface) if split is not None else ()))
 
@@ -1062,7 +1138,7 @@ def render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderS
     """
     done = prepare_folder(out, manifest)
     ledger = FileLedger(out)
-    done = _verified(done, ledger, warn)
+    done = _verified(done, ledger, warn, _folder_suffix(manifest))
     _scene_truth_files(out, rig, scenario)
     stats = RenderStats(frames_total=len(scenario.frames), frames_skipped=len(done))
     t_start = time.perf_counter()
@@ -1079,14 +1155,14 @@ def render_locked(rig, scenario, out, manifest, progress, warn, loop) -> RenderS
     return stats
 
 
-def frame_file_names(index: int) -> list[str]:
-    """A frame's files relative to its folder (PNG, truth), as the ledger records them."""
-    return [p.as_posix() for p in frame_paths(Path(), index)]
+def frame_file_names(index: int, suffix: str = ".png") -> list[str]:
+    """A frame's files relative to its folder (PNG or the chain's file, truth), as the ledger records them."""
+    return [p.as_posix() for p in frame_paths(Path(), index, suffix)]
 
 
-def _verified(done: set[int], ledger: FileLedger, warn) -> set[int]:
+def _verified(done: set[int], ledger: FileLedger, warn, suffix: str = ".png") -> set[int]:
     """The frames of ``done`` whose files match their ledger record; warns about the others."""
-    bad = {i: reason for i in sorted(done) if (reason := ledger.mismatch(i, frame_file_names(i)))}
+    bad = {i: reason for i in sorted(done) if (reason := ledger.mismatch(i, frame_file_names(i, suffix)))}
     if bad:
         first = min(bad)
         warn(f"rendering again {len(bad)} frame(s) whose files do not match {LEDGER_NAME}: "
@@ -1126,7 +1202,7 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    model = SensorModel.from_rig(rig)
+    model = frame_model(rig)
     mesh = scene_arrays(scenario)
     if not overlap:
         for frame in todo:
@@ -1151,7 +1227,7 @@ def _frame_loop(rig, scenario, out, twin, todo, stats, warn, overlap, bar, ledge
                 pending = _timed(stats, "render", _begin, twin, frame)
                 if pending.done:             # nothing left to finish: noise now, then truth
                     with drjit_threads(noise_threads):
-                        image = _noise(pending.light.image, model, frame, stats)
+                        image = _noise(pending.light.image, model, frame, stats, _light_split(twin, frame))
                     truth = _truth_deferred(rig, scenario, twin, frame, stats, warn, mesh, section)
                     if waiting is not None:
                         _noise_and_files(waiting, model, stats, files, noise_threads)
@@ -1307,14 +1383,43 @@ def frame_products(rig, scenario, twin, frame, stats, warn, mesh, model) -> tupl
     electrons = _timed(stats, "render", twin.render, frame)
     # the noise right after the render, before the truth's ray queries
     # (measured ≈ 40 ms/frame slower on 2 cores just after Dr.Jit's ray casts)
-    image = _noise(electrons, model, frame, stats)
+    image = _noise(electrons, model, frame, stats, _light_split(twin, frame))
     return image, _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh)
 
 
-def _noise(electrons, model, frame, stats) -> np.ndarray:
-    """The frame's raw ADC image: sensor noise seeded by the frame seed."""
-    return _timed(stats, "noise", apply_sensor, electrons, model, frame_rng(frame.seed, 0), None,
-                  getattr(frame, "exposure_factor", 1.0))
+def frame_model(rig: Rig):
+    """What turns a frame's light into its file: the sensor (16-bit grey raw codes) or the camera chain.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``[sensor]``, ``[chain]``).
+
+    Returns
+    -------
+    SensorModel or ChainModel
+        :class:`sim.chain.ChainModel` when ``[chain] format`` is not ``"png16"``.
+    """
+    return ChainModel.from_rig(rig) if chain_is_on(rig.chain) else SensorModel.from_rig(rig)
+
+
+def _light_split(twin, frame):
+    """(laser, other light) of the frame when the twin keeps them apart (:meth:`MitsubaTwin.light_split`), else None."""
+    split = getattr(twin, "light_split", None)
+    return split(frame) if split is not None else None
+
+
+def _noise(electrons, model, frame, stats, split=None) -> np.ndarray:
+    """The frame's image: sensor noise seeded by the frame seed, and the camera chain when on.
+
+    With the chain, ``split`` = (laser, other light) gives each its channel responses; without
+    it (no camera pass) all the light takes the laser's (:mod:`sim.chain`).
+    """
+    exposure = getattr(frame, "exposure_factor", 1.0)
+    if isinstance(model, ChainModel):
+        laser, other = split if split is not None else (electrons, None)
+        return _timed(stats, "noise", apply_chain, laser, other, model, frame_rng(frame.seed, 0), exposure)
+    return _timed(stats, "noise", apply_sensor, electrons, model, frame_rng(frame.seed, 0), None, exposure)
 
 
 def _frame_truth_checked(rig, scenario, twin, frame, stats, warn, mesh, defer=None, section=None) -> dict:
@@ -1336,13 +1441,14 @@ def _finish_frame(out, model, frame, electrons, image, arrays, stats, ledger=Non
     The PNG's presence marks the frame complete; then the size and SHA-256 of
     both files go to the folder's ledger (what a resumed run verifies).
     """
-    png, npz = frame_paths(out, frame.index)
+    suffix = model.suffix if isinstance(model, ChainModel) else ".png"
+    png, npz = frame_paths(out, frame.index, suffix)
     if image is None:
         image = _noise(electrons, model, frame, stats)
     _timed(stats, "truth_write", _write_npz, npz, arrays)
-    _timed(stats, "png", write_png, png, image)
+    _timed(stats, "png", write_frame_file, png, image, model)
     if ledger is not None:
-        ledger.record(frame.index, frame_file_names(frame.index))
+        ledger.record(frame.index, frame_file_names(frame.index, suffix))
 
 
 def describe_frame(frame: FrameSpec) -> str:
@@ -1356,8 +1462,9 @@ def describe_frame(frame: FrameSpec) -> str:
 
 def _finish(out: Path, manifest: dict, scenario: Scenario, stats: RenderStats,
             skipped: set) -> None:
+    suffix = _folder_suffix(manifest)
     missing = [e["file"] for e, f in zip(manifest["frames"], scenario.frames)
-               if not all(p.exists() for p in frame_paths(out, f.index))]
+               if not all(p.exists() for p in frame_paths(out, f.index, suffix))]
     if missing:
         raise RenderError(f"{len(missing)} frames are missing after rendering (first: {missing[0]})")
     no_stripe = set(stats.frames_without_stripe)
@@ -1421,6 +1528,10 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
         An unknown scenario or option, a bad part.
     """
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    if workers != 1 and chain_is_on(rig.chain):
+        warn(f"the camera chain ([chain] format = {rig.chain.format!r}) renders in this process: "
+             f"{workers} workers asked, 1 used")
+        workers = 1
     if workers != 1:
         from .workers import RenderJob, render_with_workers  # it builds on this module
 

@@ -34,7 +34,8 @@ def binned_rig(rig: Rig, k: int) -> Rig:
     A binned pixel j covers original pixels k·j … k·j + k − 1, so its centre is at
     original coordinate u = k·j + (k − 1)/2.  Hence: pitch × k; columns and rows
     // k (a remainder at the far edge is dropped); hinge_column, axis_row →
-    (x − (k − 1)/2)/k; pixel offsets / k.  Sensor plane, hinge and sheet are
+    (x − (k − 1)/2)/k; pixel offsets / k (for an ordinary camera, ``image_distance_mm`` > 0, the
+    offsets that keep its principal point at (x − (k − 1)/2)/k).  Sensor plane, hinge and sheet are
     unchanged, so F² [px·mm] scales by 1/k and C is unchanged.  Photometry:
     a binned pixel has k² times the area, so the exposure time is divided by k²
     — a binned pixel collects the charge an unbinned one would (the operator
@@ -53,8 +54,13 @@ def binned_rig(rig: Rig, k: int) -> Rig:
     if s.columns < k or s.rows < k:
         raise ValueError(f"binning {k} leaves no pixel of a {s.columns} × {s.rows} sensor")
     c = (k - 1) / 2
+    off_u, off_v = s.offset_u_px / k, s.offset_v_px / k
+    if s.image_distance_mm > 0:       # an ordinary camera: keep its principal point (a remainder is dropped)
+        pp_u, pp_v = 0.5 * (s.columns - 1) - s.offset_u_px, 0.5 * (s.rows - 1) - s.offset_v_px
+        off_u = 0.5 * (s.columns // k - 1) - (pp_u - c) / k
+        off_v = 0.5 * (s.rows // k - 1) - (pp_v - c) / k
     return rig.replace(sensor={
         "pixel_pitch_um": s.pixel_pitch_um * k, "columns": s.columns // k, "rows": s.rows // k,
         "hinge_column": (s.hinge_column - c) / k, "axis_row": (s.axis_row - c) / k,
-        "offset_u_px": s.offset_u_px / k, "offset_v_px": s.offset_v_px / k,
+        "offset_u_px": off_u, "offset_v_px": off_v,
         "exposure_ms": None if "sensor.exposure_ms" in rig.derived else s.exposure_ms / (k * k)})

@@ -10,9 +10,14 @@ Model
   aperture a disc of diameter f/N in the lens plane.
 * A rig point P (x > 0) has the conjugate P' = −f/(x − f)·P (Gaussian lens
   equation; Newton's x·x' = −f² with x, x' from the focal planes, paper Eq. 1).
-* Radial distortion acts on the chief ray: the image point keeps its axial
+* Distortion acts on the chief ray: the image point keeps its axial
   position x' but its lateral offset is scaled by 1 + k1·t² + k2·t⁴ with
-  t = tan θ = √(y² + z²)/x the object-side field angle.
+  t = tan θ = √(y² + z²)/x the object-side field angle; with k3, p1, p2 or an
+  aspect ratio ≠ 1, OpenCV's model moves it (:mod:`scheimpflug.model.distortion`).
+* The sensor is tilted by the hinge rule (``[sensor] image_distance_mm`` = 0) or,
+  for an ordinary camera, perpendicular to the optical axis at the image
+  distance b: then pixel (u, v) of a point is OpenCV's pinhole projection with
+  fx = b / p, fy = fx·aspect_ratio and the principal point given by the offsets.
 * The sensor is a plane (:class:`SensorPose`); the *image* of P on it is where
   the (distorted) chief ray through the lens centre meets the sensor.  The blur
   is the section of the cone from the aperture to P' by the sensor.
@@ -37,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scheimpflug.model._checks import check_last_dim
+from scheimpflug.model.distortion import distort_tangents, is_radial, undistort_tangents
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
@@ -54,6 +60,7 @@ __all__ = [
     "sensor_point_from_pixel",
     "sensor_pose",
     "sheet_point_from_pixel",
+    "stripe_along",
 ]
 
 
@@ -127,16 +134,24 @@ def sensor_pose(rig: Rig) -> SensorPose:
     Notes
     -----
     Ideal pose: pixel (u_h, v_h) at the image hinge H' = (−f, f·tan φ, 0),
-    e_u = (sin β, cos β, 0) (parallel to O→H, paper Eq. 6), e_v = +z.
+    e_u = (sin β, cos β, 0) (parallel to O→H, paper Eq. 6), e_v = +z.  An
+    ordinary camera's (``image_distance_mm`` b > 0): the centre pixel at
+    (−b, 0, 0), e_u = +y, e_v = +z; its roll, offsets (the principal point)
+    and tilt error then act alike.
     Roll (about the normal) and tilt error (about the row direction, i.e. a
     change of β) turn the sensor about its centre pixel; then the offsets
     (u, v in pixels, normal in µm) translate it.
     """
-    g = hinge_geometry(rig)
     s = rig.sensor
-    p = g.pixel_pitch_mm
-    e_u, e_v = g.sensor_u_dir, np.array([0.0, 0.0, 1.0])
-    origin = g.image_hinge_mm - s.hinge_column * p * e_u - s.axis_row * p * e_v
+    if s.image_distance_mm > 0:
+        p, e_u, e_v = s.pixel_pitch_um * 1e-3, np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+        axis = np.array([-s.image_distance_mm, 0.0, 0.0])
+        origin = axis - 0.5 * (s.columns - 1) * p * e_u - 0.5 * (s.rows - 1) * p * e_v
+    else:
+        g = hinge_geometry(rig)
+        p = g.pixel_pitch_mm
+        e_u, e_v = g.sensor_u_dir, np.array([0.0, 0.0, 1.0])
+        origin = g.image_hinge_mm - s.hinge_column * p * e_u - s.axis_row * p * e_v
     centre = origin + 0.5 * (s.columns - 1) * p * e_u + 0.5 * (s.rows - 1) * p * e_v
     normal = np.cross(e_u, e_v)
     rot = _rotation(e_v, math.radians(s.tilt_error_deg)) @ _rotation(normal, math.radians(s.roll_deg))
@@ -173,12 +188,25 @@ class LensState:
     focus_shift_mm: float
 
 
-def _conjugate(p: np.ndarray, f: float, cx: float, k1: float, k2: float) -> np.ndarray:
+def _distorted_lateral(rig: Rig, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """x·D(y/x, z/x): the lateral offsets (…, 2) at depth x of the distorted chief ray (general model)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.stack([y / x, z / x], axis=-1)
+    return x[..., None] * distort_tangents(rig.lens, rig.sensor.roll_deg, a)
+
+
+def _conjugate(p: np.ndarray, f: float, cx: float, rig: Rig) -> np.ndarray:
     """Conjugate c + m·(P − c) about the lens centre c = (cx, 0, 0), lateral part distorted."""
+    k1, k2 = rig.lens.k1, rig.lens.k2
     x = p[..., 0] - cx
     with np.errstate(divide="ignore", invalid="ignore"):
         m = np.where(x != f, -f / (x - f), np.nan)
         t2 = (p[..., 1] ** 2 + p[..., 2] ** 2) / (x * x)
+    if not is_radial(rig.lens):
+        lat = _distorted_lateral(rig, x, p[..., 1], p[..., 2])
+        img = m[..., None] * np.stack([x, lat[..., 0], lat[..., 1]], axis=-1)
+        img[..., 0] += cx
+        return img
     img = m[..., None] * np.stack([x, p[..., 1], p[..., 2]], axis=-1)
     s = _distortion_scale(t2, k1, k2)
     img[..., 1] *= s
@@ -215,7 +243,7 @@ def lens_state(rig: Rig) -> LensState:
     pc = d / (w[1] + w[0] * t) * w
 
     def g(cx: float) -> float:
-        return float((_conjugate(pc, f, cx, lens.k1, lens.k2) - pose.origin_mm) @ pose.normal)
+        return float((_conjugate(pc, f, cx, rig) - pose.origin_mm) @ pose.normal)
 
     a, b = 0.0, lens.focal_length_error_mm
     ga, gb = g(a), g(b)
@@ -292,8 +320,8 @@ def conjugate_point(rig: Rig, points_mm) -> np.ndarray:
     """
     p = check_last_dim("points_mm", points_mm, 3)
     ls = lens_state(rig)
-    if ls.centre_x_mm != 0.0 or ls.focal_length_mm != rig.lens.focal_length_mm:
-        return _conjugate(p, ls.focal_length_mm, ls.centre_x_mm, rig.lens.k1, rig.lens.k2)
+    if ls.centre_x_mm != 0.0 or ls.focal_length_mm != rig.lens.focal_length_mm or not is_radial(rig.lens):
+        return _conjugate(p, ls.focal_length_mm, ls.centre_x_mm, rig)
     f = rig.lens.focal_length_mm
     x = p[..., 0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -310,6 +338,9 @@ def _chief_dir_image(rig: Rig, points_mm: np.ndarray) -> np.ndarray:
     """Direction of the (distorted) chief ray behind the lens for object points, (…, 3)."""
     p = np.asarray(points_mm, dtype=np.float64)
     x = p[..., 0] - lens_state(rig).centre_x_mm
+    if not is_radial(rig.lens):
+        lat = _distorted_lateral(rig, x, p[..., 1], p[..., 2])
+        return np.stack([-x, -lat[..., 0], -lat[..., 1]], axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         t2 = (p[..., 1] ** 2 + p[..., 2] ** 2) / (x * x)
     s = _distortion_scale(t2, rig.lens.k1, rig.lens.k2)
@@ -506,6 +537,12 @@ def chief_ray_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.
 def _chief_dir_from_sensor(rig: Rig, q: np.ndarray, cx: float) -> np.ndarray:
     """Unit object-side chief-ray directions of sensor points q, lens centre at (cx, 0, 0)."""
     qx = q[..., 0] - cx
+    if not is_radial(rig.lens):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a_d = np.stack([q[..., 1] / qx, q[..., 2] / qx], axis=-1)
+        a = undistort_tangents(rig.lens, rig.sensor.roll_deg, a_d)
+        w = -qx[..., None] * np.stack([np.ones_like(qx), a[..., 0], a[..., 1]], axis=-1)
+        return w / np.linalg.norm(w, axis=-1, keepdims=True)
     lat2 = (q[..., 1] ** 2 + q[..., 2] ** 2) / (qx ** 2)  # distorted tan² of the field angle
     ratio = _undistort_tan(lat2, rig.lens.k1, rig.lens.k2)
     w = np.stack([-qx, -q[..., 1] * ratio, -q[..., 2] * ratio], axis=-1)
@@ -542,3 +579,31 @@ def sheet_point_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> n
         lam = d / (w[..., 1] + w[..., 0] * t)
     lam = np.where(lam > 0, lam, np.nan)
     return c + lam[..., None] * w
+
+
+def stripe_along(rig: Rig) -> str:
+    """Which way a turning part's stripe runs in the rig's frames: down the columns or along the rows.
+
+    A part on the rotary table is cut by the sheet along the table's axis, the
+    rig's +z in the sheet; its stripe runs the way +z images.  Measured at the
+    sheet point the frame's centre pixel sees, over a step of 1 mm along +z.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument.
+
+    Returns
+    -------
+    {"columns", "rows"}
+        "columns" when +z images more along the columns (v) than the rows (one stripe
+        point per row: the Scheimpflug profiler's), "rows" otherwise (one per column:
+        e.g. FabScan's camera, turned by 90°) — a frame folder's ``stripe_along``.
+    """
+    centre = np.array([0.5 * (rig.sensor.columns - 1), 0.5 * (rig.sensor.rows - 1)])
+    p = sheet_point_from_pixel(rig, centre)
+    if not np.all(np.isfinite(p)):
+        return "columns"
+    uv = project_points(rig, np.stack([p - [0.0, 0.0, 0.5], p + [0.0, 0.0, 0.5]])).uv_px
+    du, dv = np.abs(uv[1] - uv[0])
+    return "rows" if du > dv else "columns"

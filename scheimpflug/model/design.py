@@ -104,6 +104,12 @@ def design_report(rig: Rig) -> dict:
         not exist (the columns of stage zero and the f check when stage zero is
         not in front of the hinge, e.g. d0 = 0) are None.
 
+    Raises
+    ------
+    RigError
+        For an ordinary camera (``[sensor] image_distance_mm`` > 0): the figures are the
+        hinge rule's, which such a camera does not follow.
+
     Examples
     --------
     The paper's rig (the paper measured F² = −1.446e6 px·mm, C = 145.91 mm and a
@@ -114,6 +120,10 @@ def design_report(rig: Rig) -> dict:
     >>> round(r["tilt_deg"], 3), round(r["F2_px_mm"] / 1e6, 4), round(r["C_mm"], 2), round(r["depth_range_mm"], 1)
     (21.646, -1.4292, 149.1, 274.3)
     """
+    if rig.sensor.image_distance_mm > 0:
+        raise RigError("[sensor] image_distance_mm > 0: an ordinary camera (a [camera] table, or rig "
+                       "from-calibration); the design report holds the hinge rule's figures of a Scheimpflug "
+                       "sensor, which it does not follow")
     g = hinge_geometry(rig)
     s = rig.sensor
     cov = coverage(s.hinge_column, s.axis_row, g.F2_px_mm, g.C_mm, s.columns, s.rows)

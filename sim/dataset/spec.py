@@ -64,6 +64,7 @@ import numpy as np
 from scenes import PART_NAMES
 from scheimpflug.errors import DatasetError, ScheimpflugError
 from scheimpflug.model.binning import binned_rig
+from scheimpflug.model.chain import chain_is_on
 from scheimpflug.model.rig import PRESETS, Rig, load_preset, load_rig, read_toml, rig_from_dict, rig_to_dict
 
 from ..materials import MaterialSettings
@@ -413,6 +414,9 @@ def _parse_rig(where: str, folder: Path, table: dict) -> tuple[dict, str, dict]:
         raise
     except ScheimpflugError as exc:
         raise _fail(where, f"[rig]: {exc}") from None
+    if chain_is_on(rig.chain):
+        raise _fail(where, f"[rig]: [chain] format = {rig.chain.format!r}: a dataset stores 16-bit grey frames "
+                           "only (set format = \"png16\"; 'scheimpflug render' writes the camera chain's files)")
     base = rig_to_dict(rig)
     variation = table.get("variation", {})
     if not isinstance(variation, dict):

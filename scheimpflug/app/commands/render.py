@@ -47,7 +47,7 @@ _BACKGROUND = ("background", "background_material", "background_height_mm", "bac
 _APPLIES = {
     "steps": ("calibration",), "step_mm": ("calibration",), "start_mm": ("calibration",),
     "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary", "target"),
-    "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"),
+    "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"), "housing": ("rotary",),
     "blocker_thickness_mm": ("blocker",), "room_light": ("target",),
     **{k: ("target",) for k in TARGET_OPTIONS},
     **{k: ("blocker", "rotary") for k in ("background", "background_material", "background_height_mm",
@@ -96,6 +96,9 @@ def add_parser(sub):
                    help="rotary axis position [mm] (default: the rig's)")
     g.add_argument("--frames", type=integer(1, 10**9), help="blocker: number of frames (default 1); "
                                                             "rotary: render only the first N")
+    g.add_argument("--housing", metavar="HOUSING.toml",
+                   help="rotary: a scanner's fixed boards (walls, floor) in the instrument frame, the rig's "
+                        "camera frame (docs/reference/interface.md; scheimpflug rig housing writes one)")
     g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
                    help="blocker thickness [mm] (default 2)")
     add_target_options(p)
@@ -151,7 +154,7 @@ def _scenario_options(args) -> dict:
             raise ScheimpflugError(f"{flag} applies to the {' and '.join(scen)} scenario"
                                    f"{'s' if len(scen) > 1 else ''} only, not {args.scenario!r}")
     names = {"calibration": ("steps", "step_mm", "start_mm", "plate_height_mm"),
-             "blocker": ("frames", *_BACKGROUND), "rotary": ("part", "step_deg", "frames", *_BACKGROUND),
+             "blocker": ("frames", *_BACKGROUND), "rotary": ("part", "step_deg", "frames", "housing", *_BACKGROUND),
              "target": ()}[args.scenario]
     opts = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
     if args.scenario == "target":

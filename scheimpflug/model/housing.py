@@ -1,0 +1,219 @@
+"""A scanner's housing: flat boards that stand still while the table turns (issue 35 item 5).
+
+A turntable scanner's back walls, floor or lid are fixed surfaces beside the
+part.  Each is a :class:`Board`: a rectangle of a plane with a thickness behind
+its face, given in the *instrument frame* — the calibration's camera frame
+(OpenCV's: X along the columns, Y along the rows, Z forward) [mm], the frame of
+:mod:`scheimpflug.model.instrument`, so that a housing found from real frames
+through their calibration (:func:`scheimpflug.fixed_lines.wall_board`) stands in
+the twin where the real one stands (``render --housing``, :mod:`sim.backgrounds`).
+
+Housing file (TOML), one ``[[board]]`` table per board::
+
+    [[board]]
+    name = "left"
+    centre_mm = [x, y, z]     # the centre of its face [mm], instrument frame
+    normal = [nx, ny, nz]     # unit normal of the face (the side that is seen and lit) [-]
+    length_dir = [lx, ly, lz] # unit direction of its length, in the face (⟂ normal) [-]
+    length_mm = 120.0         # extent along length_dir [mm]
+    width_mm = 80.0           # extent along normal × length_dir [mm]
+    thickness_mm = 10.0       # behind the face [mm]
+    material = "cardboard"    # a material tag of scenes.MATERIALS
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scheimpflug.errors import RigError
+
+__all__ = ["Board", "board_corners_mm", "housing_from_dict", "housing_to_toml", "load_housing"]
+
+#: Tolerance on unit lengths and on the perpendicularity of a board's directions [-].
+_UNIT_TOL = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class Board:
+    """One flat board of a housing, instrument frame (module docstring).
+
+    Parameters
+    ----------
+    name : str
+        Its name.
+    centre_mm : (3,) ndarray
+        Centre of its face [mm].
+    normal : (3,) ndarray
+        Unit normal of the face, toward the side that is seen and lit [-].
+    length_dir : (3,) ndarray
+        Unit direction of its length, perpendicular to ``normal`` [-].
+    length_mm, width_mm : float
+        Extents along ``length_dir`` and along ``normal × length_dir`` [mm], > 0.
+    thickness_mm : float, default 10.0
+        Thickness behind the face [mm], > 0.
+    material : str, default "cardboard"
+        Material tag (``scenes.MATERIALS``; checked where the twin builds it).
+    """
+
+    name: str
+    centre_mm: np.ndarray
+    normal: np.ndarray
+    length_dir: np.ndarray
+    length_mm: float
+    width_mm: float
+    thickness_mm: float = 10.0
+    material: str = "cardboard"
+
+    def to_dict(self) -> dict:
+        """The board as plain numbers (a housing file's ``[[board]]`` table, a manifest's entry).
+
+        Returns
+        -------
+        dict
+            Every field under its own name, vectors as lists.
+        """
+        return {"name": self.name, "centre_mm": [float(x) for x in self.centre_mm],
+                "normal": [float(x) for x in self.normal], "length_dir": [float(x) for x in self.length_dir],
+                "length_mm": float(self.length_mm), "width_mm": float(self.width_mm),
+                "thickness_mm": float(self.thickness_mm), "material": self.material}
+
+
+def _vector(d: dict, key: str, where: str, unit: bool) -> np.ndarray:
+    try:
+        a = np.asarray(d[key], np.float64).ravel()
+    except KeyError:
+        raise RigError(f"{where}: {key} is missing") from None
+    except (TypeError, ValueError):
+        raise RigError(f"{where}: {key} must be 3 numbers, got {d[key]!r:.60}") from None
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise RigError(f"{where}: {key} must be 3 finite numbers, got {a.tolist()!r:.80}")
+    if unit and abs(float(np.linalg.norm(a)) - 1.0) > _UNIT_TOL:
+        raise RigError(f"{where}: {key} {a.tolist()} has length {float(np.linalg.norm(a)):.9g}, not 1 (a unit vector)")
+    return a
+
+
+def _size(d: dict, key: str, where: str, default: float | None = None) -> float:
+    value = d.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise RigError(f"{where}: {key} = {value!r:.40} must be a number > 0 [mm]")
+    return float(value)
+
+
+def _board(d, i: int) -> Board:
+    where = f"housing board {i}"
+    if not isinstance(d, dict):
+        raise RigError(f"{where} must be a table of keys, got {type(d).__name__}")
+    unknown = set(d) - {"name", "centre_mm", "normal", "length_dir", "length_mm", "width_mm", "thickness_mm",
+                        "material"}
+    if unknown:
+        raise RigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    normal, length = _vector(d, "normal", where, True), _vector(d, "length_dir", where, True)
+    if abs(float(normal @ length)) > _UNIT_TOL:
+        raise RigError(f"{where}: length_dir is not perpendicular to normal (cos = {float(normal @ length):.3g})")
+    name, material = d.get("name", f"board{i + 1}"), d.get("material", "cardboard")
+    if not isinstance(name, str) or not isinstance(material, str):
+        raise RigError(f"{where}: name and material must be strings")
+    return Board(name, _vector(d, "centre_mm", where, False), normal, length, _size(d, "length_mm", where),
+                 _size(d, "width_mm", where), _size(d, "thickness_mm", where, 10.0), material)
+
+
+def housing_from_dict(data: dict) -> tuple[Board, ...]:
+    """The boards of a parsed housing file.
+
+    Parameters
+    ----------
+    data : dict
+        ``{"board": [table, …]}`` (module docstring).
+
+    Returns
+    -------
+    tuple of Board
+        The boards, checked.
+
+    Raises
+    ------
+    RigError
+        No boards, an unknown key, a missing or non-finite vector, a normal or direction
+        that is not a unit vector, a length direction not perpendicular to the normal, a
+        size that is not > 0.
+    """
+    boards = data.get("board") if isinstance(data, dict) else None
+    if not isinstance(boards, list) or not boards:
+        raise RigError("a housing needs at least one [[board]] table")
+    return tuple(_board(d, i) for i, d in enumerate(boards))
+
+
+def load_housing(path: str | Path) -> tuple[Board, ...]:
+    """Read a housing file (module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Returns
+    -------
+    tuple of Board
+        The boards.
+
+    Raises
+    ------
+    RigError
+        Naming the file: missing, unreadable, not TOML, or a bad board (:func:`housing_from_dict`).
+    """
+    from scheimpflug.model.rig import read_toml
+
+    data = read_toml(path, "housing file")
+    try:
+        return housing_from_dict(data)
+    except RigError as exc:
+        raise RigError(f"housing file {str(path)!r}: {exc}") from None
+
+
+def housing_to_toml(boards, comment: str = "") -> str:
+    """The housing file of boards.
+
+    Parameters
+    ----------
+    boards : sequence of Board
+        The boards.
+    comment : str, default ""
+        Lines written first as ``#`` comments (where the boards came from).
+
+    Returns
+    -------
+    str
+        TOML text :func:`load_housing` reads back.
+    """
+    lines = [f"# {line}" for line in comment.splitlines()]
+    for b in boards:
+        lines += ["", "[[board]]"]
+        for key, value in b.to_dict().items():
+            text = json.dumps(value) if isinstance(value, str) else (
+                "[" + ", ".join(repr(x) for x in value) + "]" if isinstance(value, list) else repr(value))
+            lines.append(f"{key} = {text}")
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def board_corners_mm(board: Board) -> np.ndarray:
+    """The four corners of a board's face, instrument frame.
+
+    Parameters
+    ----------
+    board : Board
+        The board.
+
+    Returns
+    -------
+    (4, 3) ndarray float64
+        Corners [mm], in order around the face.
+    """
+    a = 0.5 * board.length_mm * np.asarray(board.length_dir, np.float64)
+    b = 0.5 * board.width_mm * np.cross(board.normal, board.length_dir)
+    c = np.asarray(board.centre_mm, np.float64)
+    return np.stack([c - a - b, c + a - b, c + a + b, c - a + b])
