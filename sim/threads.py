@@ -89,6 +89,15 @@ def drjit_threads(n: int):
     ------
     None
         Nothing: the pool is resized around the block (no-op without Dr.Jit).
+
+    Notes
+    -----
+    The thread's queued kernels are waited for before each resize (``dr.sync_thread``):
+    Dr.Jit's LLVM backend runs ahead of Python, and a pool resized under a launched
+    kernel is a known way to crash nanothread (mitsuba-renderer/drjit#204).  The suite
+    had an intermittent segmentation fault in the pipelined loop's noise kernel
+    (twice in about six full runs, never alone); this is a precaution, the cause is
+    not proven.
     """
     try:
         import drjit as dr
@@ -98,10 +107,12 @@ def drjit_threads(n: int):
         yield
         return
     before = dr.thread_count()
+    dr.sync_thread()         # no kernel of this thread in flight while the pool is resized (below)
     dr.set_thread_count(max(1, int(n)))
     try:
         yield
     finally:
+        dr.sync_thread()
         dr.set_thread_count(before)
 
 
