@@ -36,13 +36,23 @@ from scheimpflug.errors import MeshError
 from .part import MATERIALS, Part
 from .revolve import box_mesh
 
-__all__ = ["BACKGROUNDS", "BOARD_MM", "FIRST_ID", "background_parts", "oriented_board"]
+__all__ = [
+    "BACKGROUNDS",
+    "BOARD_MM",
+    "FIRST_ID",
+    "TABLE_SAGITTA_MM",
+    "background_parts",
+    "oriented_board",
+    "table_disc",
+]
 
 BACKGROUNDS = ("none", "walls", "box")
 #: thickness of a background board [mm]
 BOARD_MM = 10.0
 #: object id of the first background part
 FIRST_ID = 101
+#: largest chord sagitta of the turntable disc's polygonal rim [mm]
+TABLE_SAGITTA_MM = 1e-3
 
 
 def _board(name: str, centre, size, yaw_deg: float, material: str, object_id: int) -> Part:
@@ -100,6 +110,50 @@ def oriented_board(name: str, stage_from_board, length_mm: float, width_mm: floa
     return Part(name, mesh, material, {"kind": "board", "size_mm": [float(x) for x in sizes],
                                        "stage_from_board": m.tolist(), "mesh_from_part": np.eye(4).tolist()},
                 object_id)
+
+
+def table_disc(radius_mm: float, thickness_mm: float, material: str, stage_from_table, object_id: int) -> Part:
+    """The turntable's disc: its top the table plane, centred on the rotary axis.
+
+    Parameters
+    ----------
+    radius_mm : float
+        Radius of the disc [mm], > 0.
+    thickness_mm : float
+        Thickness below its top [mm], > 0.
+    material : str
+        Material tag (:data:`scenes.MATERIALS`).
+    stage_from_table : (4, 4) array_like float
+        Pose of the table frame in the stage frame: z the table's up (the rotary axis), the origin
+        the table's centre on its top [mm].
+    object_id : int
+        The part's object id.
+
+    Returns
+    -------
+    Part
+        The disc, its vertices in the stage frame (a polygon of sagitta ≤ :data:`TABLE_SAGITTA_MM`;
+        its top face lies exactly in the table plane); ``analytic`` records the pose and sizes.
+
+    Raises
+    ------
+    MeshError
+        An unknown material or a size that is not > 0.
+    """
+    from .generators import cylinder
+
+    if material not in MATERIALS:
+        raise MeshError(f"turntable disc: material {material!r} unknown (known: {', '.join(MATERIALS)})")
+    if not all(math.isfinite(x) and x > 0 for x in (radius_mm, thickness_mm)):
+        raise MeshError(f"turntable disc: radius {radius_mm!r} mm and thickness {thickness_mm!r} mm must be > 0")
+    m = np.asarray(stage_from_table, dtype=float)
+    disc = cylinder(2.0 * radius_mm, thickness_mm, max_sagitta_mm=TABLE_SAGITTA_MM, material=material)
+    mesh = disc.mesh.copy().apply_transform(m @ np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -thickness_mm],
+                                                          [0, 0, 0, 1]]))
+    return Part("table", mesh, material, {"kind": "table_disc", "radius_mm": float(radius_mm),
+                                          "thickness_mm": float(thickness_mm), "stage_from_table": m.tolist(),
+                                          "segments": disc.analytic["segments"],
+                                          "mesh_from_part": np.eye(4).tolist()}, object_id)
 
 
 def background_parts(kind: str, far_mm: float, table_z_mm: float, height_mm: float = 250.0,

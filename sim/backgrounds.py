@@ -12,7 +12,8 @@ crossing with the smallest u as the primary (the stripe rule of :mod:`sim.truth`
 A scanner's housing (:mod:`scheimpflug.model.housing`, ``render --housing FILE``) is given in the
 instrument frame — the rig's OpenCV camera frame (:func:`sim.truth.opencv_camera`) — and placed
 in the stage frame by :func:`housing_parts`; it stands still like the walls and is in the
-truth the same way.
+truth the same way.  So does the turntable's disc (``[stage] table_radius_mm``,
+:func:`table_parts`).
 """
 
 from __future__ import annotations
@@ -21,13 +22,22 @@ import dataclasses
 
 import numpy as np
 
-from scheimpflug.model.camera import lens_centre_mm
+from scheimpflug.model.camera import lens_centre_mm, sheet_point_from_pixel
 from scheimpflug.model.hinge import hinge_geometry
+from scheimpflug.model.housing import check_sheet_seen
 from scheimpflug.model.rig import Rig
 
-from .stages import axis_distance_mm, invert, ref_from_stage, rig_from_stage
+from .stages import (
+    axis_distance_mm,
+    invert,
+    ref_from_stage,
+    rig_from_stage,
+    stage_from_part,
+    transform_points,
+    translation,
+)
 
-__all__ = ["MAX_DISTANCE_MM", "background_truth", "housing_parts", "scan_background"]
+__all__ = ["MAX_DISTANCE_MM", "background_truth", "housing_parts", "scan_background", "table_parts"]
 
 
 #: farthest default distance of the background beyond the axis [mm] (a scanner's housing is that small)
@@ -101,12 +111,17 @@ def housing_parts(rig: Rig, boards, first_id: int | None = None) -> tuple:
     ------
     MeshError
         An unknown material or a size that is not > 0.
+    RigError
+        A housing that hides the whole sheet from the camera: every ray from the camera to
+        the sheet's part its pixels see (a 32 × 32 grid over the frame) passes through a
+        board (:func:`scheimpflug.model.housing.check_sheet_seen`, the board named).
     """
     from scenes.backgrounds import FIRST_ID, oriented_board
 
     from .truth import opencv_camera
 
     _, camera_from_rig = opencv_camera(rig)
+    check_sheet_seen(boards, np.zeros(3), transform_points(camera_from_rig, _sheet_seen_mm(rig)))
     stage_from_camera = invert(rig_from_stage(rig)) @ invert(camera_from_rig)
     first = FIRST_ID if first_id is None else first_id
     parts = []
@@ -117,6 +132,52 @@ def housing_parts(rig: Rig, boards, first_id: int | None = None) -> tuple:
         parts.append(oriented_board(b.name, stage_from_camera @ camera_from_board, b.length_mm, b.width_mm,
                                     b.thickness_mm, b.material, first + i))
     return tuple(parts)
+
+
+def table_parts(rig: Rig, object_id: int) -> tuple:
+    """The turntable's disc of a rig (``[stage] table_radius_mm`` > 0), in the stage frame.
+
+    The disc is centred on the bearing axis, its top the table plane (the part frame's z = 0 at
+    θ = 0 without the runout, which moves the part, not the table).  It stands still: it is
+    rotationally symmetric about the axis it turns on, so turning it changes nothing the camera
+    sees (to its rim's polygon); the table's error motions (``wobble_urad``,
+    ``radial_error_um``) move the part only.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (``stage.table_radius_mm``, ``table_thickness_mm``, ``table_material`` and the
+        rotary stage's pose).
+    object_id : int
+        The disc's object id.
+
+    Returns
+    -------
+    tuple of scenes.Part
+        The disc, or empty when ``table_radius_mm`` is 0.
+
+    Raises
+    ------
+    MeshError
+        An unknown material.
+    """
+    from scenes.backgrounds import table_disc
+
+    st = rig.stage
+    if not st.table_radius_mm > 0:
+        return ()
+    stage_from_table = stage_from_part(rig, 0.0) @ translation((-0.5e-3 * st.runout_um, 0.0, 0.0))
+    return (table_disc(st.table_radius_mm, st.table_thickness_mm, st.table_material, stage_from_table,
+                       object_id),)
+
+
+def _sheet_seen_mm(rig: Rig, n: int = 32) -> np.ndarray:
+    """Rig-frame points where an n × n grid of pixel rays over the frame meets the sheet (in front only)."""
+    u = np.linspace(0.0, rig.sensor.columns - 1.0, n)
+    v = np.linspace(0.0, rig.sensor.rows - 1.0, n)
+    uv = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+    p = sheet_point_from_pixel(rig, uv)
+    return p[np.all(np.isfinite(p), axis=1)]
 
 
 def _merge(a: dict, b: dict) -> dict:

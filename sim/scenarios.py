@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scheimpflug.errors import ScheimpflugError
+from scheimpflug.errors import RigError, ScheimpflugError
 from scheimpflug.model.camera import lens_state
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.plan import (
@@ -608,26 +608,37 @@ def blocker_scenario(rig: Rig, seed: int = 0, frames: int = 1, thickness_mm: flo
 
 def _with_background(rig: Rig, scenario: Scenario, kind: str, material: str, height_mm: float,
                      distance_mm: float | None = None, housing: str | None = None) -> Scenario:
-    """The scenario with background parts and a housing in the stage frame (none: unchanged, bit for bit)."""
+    """The scenario with background parts, a housing and the table's disc in the stage frame.
+
+    None of them: the scenario unchanged, bit for bit.
+    """
     import dataclasses
 
     from scenes.backgrounds import FIRST_ID
     from scheimpflug.model.housing import load_housing
 
-    from .backgrounds import background_truth, housing_parts, scan_background
+    from .backgrounds import background_truth, housing_parts, scan_background, table_parts
 
+    if housing is not None and rig.housing:
+        raise RigError(f"--housing {str(housing)!r} and the rig's [housing] ({len(rig.housing)} board(s)) both give "
+                       "a housing: give one (take [housing] out of the rig file, or leave out --housing)")
     parts = scan_background(rig, kind, material, height_mm, distance_mm)
-    boards = load_housing(housing) if housing is not None else ()
+    boards = load_housing(housing) if housing is not None else rig.housing
     boxes = housing_parts(rig, boards, FIRST_ID + len(parts)) if boards else ()
-    if not parts and not boxes:
+    table = table_parts(rig, FIRST_ID + len(parts) + len(boxes))
+    if not parts and not boxes and not table:
         return scenario
     params = dict(scenario.params)
     if parts:
         params["background"] = {"kind": kind, "material": material, "height_mm": height_mm,
                                 "distance_mm": distance_mm, "parts": [p.analytic for p in parts]}
     if boxes:
-        params["housing"] = {"file": str(housing), "boards": [b.to_dict() for b in boards]}
-    return dataclasses.replace(scenario, params=params, background=parts + boxes, frame_truth=background_truth)
+        params["housing"] = {"file": str(housing) if housing is not None else "rig [housing]",
+                             "boards": [b.to_dict() for b in boards]}
+    if table:
+        params["table"] = {"object_id": table[0].object_id, "material": table[0].material, **table[0].analytic}
+    return dataclasses.replace(scenario, params=params, background=parts + boxes + table,
+                               frame_truth=background_truth)
 
 
 def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: float = 0.5,
@@ -660,7 +671,8 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
         Where it stands beyond the axis (:func:`sim.backgrounds.scan_background`) [mm].
     housing : str, optional
         A housing file (:mod:`scheimpflug.model.housing`): boards in the instrument frame
-        that stand still beside the table (:func:`sim.backgrounds.housing_parts`).
+        that stand still beside the table (:func:`sim.backgrounds.housing_parts`); default
+        the rig's own (``rig.housing``, ``[[housing.board]]`` of the rig file).
 
     Returns
     -------
@@ -675,7 +687,9 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     MeshError
         For an unknown part or a bad mesh or scene file, or an unknown background or material.
     RigError
-        For a bad housing file (:func:`scheimpflug.model.housing.load_housing`).
+        For a bad housing file (:func:`scheimpflug.model.housing.load_housing`), a housing file
+        given beside the rig's own housing, or a housing that hides the whole sheet from the
+        camera (:func:`sim.backgrounds.housing_parts`).
     """
     _positive("step_deg", step_deg)
     n_turn = max(1, int(round(360.0 / step_deg)))

@@ -257,11 +257,13 @@ def test_rig_truth_gives_the_calibrated_opencv_camera_back(rng):
     assert np.allclose(camera_from_rig @ frame.rig_from_camera, np.eye(4), rtol=0, atol=1e-12)
 
 
-def test_design_refuses_an_ordinary_camera(rng):
+def test_design_of_an_ordinary_camera_has_no_hinge_figures(rng):
+    """The hinge rule's figures are null; the rest: tests/test_design_ordinary_camera.py."""
     from scheimpflug.model.design import design_report
 
-    with pytest.raises(RigError, match="ordinary camera"):
-        design_report(rig_from_instrument(_synthetic(rng)[0]))
+    rep = design_report(rig_from_instrument(_synthetic(rng)[0]))
+    assert rep["sensor_kind"] == "ordinary" and rep["tilt_deg"] is None and rep["F2_px_mm"] is None
+    assert "ordinary camera" in rep["notes"][0]
 
 
 def test_target_calibration_file_gives_the_same_camera(rng, tmp_path):

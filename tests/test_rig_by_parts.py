@@ -119,11 +119,11 @@ def test_the_other_tables_keep_their_keys_and_preset_fills_the_camera():
         1640, 1232, 2.24, 2.0)
 
 
-def test_design_refuses_an_ordinary_camera_by_parts():
+def test_design_of_an_ordinary_camera_by_parts():
     from scheimpflug.model.design import design_report
 
-    with pytest.raises(RigError, match="ordinary camera"):
-        design_report(rig_from_dict(PARTS))
+    rep = design_report(rig_from_dict(PARTS))
+    assert rep["sensor_kind"] == "ordinary" and rep["C_mm"] is None and rep["depth_range_mm"] > 0
 
 
 @pytest.mark.parametrize("table, key", [("lens", "focal_length_mm"), ("sensor", "hinge_column"),

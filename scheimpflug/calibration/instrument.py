@@ -15,6 +15,7 @@ camera frame of those frames.  What a calibration does not give comes from a nam
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -100,7 +101,10 @@ def _turntable(model, fabscan: bool) -> Turntable | None:
     w = w / np.linalg.norm(w)
     if not fabscan and w[1] > 0:         # a target calibration's axis: the sign that points up in the image
         w = -w
-    return Turntable(np.asarray(axis["point_mm"], np.float64), w)
+    radius = ((getattr(model, "tilt", None) or {}).get("turntable") or {}).get("radius") if fabscan else None
+    if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (math.isfinite(radius) and radius > 0):
+        return Turntable(np.asarray(axis["point_mm"], np.float64), w)
+    return Turntable(np.asarray(axis["point_mm"], np.float64), w, radius_mm=float(radius))
 
 
 def instrument_from_calibration(path: str | Path, preset: str | None = None, *,
@@ -155,6 +159,9 @@ def instrument_from_calibration(path: str | Path, preset: str | None = None, *,
                  int(model.rows), tuple(float(x) for x in dist), **extra)
     n, d = _plane(model)
     table = _turntable(model, fabscan) if turntable else None
+    if table is not None:                             # the disc's size and material: FabScan's radius at most
+        unknown += ["stage.table_thickness_mm", "stage.table_material"]
+        unknown += ["stage.table_radius_mm"] if table.radius_mm == 0 else []
     if table is None:
         unknown += ["stage.axis_mm", "stage.rotary_table_z_mm"]
     elif not fabscan:

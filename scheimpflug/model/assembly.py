@@ -19,6 +19,7 @@ from typing import Any
 
 from scheimpflug.errors import RigError
 from scheimpflug.model.chain import Chain, expand_chain_table
+from scheimpflug.model.housing import Board, housing_from_dict
 from scheimpflug.model.keys import table_from_values, validate_rig
 from scheimpflug.model.plan import resolve_defaults
 from scheimpflug.model.tables import DERIVED_KEYS, TABLES, Environment, Laser, Lens, Sensor, Stage, Twin
@@ -27,6 +28,7 @@ __all__ = [
     "Rig",
     "rig_from_tables",
     "rig_to_dict",
+    "housing_lines",
     "rig_to_toml",
 ]
 
@@ -58,6 +60,9 @@ class Rig:
     chain : Chain, optional
         The ``[chain]`` table (:mod:`scheimpflug.model.chain`: the camera's colour mosaic,
         tone curve, 8 bits, JPEG, glare, blooming); default off (16-bit grey raw frames).
+    housing : tuple of Board, default ()
+        The scanner's housing, ``[[housing.board]]`` (:mod:`scheimpflug.model.housing`): boards
+        in the instrument frame that the twin renders beside the table; default none.
 
     Attributes
     ----------
@@ -79,6 +84,7 @@ class Rig:
     environment: Environment = field(default_factory=Environment)
     twin: Twin = field(default_factory=Twin)
     chain: Chain = field(default_factory=Chain)
+    housing: tuple[Board, ...] = ()
     derived: tuple[str, ...] = field(default=(), init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -160,12 +166,27 @@ def rig_from_tables(data: Mapping[str, Any]) -> Rig:
     """
     if not isinstance(data, Mapping):
         raise RigError(f"a rig must be a table of tables, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(TABLES))
+    unknown = sorted(set(data) - set(TABLES) - {"housing"})
     if unknown:
-        raise RigError(f"unknown rig table [{unknown[0]}] (known: {', '.join(TABLES)})")
+        raise RigError(f"unknown rig table [{unknown[0]}] (known: {', '.join(TABLES)}, housing)")
     data = {**data, "chain": expand_chain_table(data.get("chain", {}))}   # a named camera's values
     parts = {name: table_from_values(name, cls, data.get(name, {})) for name, cls in TABLES.items()}
-    return Rig(**parts)
+    return Rig(**parts, housing=_housing(data.get("housing")))
+
+
+def _housing(table: Any) -> tuple[Board, ...]:
+    """The boards of a rig's ``[housing]`` table (``{"board": [...]}``); none without one."""
+    if table is None:
+        return ()
+    if isinstance(table, str):
+        raise RigError(f"housing = {table!r}: a housing file is read by load_rig, relative to the rig file "
+                       "(here no file: give the boards as [[housing.board]])")
+    if not isinstance(table, Mapping) or set(table) - {"board"}:
+        raise RigError("[housing] holds [[housing.board]] tables only (docs/reference/interface.md)")
+    try:
+        return housing_from_dict(dict(table))
+    except RigError as exc:
+        raise RigError(f"[housing]: {exc}") from None
 
 
 def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
@@ -180,9 +201,13 @@ def rig_to_dict(rig: Rig) -> dict[str, dict[str, Any]]:
     -------
     dict of str to dict
         ``{table: {key: value}}``, every key of every table; derived stage
-        keys hold the values the rule gave them.
+        keys hold the values the rule gave them; with a housing also
+        ``"housing": {"board": [board, …]}`` (:meth:`Board.to_dict`).
     """
-    return {name: dataclasses.asdict(getattr(rig, name)) for name in TABLES}
+    out = {name: dataclasses.asdict(getattr(rig, name)) for name in TABLES}
+    if rig.housing:
+        out["housing"] = {"board": [b.to_dict() for b in rig.housing]}
+    return out
 
 
 def rig_to_toml(rig: Rig) -> str:
@@ -201,12 +226,38 @@ def rig_to_toml(rig: Rig) -> str:
     """
     lines: list[str] = []
     for name, table in rig_to_dict(rig).items():
+        if name == "housing":
+            lines += housing_lines(table["board"])
+            continue
         lines.append(f"[{name}]")
         for k, v in table.items():
             note = "  # derived (scheimpflug.model.plan)" if f"{name}.{k}" in rig.derived else ""
             lines.append(f"{k} = {_toml_value(v)}{note}")
         lines.append("")
     return "\n".join(lines)
+
+
+def housing_lines(boards) -> list[str]:
+    """A rig file's ``[[housing.board]]`` tables.
+
+    Parameters
+    ----------
+    boards : sequence of dict
+        :meth:`Board.to_dict` of each board.
+
+    Returns
+    -------
+    list of str
+        TOML lines, one table per board, each followed by a blank line.
+    """
+    lines: list[str] = []
+    for b in boards:
+        lines.append("[[housing.board]]")
+        for k, v in b.items():
+            text = "[" + ", ".join(repr(float(x)) for x in v) + "]" if isinstance(v, list) else _toml_value(v)
+            lines.append(f"{k} = {text}")
+        lines.append("")
+    return lines
 
 
 def _toml_value(value: Any) -> str:

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scheimpflug.model._checks import check_last_dim
-from scheimpflug.model.distortion import distort_tangents, is_radial, undistort_tangents
+from scheimpflug.model.distortion import distort_tangents, is_radial, tangents_jacobian, undistort_tangents
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.rig import Rig
 
@@ -59,6 +59,7 @@ __all__ = [
     "project_points",
     "sensor_point_from_pixel",
     "sensor_pose",
+    "sheet_jacobian",
     "sheet_point_from_pixel",
     "stripe_along",
 ]
@@ -579,6 +580,62 @@ def sheet_point_from_pixel(rig: Rig, uv_px, pose: SensorPose | None = None) -> n
         lam = d / (w[..., 1] + w[..., 0] * t)
     lam = np.where(lam > 0, lam, np.nan)
     return c + lam[..., None] * w
+
+
+def sheet_jacobian(rig: Rig, uv_px, pose: SensorPose | None = None) -> np.ndarray:
+    """Exact Jacobian ∂P/∂(u, v) of :func:`sheet_point_from_pixel`.
+
+    Parameters
+    ----------
+    rig : Rig
+        The instrument (lens distortion; the sheet ``y = d − x·tan φ``).
+    uv_px : (..., 2) array_like float
+        Pixel coordinates (u, v) [px].
+    pose : SensorPose, optional
+        Sensor pose; default :func:`sensor_pose` of ``rig``.
+
+    Returns
+    -------
+    (..., 3, 2) ndarray float64
+        J[..., :, 0] = ∂P/∂u and J[..., :, 1] = ∂P/∂v in the rig frame [mm/px]; NaN
+        where the chief ray misses the sheet in front of the lens.
+
+    Raises
+    ------
+    ValueError
+        If ``uv_px`` is not of shape ``(..., 2)``.
+
+    Notes
+    -----
+    The chain of :func:`sheet_point_from_pixel` differentiated term by term: pixel →
+    sensor point q = O + p·(u·e_u + v·e_v) → distorted tangents a_d = (q_y, q_z)/(q_x − c_x)
+    → object tangents a (∂a/∂a_d the inverse of
+    :func:`scheimpflug.model.distortion.tangents_jacobian`) → P = c + λ·(1, a_y, a_z)
+    with λ = d'/(a_y + tan φ), d' = d − c_x·tan φ.
+    """
+    pose = sensor_pose(rig) if pose is None else pose
+    q = sensor_point_from_pixel(pose, uv_px)
+    c = lens_centre_mm(rig)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        qx = q[..., 0] - c[0]
+        a_d = np.stack([q[..., 1] / qx, q[..., 2] / qx], axis=-1)
+        dad_dq = np.zeros(q.shape[:-1] + (2, 3))
+        dad_dq[..., 0, 0], dad_dq[..., 0, 1] = -q[..., 1] / qx**2, 1.0 / qx
+        dad_dq[..., 1, 0], dad_dq[..., 1, 2] = -q[..., 2] / qx**2, 1.0 / qx
+    a = undistort_tangents(rig.lens, rig.sensor.roll_deg, a_d)
+    da_dad = np.linalg.inv(tangents_jacobian(rig.lens, rig.sensor.roll_deg, a))
+    t = rig.laser.tan_phi
+    d = rig.laser.scheimpflug_distance_mm - c[0] * t
+    s = a[..., 0] + t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.where(d / s > 0, d / s, np.nan)
+        k = -lam / s                                    # ∂λ/∂a_y
+    dp_da = np.zeros(q.shape[:-1] + (3, 2))
+    dp_da[..., 0, 0] = k
+    dp_da[..., 1, 0] = lam + a[..., 0] * k
+    dp_da[..., 2, 0], dp_da[..., 2, 1] = a[..., 1] * k, lam
+    dq_duv = pose.pitch_mm * np.stack([pose.u_dir, pose.v_dir], axis=-1)
+    return dp_da @ da_dad @ dad_dq @ dq_duv
 
 
 def stripe_along(rig: Rig) -> str:

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from scheimpflug.errors import RigError
+from scheimpflug.model.camera_design import ordinary_camera_report
 from scheimpflug.model.hinge import HingeGeometry, hinge_geometry, stage_from_pixel, stage_jacobian, tilt_rad
 from scheimpflug.model.plan import calibration_plan, rotary_plan, stage_warnings
 from scheimpflug.model.rig import DERIVED_STAGE_KEYS, Rig
@@ -102,13 +103,11 @@ def design_report(rig: Rig) -> dict:
         (:mod:`scheimpflug.model.plan`); ``warnings`` (stage settings that put
         the axis or the plate out of view, naming the key).  Figures that do
         not exist (the columns of stage zero and the f check when stage zero is
-        not in front of the hinge, e.g. d0 = 0) are None.
-
-    Raises
-    ------
-    RigError
-        For an ordinary camera (``[sensor] image_distance_mm`` > 0): the figures are the
-        hinge rule's, which such a camera does not follow.
+        not in front of the hinge, e.g. d0 = 0) are None.  For an ordinary camera
+        (``[sensor] image_distance_mm`` > 0), which does not follow the hinge rule, the
+        figures of :func:`scheimpflug.model.camera_design.ordinary_camera_report` instead:
+        the same keys where the meaning is the same, the hinge rule's null, and the field,
+        resolutions and focus from the exact camera model.
 
     Examples
     --------
@@ -121,9 +120,7 @@ def design_report(rig: Rig) -> dict:
     (21.646, -1.4292, 149.1, 274.3)
     """
     if rig.sensor.image_distance_mm > 0:
-        raise RigError("[sensor] image_distance_mm > 0: an ordinary camera (a [camera] table, or rig "
-                       "from-calibration); the design report holds the hinge rule's figures of a Scheimpflug "
-                       "sensor, which it does not follow")
+        return ordinary_camera_report(rig)
     g = hinge_geometry(rig)
     s = rig.sensor
     cov = coverage(s.hinge_column, s.axis_row, g.F2_px_mm, g.C_mm, s.columns, s.rows)

@@ -31,7 +31,7 @@ import numpy as np
 
 from scheimpflug.model._checks import check_last_dim
 
-__all__ = ["distort_tangents", "fold_radius", "is_radial", "undistort_tangents"]
+__all__ = ["distort_tangents", "fold_radius", "is_radial", "tangents_jacobian", "undistort_tangents"]
 
 
 def is_radial(lens) -> bool:
@@ -103,6 +103,41 @@ def distort_tangents(lens, roll_deg: float, tangents) -> np.ndarray:
     e = _frame(roll_deg)
     xd, yd = _opencv(lens, -(a @ e.T))
     return -(np.stack([xd, lens.aspect_ratio * yd], axis=-1) @ e)
+
+
+def tangents_jacobian(lens, roll_deg: float, tangents) -> np.ndarray:
+    """∂a_d/∂a of :func:`distort_tangents`: how the distorted tangents follow the object tangents.
+
+    Parameters
+    ----------
+    lens : scheimpflug.model.rig.Lens
+        The lens (k1, k2, k3, p1, p2, aspect_ratio).
+    roll_deg : float
+        Roll ψ of the sensor's pixel axes about the optical axis [deg].
+    tangents : (..., 2) array_like float
+        Object-side field-angle tangents a = (y/x, z/x) in the rig frame [-].
+
+    Returns
+    -------
+    (..., 2, 2) ndarray float64
+        J[..., i, j] = ∂a_d[i]/∂a[j] [-].
+
+    Raises
+    ------
+    ValueError
+        If ``tangents`` is not of shape ``(..., 2)``.
+
+    Notes
+    -----
+    a_d = −Eᵀ·A·d(−E·a) (E the roll frame, A = diag(1, aspect ratio), d OpenCV's
+    distortion), so ∂a_d/∂a = Eᵀ·A·J_d(−E·a)·E with J_d OpenCV's Jacobian.
+    """
+    a = check_last_dim("tangents", tangents, 2)
+    e = _frame(roll_deg)
+    ja, jb, jc, jd = _jacobian(lens, -(a @ e.T))
+    ar = lens.aspect_ratio
+    j = np.stack([np.stack([ja, jb], axis=-1), np.stack([ar * jc, ar * jd], axis=-1)], axis=-2)
+    return e.T @ j @ e
 
 
 def undistort_tangents(lens, roll_deg: float, tangents, iterations: int = 30) -> np.ndarray:

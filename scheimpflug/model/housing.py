@@ -8,6 +8,10 @@ its face, given in the *instrument frame* — the calibration's camera frame
 through their calibration (:func:`scheimpflug.fixed_lines.wall_board`) stands in
 the twin where the real one stands (``render --housing``, :mod:`sim.backgrounds`).
 
+A rig file holds its housing too (``render --rig`` renders it without ``--housing``): the same
+tables as ``[[housing.board]]``, or ``housing = "path"`` (a housing file, relative to the rig
+file); :mod:`scheimpflug.model.assembly` carries the boards in ``Rig.housing``.
+
 Housing file (TOML), one ``[[board]]`` table per board::
 
     [[board]]
@@ -32,7 +36,8 @@ import numpy as np
 
 from scheimpflug.errors import RigError
 
-__all__ = ["Board", "board_corners_mm", "housing_from_dict", "housing_to_toml", "load_housing"]
+__all__ = ["Board", "board_corners_mm", "check_sheet_seen", "housing_from_dict", "housing_to_toml", "load_housing",
+           "segments_blocked"]
 
 #: Tolerance on unit lengths and on the perpendicularity of a board's directions [-].
 _UNIT_TOL = 1e-6
@@ -68,6 +73,14 @@ class Board:
     width_mm: float
     thickness_mm: float = 10.0
     material: str = "cardboard"
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when every field is (vectors by value)."""
+        return isinstance(other, Board) and self.to_dict() == other.to_dict()
+
+    def __hash__(self) -> int:
+        """Hash of its values (a :class:`~scheimpflug.model.rig.Rig` holding it is hashed)."""
+        return hash(json.dumps(self.to_dict(), sort_keys=True))
 
     def to_dict(self) -> dict:
         """The board as plain numbers (a housing file's ``[[board]]`` table, a manifest's entry).
@@ -217,3 +230,70 @@ def board_corners_mm(board: Board) -> np.ndarray:
     b = 0.5 * board.width_mm * np.cross(board.normal, board.length_dir)
     c = np.asarray(board.centre_mm, np.float64)
     return np.stack([c - a - b, c + a - b, c + a + b, c - a + b])
+
+
+def segments_blocked(board: Board, origin_mm, points_mm) -> np.ndarray:
+    """Which segments from one origin to points pass through a board (its face and thickness).
+
+    Parameters
+    ----------
+    board : Board
+        The board: a box, its face the rectangle of :func:`board_corners_mm`, ``thickness_mm``
+        behind it.
+    origin_mm : (3,) array_like float
+        The segments' common start (a camera's centre) [mm], the board's frame.
+    points_mm : (n, 3) array_like float
+        Their ends [mm].
+
+    Returns
+    -------
+    (n,) ndarray bool
+        True where the segment meets the box strictly between its ends (the end itself, on
+        the face, is not blocked).
+    """
+    c = np.asarray(board.centre_mm, np.float64)
+    axes = np.stack([board.length_dir, board.normal, np.cross(board.normal, board.length_dir)])
+    lo = np.array([-0.5 * board.length_mm, -board.thickness_mm, -0.5 * board.width_mm])
+    hi = np.array([0.5 * board.length_mm, 0.0, 0.5 * board.width_mm])
+    o = axes @ (np.asarray(origin_mm, np.float64) - c)
+    d = (np.asarray(points_mm, np.float64) - c) @ axes.T - o
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - o) / d, (hi - o) / d
+    inside = (o >= lo) & (o <= hi)                       # a zero component: the slab holds it or not
+    t_lo = np.where(d == 0, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    t_hi = np.where(d == 0, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    enter, leave = t_lo.max(axis=1), t_hi.min(axis=1)
+    eps = 1e-9
+    return (enter <= leave) & (leave > eps) & (enter < 1.0 - eps)
+
+
+def check_sheet_seen(boards, origin_mm, points_mm) -> None:
+    """Refuse a housing that hides the whole sheet from the camera.
+
+    Parameters
+    ----------
+    boards : sequence of Board
+        The housing.
+    origin_mm : (3,) array_like float
+        The camera's centre [mm], the boards' frame.
+    points_mm : (n, 3) array_like float
+        Points of the sheet's part the camera sees (where its pixels' rays meet it) [mm].
+
+    Raises
+    ------
+    RigError
+        When every segment from the camera to those points passes through a board, naming
+        the board that blocks them all (or the boards that do between them).
+    """
+    pts = np.asarray(points_mm, np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if not len(pts) or not boards:
+        return
+    blocked = np.stack([segments_blocked(b, origin_mm, pts) for b in boards])
+    if not blocked.any(axis=0).all():
+        return
+    whole = [b.name for b, row in zip(boards, blocked) if row.all()]
+    names = whole[:1] or [b.name for b, row in zip(boards, blocked) if row.any()]
+    which = f"board {names[0]!r}" if len(names) == 1 else "boards " + ", ".join(repr(n) for n in names)
+    raise RigError(f"the housing hides the whole sheet from the camera: {which} stands between the camera and "
+                   f"every point of the sheet it sees ({len(pts)} sampled) — move it behind the sheet")

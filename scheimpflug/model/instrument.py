@@ -214,10 +214,19 @@ class Turntable:
         The table's centre, on its top [mm], instrument frame.
     axis_direction : (3,) ndarray
         Unit upward direction of the axis [-].
+    radius_mm : float, default 0.0
+        Radius of the table's disc [mm] (0 = no disc in the twin; ``[stage] table_radius_mm``).
+    thickness_mm : float, default 10.0
+        The disc's thickness below its top [mm] (``[stage] table_thickness_mm``).
+    material : str, default "cardboard"
+        The disc's material tag (``[stage] table_material``).
     """
 
     axis_point_mm: np.ndarray
     axis_direction: np.ndarray
+    radius_mm: float = 0.0
+    thickness_mm: float = 10.0
+    material: str = "cardboard"
 
 
 @dataclass(frozen=True, eq=False)
@@ -467,9 +476,12 @@ def _stage_table(inst: Instrument, frame: RigFrame, f_mm: float, focus_mm: float
         lean = math.hypot(float(w @ normal), float(w @ prop))
         azimuth = math.degrees(math.atan2(w @ normal, w @ prop)) if lean > 0 else 0.0
         table_z, offset = float(p[2]), float((p - hinge) @ normal)
+    disc = {} if inst.turntable is None else {
+        "table_radius_mm": float(inst.turntable.radius_mm), "table_thickness_mm": float(inst.turntable.thickness_mm),
+        "table_material": inst.turntable.material}
     return {"d0_mm": 0.0, "axis_mm": float((p - hinge) @ prop), "rotary_table_z_mm": table_z, "axis_tilt_deg": tilt,
             "axis_tilt_azimuth_deg": azimuth, "axis_offset_mm": offset, "calibration_table_z_mm": table_z,
-            "calibration_plate_height_mm": 20.0}
+            "calibration_plate_height_mm": 20.0, **disc}
 
 
 def rig_from_instrument(inst: Instrument, base: Rig | Mapping[str, Any] | None = None,

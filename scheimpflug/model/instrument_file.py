@@ -26,6 +26,9 @@ the Scheimpflug keys (docs/reference/interface.md, "Rig file by parts"), in one
     [turntable]                   # optional
     axis_point_mm = [x, y, z]     # the table's centre, on its top [mm]
     axis_direction = [ux, uy, uz] # unit upward direction of the axis [-]
+    radius_mm = 70.0              # optional: the table's disc, its top the table plane (0 = none) [mm]
+    thickness_mm = 10.0           # optional: the disc's thickness below its top [mm]
+    material = "cardboard"        # optional: the disc's material (a tag of scenes.MATERIALS)
 
 The file's other tables (``[lens]``, ``[sensor]``, ``[stage]``, ``[environment]``,
 ``[twin]``, ``[chain]``) give the keys the parts do not: noise, error models, light,
@@ -45,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from scheimpflug.errors import RigError
-from scheimpflug.model.assembly import Rig, rig_to_dict
+from scheimpflug.model.assembly import Rig, housing_lines, rig_to_dict
 from scheimpflug.model.instrument import (
     Camera,
     Instrument,
@@ -75,7 +78,7 @@ PART_TABLES = ("camera", "turntable")
 CAMERA_KEYS = ("preset", "fx_px", "fy_px", "cx_px", "cy_px", "distortion", "width_px", "height_px",
                "pixel_pitch_um", "f_number", "focus", "instrument_from_camera")
 #: The keys of ``[turntable]``.
-TURNTABLE_KEYS = ("axis_point_mm", "axis_direction")
+TURNTABLE_KEYS = ("axis_point_mm", "axis_direction", "radius_mm", "thickness_mm", "material")
 #: The keys of ``[laser]`` only a rig file by parts has.
 LASER_PART_KEYS = ("plane", "emitter_mm")
 #: The ``[laser]`` keys of the sheet's light (:class:`~scheimpflug.model.instrument.Sheet`).
@@ -91,11 +94,15 @@ REPLACED_KEYS: dict[str, tuple[tuple[str, ...], str]] = {
     "laser": (("scheimpflug_distance_mm", "tan_phi", "origin_x_mm", "waist_distance_mm"),
               "[laser] plane and emitter_mm (the waist at the turntable's axis)"),
     "stage": (("d0_mm", "axis_mm", "calibration_table_z_mm", "calibration_plate_height_mm", "rotary_table_z_mm",
-               "axis_tilt_deg", "axis_tilt_azimuth_deg", "axis_offset_mm"),
-              "[turntable] (axis_point_mm, axis_direction; without it the axis at the focus)"),
+               "axis_tilt_deg", "axis_tilt_azimuth_deg", "axis_offset_mm", "table_radius_mm", "table_thickness_mm",
+               "table_material"),
+              "[turntable] (axis_point_mm, axis_direction, radius_mm, thickness_mm, material; without it the axis "
+              "at the focus)"),
 }
 #: A rig key no calibration gives → where the file by parts writes it.
-_UNKNOWN_IN_PARTS = {"sensor.pixel_pitch_um": "camera.pixel_pitch_um", "lens.f_number": "camera.f_number"}
+_UNKNOWN_IN_PARTS = {"sensor.pixel_pitch_um": "camera.pixel_pitch_um", "lens.f_number": "camera.f_number",
+                     "stage.table_radius_mm": "turntable.radius_mm",
+                     "stage.table_thickness_mm": "turntable.thickness_mm", "stage.table_material": "turntable.material"}
 
 
 def is_by_parts(data: Mapping[str, Any]) -> bool:
@@ -222,11 +229,17 @@ def _turntable(data: Mapping[str, Any]) -> Turntable | None:
     if "turntable" not in data:
         return None
     t = _table(data, "turntable", TURNTABLE_KEYS)
-    missing = [k for k in TURNTABLE_KEYS if k not in t]
+    missing = [k for k in TURNTABLE_KEYS[:2] if k not in t]
     if missing:
         raise RigError(f"[turntable] {missing[0]} is missing (a turntable needs axis_point_mm and axis_direction)")
+    default = Turntable(np.zeros(3), np.zeros(3))
+    material = t.get("material", default.material)
+    if not isinstance(material, str):
+        raise RigError(f"[turntable] material = {material!r:.40}: must be a string (a tag of scenes.MATERIALS)")
     return Turntable(_vector("turntable", "axis_point_mm", t["axis_point_mm"]),
-                     _vector("turntable", "axis_direction", t["axis_direction"]))
+                     _vector("turntable", "axis_direction", t["axis_direction"]),
+                     _number("turntable", "radius_mm", t.get("radius_mm", default.radius_mm)),
+                     _number("turntable", "thickness_mm", t.get("thickness_mm", default.thickness_mm)), material)
 
 
 def instrument_from_tables(data: Mapping[str, Any]) -> tuple[Instrument, dict[str, dict[str, Any]]]:
@@ -348,9 +361,14 @@ def rig_parts_text(rig: Rig, inst: Instrument, source: str) -> str:
     body[1] = f"plane = {{ normal = [{normal}], distance_mm = {float(sh.distance_mm)!r} }}"
     lines += body
     if inst.turntable is not None:
-        lines += _lines("turntable", {"axis_point_mm": inst.turntable.axis_point_mm,
-                                      "axis_direction": inst.turntable.axis_direction}, unknown)
+        tt = inst.turntable
+        lines += _lines("turntable", {"axis_point_mm": tt.axis_point_mm, "axis_direction": tt.axis_direction,
+                                      "radius_mm": tt.radius_mm, "thickness_mm": tt.thickness_mm,
+                                      "material": tt.material}, unknown)
     for name, values in tables.items():
+        if name == "housing":
+            lines += housing_lines(values["board"])
+            continue
         if name == "laser":
             continue
         kept = {k: v for k, v in values.items() if k not in REPLACED_KEYS.get(name, ((), ""))[0]}

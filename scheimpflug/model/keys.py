@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from scheimpflug.errors import RigError
 from scheimpflug.model.chain import CHAIN_KEY_RANGES, validate_chain
-from scheimpflug.model.tables import SPECKLE_MODELS, TABLES, Laser, Lens, Sensor, Stage, Twin
+from scheimpflug.model.tables import SPECKLE_MODELS, TABLE_MATERIALS, TABLES, Laser, Lens, Sensor, Stage, Twin
 
 if TYPE_CHECKING:
     from scheimpflug.model.assembly import Rig
@@ -55,7 +55,8 @@ KEY_RANGES: dict[str, dict[str, str]] = {
               "calibration_table_z_mm": "[-1e5, 1e5]", "calibration_plate_height_mm": "(0, 1e4]",
               "rotary_table_z_mm": "[-1e5, 1e5]",
               "axis_tilt_deg": "[0, 180]", "axis_tilt_azimuth_deg": "[-360, 360]",
-              "axis_offset_mm": "[-1e4, 1e4]",
+              "axis_offset_mm": "[-1e4, 1e4]", "table_radius_mm": "[0, 1e5]", "table_thickness_mm": "(0, 1e4]",
+              "table_material": "{" + ", ".join(f'"{m}"' for m in TABLE_MATERIALS) + "}",
               "runout_um": "[0, 1e5]", "translation_scale_ppm": "[-1e4, 1e4]",
               "translation_periodic_um": "[0, 1000]", "translation_lead_mm": "(0, 100]",
               "translation_repeatability_um": "[0, 1000]", "translation_travel_mm": "(0, 1e4]",
@@ -273,6 +274,8 @@ def _validate_stage(st: Stage) -> None:
     _require(0 <= st.axis_tilt_deg < 10 or 170 < st.axis_tilt_deg <= 180, "stage", "axis_tilt_deg",
              st.axis_tilt_deg, "must be in [0, 10) (a table up the rig's +z) or (170, 180] (up its −z)")
     _require(st.runout_um >= 0, "stage", "runout_um", st.runout_um, "must be >= 0")
+    _require(st.table_material in TABLE_MATERIALS, "stage", "table_material", st.table_material,
+             f"must be one of {', '.join(TABLE_MATERIALS)} (scenes.MATERIALS)")
 
 
 def _validate_error_models(rig: Rig) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 
 from scheimpflug.errors import RigError
 from scheimpflug.model.assembly import Rig, rig_from_tables
+from scheimpflug.model.housing import load_housing
 from scheimpflug.model.instrument_file import is_by_parts, rig_from_parts
 
 __all__ = [
@@ -87,9 +88,14 @@ def load_rig(path: str | Path) -> Rig:
     ------
     RigError
         If the file is missing, unreadable, not UTF-8, not valid TOML, or
-        describes an invalid rig.
+        describes an invalid rig; a ``housing = "path"`` file that cannot be read
+        (:func:`scheimpflug.model.housing.load_housing`, the path relative to the rig file).
     """
-    return rig_from_dict(read_toml(path, "rig file", RigError))
+    data = read_toml(path, "rig file", RigError)
+    if isinstance(data.get("housing"), str):
+        where = Path(path).parent / data["housing"]
+        data = {**data, "housing": {"board": [b.to_dict() for b in load_housing(where)]}}
+    return rig_from_dict(data)
 
 
 def read_toml(path: str | Path, what: str, error: type[Exception] = RigError) -> dict:

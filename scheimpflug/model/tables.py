@@ -22,6 +22,7 @@ __all__ = [
     "DERIVED_STAGE_KEYS",
     "SPECKLE_MODELS",
     "TABLES",
+    "TABLE_MATERIALS",
     "Environment",
     "Laser",
     "Lens",
@@ -288,6 +289,16 @@ class Stage:
         Offset of the table's centre from the sheet along the stage frame's +y
         (the sheet normal) [mm], in [-1e4, 1e4]: a calibrated axis that misses
         the laser plane (FabScan's table centre lies 0.49 mm off its plane).
+    table_radius_mm : float, default 0.0
+        Radius of the turntable's disc in the twin [mm], in [0, 1e5] (0 = no disc): a disc
+        centred on the rotary axis whose top is the table plane (``rotary_table_z_mm``); it
+        stands still (rotationally symmetric about the bearing axis) and is lit and in the
+        truth like a housing board (:mod:`sim.backgrounds`).
+    table_thickness_mm : float, default 10.0
+        Thickness of that disc below its top [mm], in (0, 1e4].
+    table_material : str, default "cardboard"
+        The disc's material, a tag of ``scenes.MATERIALS``, in {"metal", "knurled-metal",
+        "cardboard", "tape", "paper", "white-plastic", "marble"}.
     runout_um : float, default 0.0
         Radial runout of the rotary axis (once per turn) [µm], in [0, 1e5].
     translation_scale_ppm : float, default 0.0
@@ -363,6 +374,9 @@ class Stage:
     axis_tilt_deg: float = 0.0
     axis_tilt_azimuth_deg: float = 0.0
     axis_offset_mm: float = 0.0
+    table_radius_mm: float = 0.0
+    table_thickness_mm: float = 10.0
+    table_material: str = "cardboard"
     runout_um: float = 0.0
     translation_scale_ppm: float = 0.0
     translation_periodic_um: float = 0.0
@@ -383,6 +397,10 @@ class Stage:
     plate_tilt_deg: float = 0.0
     plate_yaw_deg: float = 0.0
 
+
+#: Material tags of the turntable's disc (``[stage] table_material``): ``scenes.MATERIALS``, which the
+#: model may not import (tests/test_turntable_disc.py checks the two agree).
+TABLE_MATERIALS = ("metal", "knurled-metal", "cardboard", "tape", "paper", "white-plastic", "marble")
 
 #: Stage keys that a rig may leave out; :mod:`scheimpflug.model.plan` derives them.
 DERIVED_STAGE_KEYS = ("d0_mm", "axis_mm", "calibration_table_z_mm", "calibration_plate_height_mm",

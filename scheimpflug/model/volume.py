@@ -42,6 +42,7 @@ __all__ = [
     "calibration_volume",
     "lambertian_peak_electrons_per_ms",
     "laser_distance_mm",
+    "laser_fan",
     "plate_interval_mm",
     "sheet_half_width_mm",
     "stripe_sigma_px",
@@ -149,18 +150,39 @@ def working_volume(rig: Rig, margin_rows: float = 0.0,
         The volume (module docstring).
     """
     g = hinge_geometry(rig)
-    s, laser = rig.sensor, rig.laser
+    s = rig.sensor
     mr = min(float(margin_rows), s.rows / 6.0)
     mc = np.broadcast_to(np.asarray(margin_columns, dtype=np.float64), (2,))
     mc = np.minimum(mc, s.columns / 6.0)
     near, far = (float(x) for x in g.distance_from_column([mc[0], s.columns - 1.0 - mc[1]]))
     k = g.C_mm / abs(g.F2_px_mm)
+    origin, fan_tan = laser_fan(rig)
+    return WorkingVolume(near_mm=near, far_mm=far, top_slope=k * (s.axis_row - mr + 0.5),
+                         bottom_slope=k * (s.axis_row - s.rows + 0.5 + mr),
+                         fan_origin_mm=origin, fan_tan=fan_tan)
+
+
+def laser_fan(rig: Rig) -> tuple[float, float]:
+    """Where the laser's fan starts on the sheet and how wide it lights.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig (its lens focal length and laser keys).
+
+    Returns
+    -------
+    origin_mm : float
+        D of the laser origin from the object hinge (negative: before it) [mm].
+    fan_tan : float
+        tan(F/2 − e), the usable half fan (at least F/4): the laser lights
+        ``|h| ≤ fan_tan·(D − origin_mm)`` [-].
+    """
+    laser = rig.laser
     half_fan = math.radians(0.5 * laser.fan_angle_deg - laser.fan_edge_deg)
     half_fan = max(half_fan, math.radians(0.25 * laser.fan_angle_deg))
     origin = (laser.origin_x_mm - rig.lens.focal_length_mm) * math.hypot(1.0, laser.tan_phi)
-    return WorkingVolume(near_mm=near, far_mm=far, top_slope=k * (s.axis_row - mr + 0.5),
-                         bottom_slope=k * (s.axis_row - s.rows + 0.5 + mr),
-                         fan_origin_mm=origin, fan_tan=math.tan(half_fan))
+    return origin, math.tan(half_fan)
 
 
 def calibration_volume(rig: Rig) -> WorkingVolume:

@@ -20,7 +20,7 @@ from scheimpflug.errors import RigError
 from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.rig import Rig, rig_to_toml
 
-__all__ = ["add_parser", "format_report"]
+__all__ = ["add_parser", "format_ordinary_report", "format_report"]
 
 # (key, label, unit, formula / reference, format)
 _ROWS = [
@@ -48,12 +48,15 @@ def add_parser(sub) -> argparse.ArgumentParser:
         description="Print the hinge-rule design of a rig: sensor tilt, hinge, calibration constants, "
                     "depth and height ranges, resolutions (docs/explanation/design-notes.md §3, paper Eqs. 5, 11, 12), "
                     "and the printed calibration patterns it can detect at binnings 1, 2 and 4. "
+                    "An ordinary camera (a [camera] table, or rig from-calibration) gets its field on the sheet, "
+                    "resolutions and depth of field from the exact camera model instead. "
                     "With --near-mm/--far-mm, find instead the sheet angle or baseline, tilt and sensor "
                     "placement that cover a wanted working range with the rig's lens and sensor.",
     )
     add_rig_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    p.add_argument("--plot", metavar="FILE.png", help="draw the meridian-plane layout and resolution curves")
+    p.add_argument("--plot", metavar="FILE.png",
+                   help="draw the meridian-plane layout and resolution curves (a Scheimpflug rig only)")
     inv = p.add_argument_group("inverse design (distances along the sheet from the Scheimpflug line / laser)")
     length = number(0, 1e6, lo_open=True, unit="mm")
     inv.add_argument("--near-mm", type=length, help="wanted near end of the working range [mm]")
@@ -78,7 +81,12 @@ def run(args: argparse.Namespace) -> int:
         rig = _inverse(args, rig)
         source = (f"inverse design for {args.near_mm:g}–{args.far_mm:g} mm along the sheet, "
                   f"lens and sensor of {source}")
-    report = {**design_report(rig), "pattern_advice": square_advice(rig)}
+    ordinary = rig.sensor.image_distance_mm > 0
+    if args.plot and ordinary:
+        raise RigError("--plot draws the meridian-plane layout of a Scheimpflug rig (the hinge rule's tilted "
+                       "sensor); this rig has an ordinary camera ([sensor] image_distance_mm > 0): leave --plot out")
+    report = design_report(rig)
+    report["pattern_advice"] = None if ordinary else square_advice(rig)
     for w in report["warnings"]:
         print(f"scheimpflug design: warning: {w}", file=sys.stderr)
     if args.plot:
@@ -116,8 +124,12 @@ def format_report(rig: Rig, rep: dict, source: str) -> str:
     """Human-readable design table with units and the paper's equation numbers.
 
     With ``rep["pattern_advice"]`` (:func:`scheimpflug.calibration.detectability.square_advice`),
-    the printed patterns the rig can detect at binnings 1, 2 and 4 close the table.
+    the printed patterns the rig can detect at binnings 1, 2 and 4 close the table.  An
+    ordinary camera's report (``rep["sensor_kind"] == "ordinary"``) is printed by
+    :func:`format_ordinary_report`.
     """
+    if rep.get("sensor_kind") == "ordinary":
+        return format_ordinary_report(rig, rep, source)
     L, S, s = rig.lens, rig.laser, rig.sensor
     lines = [
         f"Scheimpflug design — rig: {source}",
@@ -178,3 +190,85 @@ def _plan_lines(rig: Rig, rep: dict) -> list[str]:
         lines.append(f"  rotary plan       axis at s = {r['axis_mm']:g} mm: OUT OF VIEW (see the warning)")
     lines += [f"  WARNING: {w}" for w in rep["warnings"]]
     return [line for line in lines if line] + [""]
+
+
+def _mm(x, fmt: str = "{:.2f}") -> str:
+    return "–" if x is None else fmt.format(x)
+
+
+def format_ordinary_report(rig: Rig, rep: dict, source: str) -> str:
+    """Human-readable design table of an ordinary-camera rig (:mod:`scheimpflug.model.camera_design`)."""
+    L, S, s = rig.lens, rig.laser, rig.sensor
+    d_near, d_far = rep["distance_range_mm"]
+    along = "row" if rep["distance_axis"] == "rows" else "column"
+    across = "column" if along == "row" else "row"
+    n_a = s.rows if along == "row" else s.columns
+    far_line = n_a - 1 if rep["near_line_px"] == 0 else 0
+    (fd0, fd1), (fh0, fh1) = rep["field_distance_range_mm"], rep["field_height_range_mm"]
+    res = [f"{_mm(a, '{:.4f}')} / {_mm(b, '{:.4f}')}" for a, b in
+           zip(rep["distance_resolution_mm"], rep["height_resolution_mm"])]
+    lines = [
+        f"Ordinary-camera design — rig: {source}",
+        f"  lens    f = {L.focal_length_mm:.6g} mm, f/{L.f_number:g}, focused at {_mm(rep['focus_distance_mm'])} mm "
+        f"along the optical axis; k1 k2 k3 p1 p2 = {L.k1:g} {L.k2:g} {L.k3:g} {L.p1:g} {L.p2:g}",
+        f"  sheet   d = {S.scheimpflug_distance_mm:.6g} mm, tan φ = {S.tan_phi:.6g} "
+        f"(φ = {math.degrees(math.atan(S.tan_phi)):.3f}°)",
+        f"  sensor  {s.columns} × {s.rows} px (columns × rows), p = {s.pixel_pitch_um:g} µm, perpendicular to the "
+        f"optical axis at b = {s.image_distance_mm:.6g} mm, roll {s.roll_deg:.3f}°",
+        "  no hinge rule: tilt, hinge, F² and C do not apply (null in --json); figures from the exact camera model",
+        "",
+        f"  {'quantity':<34s} {'value':>22s}  {'unit':<6s} how",
+        "  " + "-" * 100,
+        f"  {'field on the sheet, D':<34s} {f'{_mm(fd0)} … {_mm(fd1)}':>22s}  {'mm':<6s} "
+        "the sensor's border (outer pixel edges) on the sheet",
+        f"  {'field on the sheet, h':<34s} {f'{_mm(fh0)} … {_mm(fh1)}':>22s}  {'mm':<6s} "
+        "(D from the object hinge, h = z)",
+        f"  {'distance range (D from hinge)':<34s} {f'{_mm(d_near)} … {_mm(d_far)}':>22s}  {'mm':<6s} "
+        f"{along}s {rep['near_line_px']:g} (near) and {far_line} (far), middle {across}",
+        f"  {'depth range over the sensor':<34s} {_mm(rep['depth_range_mm']):>22s}  mm",
+        f"  {'field of view across, near':<34s} {_mm(rep['height_range_near_mm']):>22s}  {'mm':<6s} "
+        f"all {across}s at the near {along}'s outer edge",
+        f"  {'field of view across, far':<34s} {_mm(rep['height_range_far_mm']):>22s}  {'mm':<6s} "
+        f"all {across}s at the far {along}'s outer edge",
+        f"  {'ΔZ / ΔX near':<34s} {res[0]:>22s}  {'mm/px':<6s} |∂D/∂{along}| / |∂h/∂{across}|, exact Jacobian",
+        f"  {'ΔZ / ΔX middle':<34s} {res[1]:>22s}  {'mm/px':<6s} at pixel "
+        f"({rep['center_column_px']:g}, {rep['center_row_px']:g})",
+        f"  {'ΔZ / ΔX far':<34s} {res[2]:>22s}  mm/px",
+        f"  {'blur near / middle / far':<34s} {' / '.join(_mm(b) for b in rep['blur_px']):>22s}  {'px':<6s} "
+        "circle of confusion at the lens's f-number and focus",
+        *_focus_lines(rep, along),
+        f"  {'clearance (laser → near end)':<34s} {_mm(rep['clearance_mm']):>22s}  {'mm':<6s} "
+        f"along the sheet, laser origin at x = {S.origin_x_mm:g} mm",
+        f"  {'standoff (lens → near end)':<34s} {_mm(rep['standoff_mm']):>22s}  mm",
+        f"  {'sensor centre to lens centre':<34s} {rep['sensor_distance_to_lens_mm']:>22.4f}  mm",
+        "",
+        "  frame: origin at the lens centre, +x optical axis, +z up; D along the sheet from the object hinge "
+        f"H = ({rep['object_hinge_mm'][0]:.3f}, {rep['object_hinge_mm'][1]:.3f}, 0) mm",
+        *_ordinary_plan_lines(rep),
+    ]
+    return "\n".join(lines)
+
+
+def _focus_lines(rep: dict, along: str) -> list[str]:
+    if rep["focus_range_mm"] is None:
+        return ["  acceptable focus (CoC ≤ 1 px)   nowhere on the sensor's middle line"]
+    lo, hi = rep["focus_range_mm"]
+    a, b = rep["focus_range_line_px"]
+    where = ("the whole middle line" if rep["sheet_in_focus"]
+             else f"the sheet leaves it at D = {lo:.2f} and {hi:.2f} mm ({along}s {a:.1f} and {b:.1f})")
+    return [f"  {'acceptable focus (CoC ≤ 1 px)':<34s} {f'{lo:.2f} … {hi:.2f}':>22s}  {'mm':<6s} {where}"]
+
+
+def _ordinary_plan_lines(rep: dict) -> list[str]:
+    uv = rep["rotary_axis_px"]
+    at = "–" if uv is None or None in uv else f"({uv[0]:.1f}, {uv[1]:.1f})"
+    r = rep["rotary_plan"]
+    lines = [f"  rotary plan       axis at D = {rep['axis_distance_mm']:.2f} mm meets the table "
+             f"(h = {r['table_z_mm']:.2f} mm) at pixel {at}: {'in view' if r['in_view'] else 'OUT OF VIEW'}"]
+    if r["in_view"]:
+        lines.append(f"                    in view at every angle: a cylinder of radius {r['part_radius_mm']:.1f} mm "
+                     f"and height {r['part_height_mm']:.1f} mm; a flat part up to radius {r['max_radius_mm']:.1f} mm, "
+                     f"a thin one up to {r['max_height_mm']:.1f} mm high")
+    lines += ["  calibration plan  not given: its rule uses the hinge rule's working volume (scheimpflug.model.volume)",
+              "  pattern advice    not given: it uses the hinge rule's rectification"]
+    return lines + [f"  WARNING: {w}" for w in rep["warnings"]] + [""]

@@ -98,7 +98,8 @@ def add_parser(sub):
                                                             "rotary: render only the first N")
     g.add_argument("--housing", metavar="HOUSING.toml",
                    help="rotary: a scanner's fixed boards (walls, floor) in the instrument frame, the rig's "
-                        "camera frame (docs/reference/interface.md; scheimpflug rig housing writes one)")
+                        "camera frame (docs/reference/interface.md; scheimpflug rig housing writes one); "
+                        "refused beside a rig file's own [[housing.board]], which renders without it")
     g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
                    help="blocker thickness [mm] (default 2)")
     add_target_options(p)

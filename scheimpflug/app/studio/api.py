@@ -174,10 +174,14 @@ def design_json(rig: Rig, advice: bool = True) -> dict:
     -------
     dict
         :func:`~scheimpflug.model.design.design_report` with ``pattern_advice``
-        (:func:`~scheimpflug.calibration.detectability.square_advice`), made strict JSON.
+        (:func:`~scheimpflug.calibration.detectability.square_advice`; None for an ordinary camera),
+        made strict JSON.
     """
     report = design_report(rig)
-    return finite_json({**report, "pattern_advice": square_advice(rig)} if advice else report)
+    if not advice:
+        return finite_json(report)
+    ordinary = rig.sensor.image_distance_mm > 0      # the advice rectifies by the hinge rule: none (as design --json)
+    return finite_json({**report, "pattern_advice": None if ordinary else square_advice(rig)})
 
 
 def rig_file_text(rig: Rig) -> str:
