@@ -17,6 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from scheimpflug.errors import RigError
 from scheimpflug.model.chain import Chain, expand_chain_table
 from scheimpflug.model.housing import Board, housing_from_dict
@@ -30,6 +32,7 @@ __all__ = [
     "rig_to_dict",
     "housing_lines",
     "rig_to_toml",
+    "toml_value",
 ]
 
 
@@ -232,7 +235,7 @@ def rig_to_toml(rig: Rig) -> str:
         lines.append(f"[{name}]")
         for k, v in table.items():
             note = "  # derived (scheimpflug.model.plan)" if f"{name}.{k}" in rig.derived else ""
-            lines.append(f"{k} = {_toml_value(v)}{note}")
+            lines.append(f"{k} = {toml_value(v)}{note}")
         lines.append("")
     return "\n".join(lines)
 
@@ -254,15 +257,33 @@ def housing_lines(boards) -> list[str]:
     for b in boards:
         lines.append("[[housing.board]]")
         for k, v in b.items():
-            text = "[" + ", ".join(repr(float(x)) for x in v) + "]" if isinstance(v, list) else _toml_value(v)
-            lines.append(f"{k} = {text}")
+            lines.append(f"{k} = {toml_value(v)}")
         lines.append("")
     return lines
 
 
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
+def toml_value(value: Any) -> str:
+    """A value as a TOML literal, the one writer of rig, housing and studio files.
+
+    Parameters
+    ----------
+    value : bool, int, float, str or (nested) sequence of numbers
+        The value (numpy scalars and arrays included).
+
+    Returns
+    -------
+    str
+        ``true``/``false``, a basic string with backslash and ``"`` escaped, ``repr`` of the
+        number (floats as Python floats), or an array of them.
+    """
+    if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
     if isinstance(value, str):
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    return repr(value)
+    if isinstance(value, (np.ndarray, list, tuple)):
+        arr = np.asarray(value, np.float64)
+        items = [repr(float(x)) for x in arr] if arr.ndim == 1 else [toml_value(row) for row in arr]
+        return "[" + ", ".join(items) + "]"
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    return repr(int(value)) if isinstance(value, np.integer) else repr(value)

@@ -203,13 +203,12 @@ def housing_to_toml(boards, comment: str = "") -> str:
     str
         TOML text :func:`load_housing` reads back.
     """
+    from scheimpflug.model.assembly import toml_value  # assembly imports this module
+
     lines = [f"# {line}" for line in comment.splitlines()]
     for b in boards:
         lines += ["", "[[board]]"]
-        for key, value in b.to_dict().items():
-            text = json.dumps(value) if isinstance(value, str) else (
-                "[" + ", ".join(repr(x) for x in value) + "]" if isinstance(value, list) else repr(value))
-            lines.append(f"{key} = {text}")
+        lines += [f"{key} = {toml_value(value)}" for key, value in b.to_dict().items()]
     return "\n".join(lines).lstrip("\n") + "\n"
 
 

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from scheimpflug.errors import RigError
-from scheimpflug.model.assembly import Rig, housing_lines, rig_to_dict
+from scheimpflug.model.assembly import Rig, housing_lines, rig_to_dict, toml_value
 from scheimpflug.model.instrument import (
     Camera,
     Instrument,
@@ -307,23 +307,11 @@ def rig_from_parts(data: Mapping[str, Any]) -> Rig:
 # ---------------------------------------------------------------- writing
 
 
-def _value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (np.ndarray, list, tuple)):
-        arr = np.asarray(value, np.float64)
-        items = [repr(float(x)) for x in arr] if arr.ndim == 1 else [_value(row) for row in arr]
-        return "[" + ", ".join(items) + "]"
-    return repr(float(value)) if isinstance(value, (float, np.floating)) else repr(value)
-
-
 def _lines(table: str, values: Mapping[str, Any], unknown) -> list[str]:
     out = [f"[{table}]"]
     for k, v in values.items():
         note = "  # unknown: a default, ready for identification" if f"{table}.{k}" in unknown else ""
-        out.append(f"{k} = {_value(v)}{note}")
+        out.append(f"{k} = {toml_value(v)}{note}")
     return out + [""]
 
 

@@ -23,6 +23,7 @@ from urllib.parse import parse_qsl, urlencode
 from scheimpflug.calibration.detectability import square_advice
 from scheimpflug.errors import RigError
 from scheimpflug.io.atomic import finite_json
+from scheimpflug.model.assembly import toml_value
 from scheimpflug.model.design import design_report, inverse_design
 from scheimpflug.model.rig import PRESETS, Rig, preset_tables, rig_from_dict, rig_to_toml
 
@@ -215,14 +216,6 @@ def key_of_message(message: str) -> str | None:
     return f"{m.group(1)}.{m.group(2)}" if m else None
 
 
-def _toml_literal(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    return repr(value)
-
-
 def tolerance_spec_text(q: StudioQuery, base_file: str | None = None) -> str:
     """A tolerance-study spec of the query's design, ready for ``scheimpflug study tolerance``.
 
@@ -245,7 +238,7 @@ def tolerance_spec_text(q: StudioQuery, base_file: str | None = None) -> str:
         The spec's TOML text.
     """
     tolerances = len(STUDY_TOLERANCES)
-    rig_line = f'file = {_toml_literal(base_file)}' if q.preset is None and base_file else \
+    rig_line = f'file = {toml_value(base_file)}' if q.preset is None and base_file else \
         f'preset = "{q.preset or "paper"}"'
     left_out = any(v is None for values in q.keys.values() for v in values.values())
     lines = ["# tolerance study of a design from scheimpflug studio:",
@@ -253,7 +246,7 @@ def tolerance_spec_text(q: StudioQuery, base_file: str | None = None) -> str:
              "", "[study]", "seed = 1", f"draws = {16 * (tolerances + 2)}    # Sobol: 16 × (tolerances + 2)",
              'method = "sobol"', 'metric = "SD_mm"', "max_error_mm = 0.1", "",
              "[rig]", rig_line, f"derive = {'true' if left_out else 'false'}", "", "[rig.set]"]
-    lines += [f'"{t}.{k}" = {_toml_literal(v)}' for t, values in q.keys.items() for k, v in values.items()
+    lines += [f'"{t}.{k}" = {toml_value(v)}' for t, values in q.keys.items() for k, v in values.items()
               if v is not None]
     lines += ["", "[tolerance]    # rig key = half-width of a uniform deviation, or { normal = SIGMA }"]
     lines += [f'"{k}" = {v!r}' for k, v in STUDY_TOLERANCES.items()]
