@@ -212,7 +212,8 @@ def wall_board(calibration, u_px, v_px, name: str, *, margin_mm: float = 10.0, w
     return Board(name, centre, normal, d, float(np.ptp(t)) + 2.0 * margin_mm, float(width_mm), 10.0, material)
 
 
-def walls_of_folder(folder, calibration, column_ranges, detector: str = "cog") -> tuple[tuple, list]:
+def walls_of_folder(folder, calibration, column_ranges, detector: str = "cog", *,
+                    stripes=None) -> tuple[tuple, list]:
     """The still walls of a scan as housing boards, one column range of its frames per wall.
 
     Parameters
@@ -225,6 +226,9 @@ def walls_of_folder(folder, calibration, column_ranges, detector: str = "cog") -
         Image column ranges [px], one per wall, where its stripe shows.
     detector : str, default "cog"
         The stripe detector (:mod:`scheimpflug.stripe`).
+    stripes : FolderStripes, optional
+        The folder's stripes already extracted with that detector (kept saturated samples):
+        :func:`scheimpflug.reconstruct.extract_folder_stripes`; default: extracted here.
 
     Returns
     -------
@@ -242,7 +246,7 @@ def walls_of_folder(folder, calibration, column_ranges, detector: str = "cog") -
     from scheimpflug.reconstruct import extract_folder_stripes
     from scheimpflug.stripe import image_pixels
 
-    st = extract_folder_stripes(folder, detector, keep_saturated=True)
+    st = extract_folder_stripes(folder, detector, keep_saturated=True) if stripes is None else stripes
     u, v = image_pixels(np.concatenate(st.rows), np.concatenate(st.u), st.along)
     frame = np.concatenate([np.full(len(r), i) for i, r in enumerate(st.rows)])
     boards, figures = [], []

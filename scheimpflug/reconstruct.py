@@ -489,6 +489,35 @@ class FolderStripes:
     saturated: list | None = None
     centre_sigma_px: list | None = None
 
+    def select(self, keep) -> FolderStripes:
+        """The same stripes with only the kept samples of each frame (``stats`` unchanged).
+
+        Parameters
+        ----------
+        keep : list of (n_i,) array_like bool
+            Per frame, which samples to keep.
+
+        Returns
+        -------
+        FolderStripes
+            The subset (per-sample lists that are None stay None).
+
+        Raises
+        ------
+        ValueError
+            ``keep`` not one mask per frame of each frame's size.
+        """
+        if len(keep) != len(self.rows) or any(np.shape(k) != np.shape(r) for k, r in zip(keep, self.rows)):
+            raise ValueError("keep needs one boolean mask per frame, of the frame's number of samples")
+        masks = [np.asarray(k, bool) for k in keep]
+
+        def pick(values):
+            return None if values is None else [np.asarray(v)[k] for v, k in zip(values, masks)]
+
+        return FolderStripes(pick(self.rows), pick(self.u), pick(self.peak), pick(self.snr),
+                             pick(self.stripe_width_px), self.stats, self.along, pick(self.saturated),
+                             pick(self.centre_sigma_px))
+
 
 SATURATED_CHOICES = ("edges", "drop", "plateau")
 """What :func:`extract_folder_stripes` does with a saturated row: its centre from the clipped

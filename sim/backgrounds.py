@@ -13,12 +13,19 @@ A scanner's housing (:mod:`scheimpflug.model.housing`, ``render --housing FILE``
 instrument frame — the rig's OpenCV camera frame (:func:`sim.truth.opencv_camera`) — and placed
 in the stage frame by :func:`housing_parts`; it stands still like the walls and is in the
 truth the same way.  So does the turntable's disc (``[stage] table_radius_mm``,
-:func:`table_parts`).
+:func:`table_parts`), its top square to the axis.
+
+A disc whose top is tilted to its bearing axis (``[stage] table_tilt_deg`` > 0,
+:mod:`scheimpflug.turntable_top`) turns with the table: its part is marked
+``analytic["turns_with_table"]``, its vertices are given in the stage frame at θ = 0, and in
+every frame it is turned about its own axis as the part turns (:func:`turning_pose`)
+and cut by the sheet at that pose in the frame's truth; ``truth/background.ply`` holds it at θ = 0.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -32,12 +39,14 @@ from .stages import (
     invert,
     ref_from_stage,
     rig_from_stage,
+    rotation_vector,
     stage_from_part,
     transform_points,
     translation,
 )
 
-__all__ = ["MAX_DISTANCE_MM", "background_truth", "housing_parts", "scan_background", "table_parts"]
+__all__ = ["MAX_DISTANCE_MM", "background_poses", "background_truth", "camera_from_table", "housing_parts",
+           "scan_background", "table_parts", "turning_pose", "turns_with_table"]
 
 
 #: farthest default distance of the background beyond the axis [mm] (a scanner's housing is that small)
@@ -138,15 +147,20 @@ def table_parts(rig: Rig, object_id: int) -> tuple:
     """The turntable's disc of a rig (``[stage] table_radius_mm`` > 0), in the stage frame.
 
     The disc is centred on the bearing axis, its top the table plane (the part frame's z = 0 at
-    θ = 0 without the runout, which moves the part, not the table).  It stands still: it is
+    θ = 0 without the runout, which moves the part, not the table) raised along the axis by
+    ``table_top_offset_mm``.  Square to the axis (``table_tilt_deg`` = 0) it stands still: it is
     rotationally symmetric about the axis it turns on, so turning it changes nothing the camera
     sees (to its rim's polygon); the table's error motions (``wobble_urad``,
-    ``radial_error_um``) move the part only.
+    ``radial_error_um``) move the part only.  With a tilt its top's normal leans by
+    ``table_tilt_deg`` toward ``table_tilt_azimuth_deg`` in the table's own frame (about the
+    top's centre) and the disc turns with the table (module docstring): its pose at θ is
+    ``stage_from_part(θ)`` (error motions included) composed with that tilt.
 
     Parameters
     ----------
     rig : Rig
-        The rig (``stage.table_radius_mm``, ``table_thickness_mm``, ``table_material`` and the
+        The rig (``stage.table_radius_mm``, ``table_thickness_mm``, ``table_material``,
+        ``table_top_offset_mm``, ``table_tilt_deg``, ``table_tilt_azimuth_deg`` and the
         rotary stage's pose).
     object_id : int
         The disc's object id.
@@ -154,7 +168,8 @@ def table_parts(rig: Rig, object_id: int) -> tuple:
     Returns
     -------
     tuple of scenes.Part
-        The disc, or empty when ``table_radius_mm`` is 0.
+        The disc (vertices in the stage frame at θ = 0; ``analytic["turns_with_table"]`` when
+        tilted), or empty when ``table_radius_mm`` is 0.
 
     Raises
     ------
@@ -166,9 +181,111 @@ def table_parts(rig: Rig, object_id: int) -> tuple:
     st = rig.stage
     if not st.table_radius_mm > 0:
         return ()
-    stage_from_table = stage_from_part(rig, 0.0) @ translation((-0.5e-3 * st.runout_um, 0.0, 0.0))
-    return (table_disc(st.table_radius_mm, st.table_thickness_mm, st.table_material, stage_from_table,
-                       object_id),)
+    stage_from_table = stage_from_part(rig, 0.0) @ translation((-0.5e-3 * st.runout_um, 0.0,
+                                                                st.table_top_offset_mm))
+    if st.table_axis_tilt_deg != 0.0:          # the disc's own axis, leaning about its top's centre
+        stage_from_table = stage_from_table @ _lean(st.table_axis_tilt_deg, st.table_axis_tilt_azimuth_deg)
+    if st.table_tilt_deg == 0.0:
+        return (table_disc(st.table_radius_mm, st.table_thickness_mm, st.table_material, stage_from_table,
+                           object_id),)
+    disc = table_disc(st.table_radius_mm, st.table_thickness_mm, st.table_material,
+                      stage_from_table @ _lean(st.table_tilt_deg, st.table_tilt_azimuth_deg), object_id)
+    return (dataclasses.replace(disc, analytic={**disc.analytic, "turns_with_table": True,
+                                                "stage_from_axis": stage_from_table.tolist()}),)
+
+
+def _lean(tilt_deg: float, azimuth_deg: float) -> np.ndarray:
+    """The rotation that turns e_z by ``tilt_deg`` toward ``azimuth_deg`` (as the stage's own tilt)."""
+    tau, psi = math.radians(tilt_deg), math.radians(azimuth_deg)
+    return rotation_vector([-tau * math.sin(psi), tau * math.cos(psi), 0.0])
+
+
+def turns_with_table(part) -> bool:
+    """Whether a background part turns with the table (a tilted disc, :func:`table_parts`).
+
+    Parameters
+    ----------
+    part : scenes.Part
+        A background part.
+
+    Returns
+    -------
+    bool
+        Its ``analytic["turns_with_table"]``.
+    """
+    return bool(part.analytic.get("turns_with_table", False))
+
+
+def turning_pose(rig: Rig, part, rig_from_part) -> np.ndarray:
+    """Where a part that turns with the table is at a frame, in the stage frame, from its pose at θ = 0.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+    part : scenes.Part
+        A part of :func:`table_parts` that turns (``analytic["stage_from_axis"]`` A: its own axis
+        frame, z the axis it turns about, at θ = 0).
+    rig_from_part : (4, 4) array_like float
+        The frame's pose of the scanned part (``FrameSpec.rig_from_part``).
+
+    Returns
+    -------
+    (4, 4) float64
+        ``A · D · A⁻¹``: the turn D of the part since θ = 0, ``T(e) · stage_from_part(0)⁻¹ ·
+        stage_from_rig · rig_from_part · T(−e)`` (R_z(θ) for a stage without error motions, e
+        the runout's eccentricity), made about the disc's own axis.
+    """
+    a = np.asarray(part.analytic["stage_from_axis"], np.float64)
+    e = translation((0.5e-3 * rig.stage.runout_um, 0.0, 0.0))
+    d = e @ invert(stage_from_part(rig, 0.0)) @ invert(rig_from_stage(rig)) @ np.asarray(rig_from_part) @ invert(e)
+    return a @ d @ invert(a)
+
+
+def background_poses(rig: Rig, parts):
+    """The per-frame pose of each background part, as a function of the part's pose.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+    parts : sequence of scenes.Part
+        The background parts (vertices in the stage frame at θ = 0).
+
+    Returns
+    -------
+    callable
+        ``poses(rig_from_part) -> list of (4, 4)``: ``rig_from_stage`` for a still part,
+        ``rig_from_stage · turning_pose(...)`` for one that turns with the table (:func:`turning_pose`).
+    """
+    still = rig_from_stage(rig)
+    turns = [turns_with_table(p) for p in parts]
+
+    def poses(rig_from_part) -> list:
+        return [still @ turning_pose(rig, p, rig_from_part) if t else still for p, t in zip(parts, turns)]
+
+    return poses
+
+
+def camera_from_table(rig: Rig) -> np.ndarray:
+    """The table's own frame at θ = 0 in the rig's OpenCV camera frame (:mod:`scheimpflug.turntable_top`).
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig.
+
+    Returns
+    -------
+    (4, 4) float64
+        The part frame at θ = 0 moved back onto the bearing axis (the runout taken out): origin
+        the table's centre on the table plane, z the table's up, x the table's x [mm].
+    """
+    from .truth import opencv_camera
+
+    _, camera_from_rig = opencv_camera(rig)
+    return camera_from_rig @ rig_from_stage(rig) @ stage_from_part(rig, 0.0) @ translation(
+        (-0.5e-3 * rig.stage.runout_um, 0.0, 0.0))
 
 
 def _sheet_seen_mm(rig: Rig, n: int = 32) -> np.ndarray:
@@ -218,6 +335,13 @@ def background_truth(rig: Rig, scenario, frame, caster, arrays: dict) -> dict:
     from .truth import stripe_truth
 
     mesh = _background_mesh(scenario)
+    owner = mesh[3]
+    if (owner >= 0).any():              # a tilted disc: at this frame's pose, in the stage frame
+        verts = mesh[0].copy()
+        for i in np.unique(owner[owner >= 0]):
+            sel = owner == i
+            verts[sel] = transform_points(turning_pose(rig, scenario.background[i], frame.rig_from_part), verts[sel])
+        mesh = (verts, *mesh[1:])
     bg = stripe_truth(rig, mesh[0], mesh[1], mesh[2], rig_from_stage(rig), ref_from_stage(rig), caster,
                       rig_from_laser=frame.rig_from_laser).arrays()
     return _merge(arrays, bg)
@@ -227,12 +351,13 @@ def _background_mesh(scenario) -> tuple:
     cache = getattr(scenario, "_background_mesh_cache", None)
     if cache is None:
         parts = scenario.background
-        verts, faces, ids, offset = [], [], [], 0
-        for p in parts:
+        verts, faces, ids, turns, offset = [], [], [], [], 0
+        for i, p in enumerate(parts):
             verts.append(np.asarray(p.mesh.vertices, dtype=np.float64))
+            turns.append(np.full(len(p.mesh.vertices), i if turns_with_table(p) else -1))   # owner, or −1: still
             faces.append(np.asarray(p.mesh.faces, dtype=np.int64) + offset)
             ids.append(np.full(len(p.mesh.faces), p.object_id, dtype=np.int32))
             offset += len(p.mesh.vertices)
-        cache = (np.concatenate(verts), np.concatenate(faces), np.concatenate(ids))
+        cache = (np.concatenate(verts), np.concatenate(faces), np.concatenate(ids), np.concatenate(turns))
         object.__setattr__(scenario, "_background_mesh_cache", cache)
     return cache

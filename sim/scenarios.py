@@ -644,8 +644,9 @@ def _with_background(rig: Rig, scenario: Scenario, kind: str, material: str, hei
 def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: float = 0.5,
                     frames: int | None = None, truth_pixels_every: int = 30, background: str = "none",
                     background_material: str = "cardboard", background_height_mm: float = 250.0,
-                    background_distance_mm: float | None = None, housing: str | None = None) -> Scenario:
-    """A part on the rotary stage at θ_i = i·step_deg over one turn.
+                    background_distance_mm: float | None = None, housing: str | None = None,
+                    angles_deg=None) -> Scenario:
+    """A part on the rotary stage at θ_i = i·step_deg over one turn (or at given angles).
 
     Parameters
     ----------
@@ -673,6 +674,9 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
         A housing file (:mod:`scheimpflug.model.housing`): boards in the instrument frame
         that stand still beside the table (:func:`sim.backgrounds.housing_parts`); default
         the rig's own (``rig.housing``, ``[[housing.board]]`` of the rig file).
+    angles_deg : sequence of float, optional
+        The frames' angles [deg], frame i at ``angles_deg[i]`` (``step_deg`` then unused;
+        ``frames`` still keeps the first N); recorded as ``angles_deg`` in the params.
 
     Returns
     -------
@@ -692,19 +696,33 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
         camera (:func:`sim.backgrounds.housing_parts`).
     """
     _positive("step_deg", step_deg)
-    n_turn = max(1, int(round(360.0 / step_deg)))
+    angles = None if angles_deg is None else _angle_list(angles_deg)
+    n_turn = max(1, int(round(360.0 / step_deg))) if angles is None else len(angles)
     if frames is not None:
         _positive_int("frames", frames)
         n_turn = min(n_turn, frames)
     assembly = load_assembly(part, seed=seed)
-    specs = _rotary_frames(rig, seed, [i * step_deg for i in range(n_turn)])
+    specs = _rotary_frames(rig, seed, [i * step_deg for i in range(n_turn)] if angles is None else angles[:n_turn])
     params = {"part": part, "step_deg": step_deg, "frames": n_turn,
               "parts": [{"name": p.name, "object_id": p.object_id, "material": p.material,
                          "analytic": p.analytic} for p in assembly.parts]}
+    if angles is not None:
+        params["angles_deg"] = angles[:n_turn]
     scenario = Scenario("rotary", params, assembly, specs, _reference_pose(rig),
                         truth_pixels_every, tuple(axis_warnings(rig)))
     return _with_background(rig, scenario, background, background_material, background_height_mm,
                             background_distance_mm, housing)
+
+
+def _angle_list(angles_deg) -> list[float]:
+    """Explicit rotary angles: at least one, each a finite number [deg]."""
+    try:
+        angles = [float(a) for a in angles_deg]
+    except (TypeError, ValueError):
+        raise ScheimpflugError(f"angles_deg must be a list of numbers [deg], got {angles_deg!r}") from None
+    if not angles or not all(math.isfinite(a) for a in angles):
+        raise ScheimpflugError(f"angles_deg must hold at least one finite angle [deg], got {angles_deg!r}")
+    return angles
 
 
 def frame_count(name: str, **options) -> int:
@@ -750,6 +768,8 @@ def frame_count(name: str, **options) -> int:
         return max(1, int(opts["frames"]))
     step = float(opts["step_deg"])
     n = max(1, int(round(360.0 / step))) if math.isfinite(step) and step > 0 else 1
+    if opts.get("angles_deg") is not None:
+        n = max(1, len(opts["angles_deg"]))
     return min(n, int(opts["frames"])) if opts.get("frames") else n
 
 

@@ -324,7 +324,8 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
                     height_range_mm=None, lights=TARGET_LIGHTS, laser_flood: float = 0.0,
                     flood_exposure: float | None = None, plate_mm=None, border_mm: float | None = None,
                     thickness_mm: float = 3.0, bow_mm: float = 0.0, plate_material: str = "white-plastic",
-                    truth_pixels_every: int = 0, room_light: bool = False) -> Scenario:
+                    truth_pixels_every: int = 0, room_light: bool = False,
+                    rig_from_patterns=None) -> Scenario:
     """The ``target`` scenario (module docstring).
 
     Parameters
@@ -375,6 +376,10 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
         light is the room's).  The laser frame takes its flood frame's camera-pass estimate
         (``FrameSpec.camera_seed``): the two photographs differ by the laser and the sensor's
         noise, not by the twin's Monte Carlo noise.
+    rig_from_patterns : sequence of (4, 4) array_like float, optional
+        Given hand-held poses instead of drawn ones: the pattern frame in the rig frame [mm]
+        (a real frame's pose, :mod:`sim.pose_twin`); ``poses``, the tilts, roll, offsets and
+        ranges are then not used (``scenario_params.poses_given``).
 
     Returns
     -------
@@ -422,9 +427,10 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
         rig_from_parts = [rig_from_stage(rig) @ stage_from_part(rig, a) for a in angles]
     else:
         part_from_pattern = np.eye(4)
-        angles = [None] * poses
-        rig_from_parts = _hand_held_poses(rig, seed, poses, centre_xy, tilt_deg, roll_deg, off_sheet_mm,
-                                          depth_range_mm, height_range_mm)
+        given = _given_poses(rig_from_patterns, on_table)
+        angles = [None] * (len(given) if given is not None else poses)
+        rig_from_parts = given if given is not None else _hand_held_poses(
+            rig, seed, poses, centre_xy, tilt_deg, roll_deg, off_sheet_mm, depth_range_mm, height_range_mm)
     t_flood = flood_exposure_ms(rig) if flood_exposure is None else float(flood_exposure)
     if not (math.isfinite(t_flood) and t_flood > 0):
         raise _fail(f"--flood-exposure-ms {flood_exposure!r}: must be > 0")
@@ -446,7 +452,7 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
               "depth_range_mm": None if depth_range_mm is None else list(depth_range_mm),
               "height_range_mm": None if height_range_mm is None else list(height_range_mm),
               "lights": list(lights), "laser_flood": laser_flood, "flood_exposure_ms": t_flood,
-              "room_light": bool(room_light),
+              "room_light": bool(room_light), "poses_given": rig_from_patterns is not None,
               "room_light_w_m2": rig.environment.flood_irradiance_w_m2 if room_light else None,
               "part": "target", "print": printed, "part_from_pattern": part_from_pattern.tolist(),
               "plate_material": plate_material, "thickness_mm": thickness_mm,
@@ -456,7 +462,27 @@ def target_scenario(rig: Rig, seed: int = 0, pattern: str = "chessboard:10x8:7",
                     truth_pixels_every, (), empty, frame_truth=pattern_truth)
 
 
-def target_frame_count(on_table: bool = False, poses: int = 20, step_deg=None, lights=TARGET_LIGHTS, **_) -> int:
+def _given_poses(rig_from_patterns, on_table: bool):
+    """The given poses checked (4 × 4 rigid transforms), or None."""
+    if rig_from_patterns is None:
+        return None
+    if on_table:
+        raise _fail("given poses of the pattern are hand-held poses: not with --on-table")
+    out = []
+    for m in rig_from_patterns:
+        m = np.asarray(m, np.float64)
+        r = m[:3, :3] if m.shape == (4, 4) else np.zeros((3, 3))
+        if m.shape != (4, 4) or not np.isfinite(m).all() or np.abs(r.T @ r - np.eye(3)).max() > 1e-6 \
+                or np.linalg.det(r) < 0:
+            raise _fail("a given pose of the pattern must be a 4 × 4 rigid transform (rotation, det +1) [mm]")
+        out.append(m)
+    if not out:
+        raise _fail("no given pose of the pattern")
+    return out
+
+
+def target_frame_count(on_table: bool = False, poses: int = 20, step_deg=None, lights=TARGET_LIGHTS,
+                       rig_from_patterns=None, **_) -> int:
     """Frames of a target scenario from its options alone (an upper bound on the table).
 
     Parameters
@@ -469,6 +495,8 @@ def target_frame_count(on_table: bool = False, poses: int = 20, step_deg=None, l
         Table step [deg].
     lights : sequence of str or str
         Frames per pose.
+    rig_from_patterns : sequence, optional
+        Given poses (their number is the poses').
     **_
         Other options (ignored).
 
@@ -484,6 +512,8 @@ def target_frame_count(on_table: bool = False, poses: int = 20, step_deg=None, l
     if on_table:
         step = float(step_deg) if step_deg and math.isfinite(float(step_deg)) and step_deg > 0 else 360.0
         return max(1, int(round(360.0 / step))) * n_lights
+    if rig_from_patterns is not None:
+        return max(1, len(rig_from_patterns)) * n_lights
     return max(1, int(poses) if isinstance(poses, int) else 20) * n_lights
 
 

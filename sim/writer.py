@@ -78,12 +78,14 @@ from scheimpflug.model.camera import stripe_along
 from scheimpflug.model.chain import chain_is_on
 from scheimpflug.model.rig import Rig, is_realistic, rig_to_dict
 
+from .backgrounds import background_poses
 from .camera_pass import camera_pass_of, uses_camera_pass
 from .chain import ChainModel, apply_chain, encode_frame, frame_suffix
 from .jobfolder import JobKind, check_identity, create_folder, open_job, remove_temporaries
+from .materials import MaterialSettings
 from .scenarios import FrameSpec, Scenario
 from .sensor import SensorModel, apply_sensor, frame_rng
-from .stages import invert, rig_from_stage
+from .stages import invert
 from .threads import drjit_threads
 from .truth import (
     RayCaster,
@@ -215,7 +217,8 @@ class MitsubaTwin:
         Albedos and roughnesses of the material tags (default: MaterialSettings()).
     background : tuple of scenes.Part, default ()
         Parts fixed in the stage frame (a scan's walls, :mod:`sim.backgrounds`), posed by
-        ``rig_from_stage`` in every frame.
+        ``rig_from_stage`` in every frame, or turning with the table (a tilted disc,
+        :func:`sim.backgrounds.background_poses`).
 
     Attributes
     ----------
@@ -260,7 +263,7 @@ class MitsubaTwin:
         self.scene = SimScene([*assembly.parts, *background], materials=materials, subsurface=rig.twin.subsurface)
         self._moving, self._static = len(assembly.parts), len(background)
         self._exposure_ms = rig.sensor.exposure_ms        # the laser pass's (sim.render: electrons per watt)
-        self._rig_from_stage = rig_from_stage(rig) if background else None
+        self._background_poses = background_poses(rig, background) if background else None
         self.materials = materials
         self.camera = None      # the camera pass (sim.camera_pass) replaces the coarse ambient pass
         if uses_camera_pass(rig):
@@ -334,10 +337,10 @@ class MitsubaTwin:
         return pending
 
     def _poses(self, frame: FrameSpec):
-        """The scene's pose for a frame: the part's, or one per part with the background's fixed one."""
+        """The scene's pose for a frame: the part's, or one per part with the background's (its own rule)."""
         if not self._static:
             return frame.rig_from_part
-        return np.stack([frame.rig_from_part] * self._moving + [self._rig_from_stage] * self._static)
+        return np.stack([frame.rig_from_part] * self._moving + self._background_poses(frame.rig_from_part))
 
     def _render_with_camera(self, frame: FrameSpec) -> np.ndarray:
         """The camera pass's image (flood light, environment) plus the laser's unless the frame is flood-lit only."""
@@ -1479,7 +1482,7 @@ def _finish(out: Path, manifest: dict, scenario: Scenario, stats: RenderStats,
 def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int | None = None,
                   progress: ProgressCallback | None = None,
                   warn: Callable[[str], None] | None = None, workers: int = 1,
-                  **scenario_options) -> tuple[RenderStats, dict]:
+                  materials: MaterialSettings | None = None, **scenario_options) -> tuple[RenderStats, dict]:
     """Render a named scenario of ``rig`` into the frame folder ``out`` (the library's ``render``).
 
     Builds the scenario (:func:`sim.scenarios.build_scenario`), the Mitsuba twin
@@ -1507,6 +1510,9 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
     workers : int, default 1
         Worker processes rendering frames at once (1 = this process; N ≥ 2: each
         worker's thread pools sized to cores // N).
+    materials : MaterialSettings, optional
+        The material tags' settings (default :class:`sim.materials.MaterialSettings`); given, the
+        frames render in this process (a twin's identified albedo and roughness: ``render --twin``).
     **scenario_options
         Options of the scenario (``steps``, ``step_mm``, ``part``, ``step_deg`` …;
         :mod:`sim.scenarios`).
@@ -1532,12 +1538,19 @@ def render_folder(rig: Rig, scenario_name: str, out, *, seed: int = 0, spp: int 
         warn(f"the camera chain ([chain] format = {rig.chain.format!r}) renders in this process: "
              f"{workers} workers asked, 1 used")
         workers = 1
+    if workers != 1 and materials is not None:
+        warn(f"material settings other than the defaults render in this process: {workers} workers asked, 1 used")
+        workers = 1
     if workers != 1:
         from .workers import RenderJob, render_with_workers  # it builds on this module
 
         job = RenderJob(rig, scenario_name, seed=seed, spp=spp, options=dict(scenario_options))
         return render_with_workers(job, out, workers, progress=progress, warn=warn)
-    scenario, twin, manifest, messages = build_run(rig, scenario_name, seed, spp, scenario_options)
+    factory = None
+    if materials is not None:
+        def factory(rig_, assembly, **kw):
+            return MitsubaTwin(rig_, assembly, materials=materials, **kw)
+    scenario, twin, manifest, messages = build_run(rig, scenario_name, seed, spp, scenario_options, factory)
     for msg in messages:
         warn(msg)
     stats = render_scenario(rig, scenario, out, twin, manifest, progress=progress, warn=warn)

@@ -287,6 +287,75 @@ def test_twins_wall_lines_fall_on_the_real_ones(scan200, tmp_path, variant):
     assert math.sqrt(np.mean(rms1d ** 2)) < 1.0 and len(rms2d) > 100
 
 
+@needs_real
+@pytest.mark.slow
+@pytest.mark.render
+def test_twins_table_line_falls_on_the_real_one(scan200, tmp_path, variant):
+    """Issue 35's acceptance on the table: the top found from the real frames (h, its lean, the tilt that
+    makes it wobble: :mod:`scheimpflug.turntable_top`, fitted, not tuned), the twin's turning disc rendered
+    at 8 of the real frames' angles, each compared per column with the real frame AT THE SAME ANGLE.
+
+    The fit uses every 4th frame of the turn (50 frames, to keep the test short); both lines by the same
+    detector, per frame the inliers of a RANSAC line over columns 1310–1460
+    (:func:`scheimpflug.turntable_top.table_line_points`); the columns seen at 6 of the 8 angles at least.
+    FabScan's own camera model (``as-fabscan``), as for the walls.
+
+    Measured (2026-12-07): h +0.129 mm, lean 0.723° toward 160.5°, tilt 0.213° toward 169.6° (fit
+    residual 1.515 px RMS); the table line 1.619 px RMS per column (RMS over the 8 angles, then over 142
+    columns), its per-column bias 0.869 px RMS; per angle the mean −1.40 px at 0°, within ±0.6 px at the
+    others.  The fit from all 200 frames: 1.609 px.  For comparison (the same pairing, a hidden part,
+    every column seen at any angle): the still disc at the calibrated table plane 20.2 px, the fitted h
+    and lean without the wobble 4.24 px, with it 1.754 px.  The target, 1 px, is not met: the real
+    line is bent by ±1 px along its length where FabScan's camera model (K alone) makes every line of
+    the sheet straight (the per-column bias), the real top's line departs from a tilted plane's
+    once-per-turn wobble by 0.62 px RMS per frame (−1.4 px at 0°, the scan's first frame), and each
+    single frame's line has its stripe noise (the twin's cardboard: 0.75–0.9 px per column against its
+    exact line at full resolution).
+    """
+    import dataclasses
+
+    from scheimpflug.calibration.instrument import calibration_sheet_model
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.model.rig import load_rig
+    from scheimpflug.model.rigfile import with_stage_keys
+    from scheimpflug.turntable_top import table_line_points, table_top_of_folder
+    from sim.backgrounds import camera_from_table
+
+    columns = WALLS[1]
+    real = open_frame_folder(scan200)
+    rig_path = _rig_file(tmp_path, "as-fabscan", disc=True)
+    cal = calibration_sheet_model(CONFIG, "as-fabscan")
+    top = table_top_of_folder(dataclasses.replace(real, frames=real.frames[::4]), cal, columns,
+                              camera_from_table(load_rig(rig_path)))
+    assert top.n_frames == 50 and top.n_points > 5000
+    rig_path.write_text(with_stage_keys(rig_path.read_text(), top.rig_keys(), "fitted from scan-2_1"))
+    out = tmp_path / "twin-table"
+    assert main(["render", "rotary", "--rig", str(rig_path), "--part", "sphere", "--step-deg", "45", "--frames", "8",
+                 "--truth-pixels", "none", "--out", str(out), "--quiet"]) == 0
+    twin = open_frame_folder(out)
+    pick = [next(i for i, r in enumerate(real.frames) if abs((r.angle_deg - t.angle_deg + 180.0) % 360.0 - 180.0)
+                 < 1e-6) for t in twin.frames]                   # the real frame at each twin angle
+    ru, rv, rf = table_line_points(dataclasses.replace(real, frames=tuple(real.frames[i] for i in pick)), columns)
+    tu, tv, tf = table_line_points(twin, columns)
+    rc, tc = np.round(ru).astype(int), np.round(tu).astype(int)
+    d = np.full((len(pick), columns[1] - columns[0] + 1), np.nan)
+    for k in range(len(pick)):
+        for c in np.intersect1d(rc[rf == k], tc[tf == k]):
+            d[k, c - columns[0]] = rv[(rf == k) & (rc == c)].mean() - tv[(tf == k) & (tc == c)].mean()
+    seen = np.isfinite(d).sum(axis=0) >= 6                       # columns seen at 6 of the 8 angles at least
+    per_column = np.sqrt(np.nanmean(d[:, seen] ** 2, axis=0))
+    bias = np.nanmean(d[:, seen], axis=0)
+    rms = math.sqrt(float(np.mean(per_column ** 2)))
+    print(f"table top: h {top.offset_mm:+.4f} ± {top.offset_se_mm:.4f} mm, lean {top.lean_deg:.4f}° toward "
+          f"{top.lean_azimuth_deg:.2f}°, tilt {top.tilt_deg:.4f} ± {top.tilt_se_deg:.4f}° toward "
+          f"{top.azimuth_deg:.2f} ± {top.azimuth_se_deg:.2f}°, fit residual {top.rms_px:.3f} px; table line "
+          f"{rms:.3f} px RMS per column over {seen.sum()} columns and 8 angles (bias "
+          f"{math.sqrt(float(np.mean(bias ** 2))):.3f} px RMS); per angle "
+          + ", ".join(f"{t.angle_deg:g}°: {np.nanmean(r):+.2f}" for t, r in zip(twin.frames, d)))
+    assert seen.sum() > 120
+    assert rms < 2.0                # measured 1.619 px (docstring): the target, 1 px, is not met
+
+
 @pytest.mark.parametrize("change, words", [
     ({"normal": [0.0, 0.0, 2.0]}, "not 1"),
     ({"length_dir": [0.0, 0.6, 0.8]}, "not perpendicular"),

@@ -31,8 +31,8 @@ def test_fabscan_frames_reconstruct_to_fabscans_own_points(fabscan_scan, tmp_pat
     config = REAL / "fabscan" / "dummy.config.json"
     capsys.readouterr()
     assert main(["reconstruct", str(fabscan_scan), "--calibration", str(config), "--out", str(tmp_path / "c.ply"),
-                 "--keep-saturated", "--no-quality-filter", "--json", "--quiet"]) == 0
-    summary = json.loads(capsys.readouterr().out)
+                 "--keep-saturated", "--no-quality-filter", "--keep-housing", "--json", "--quiet"]) == 0
+    summary = json.loads(capsys.readouterr().out)      # every stripe point, the walls' too (--keep-housing)
     assert summary["n_points"] > 20 * 1000 and "measured in 3-D" in summary["axis_source"]
     ff = open_frame_folder(fabscan_scan)
     st = extract_folder_stripes(ff, "cog", keep_saturated=True)

@@ -244,7 +244,7 @@ def test_the_command_serves_and_stops_on_ctrl_c(tmp_path):
         with urllib.request.urlopen(url + "api/design", timeout=10) as r:
             assert json.loads(r.read())["tilt_deg"] == pytest.approx(21.6462, abs=1e-4)
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=60) == 0   # a loaded machine: the interpreter may take seconds to unwind
         assert "stopped" in proc.stderr.read()
     finally:
         if proc.poll() is None:

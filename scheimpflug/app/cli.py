@@ -35,7 +35,7 @@ from scheimpflug.errors import ScheimpflugError
 __all__ = ["COMMANDS", "EXIT_BUG", "EXIT_ERROR", "build_parser", "main"]
 
 COMMANDS = ("design", "render", "calibrate", "axis", "reconstruct", "evaluate", "acceptance", "import",
-            "dataset", "study", "identify", "demo", "studio", "rig")
+            "dataset", "study", "identify", "demo", "studio", "rig", "compare", "twin")
 _MODULES = {"import": "import_frames"}   # command name → module (``import`` is a keyword)
 EXIT_ERROR = 2    # bad input, reported on one line
 EXIT_BUG = 70     # an unexpected exception: a bug (sysexits.h EX_SOFTWARE)

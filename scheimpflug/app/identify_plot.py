@@ -3,26 +3,15 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
-from scheimpflug.io.atomic import atomic_path
+from scheimpflug.app.plotting import pyplot as _plt
+from scheimpflug.app.plotting import save_tight as _save
 
 __all__ = ["plot_pairs", "plot_predictive"]
 
 
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _save(fig, path) -> None:
-    with atomic_path(Path(path)) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    _plt().close(fig)
 
 
 def _log_axis(axis) -> None:

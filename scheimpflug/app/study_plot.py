@@ -4,26 +4,15 @@ the tornado chart, the distributions and the sensitivities of a tolerance study.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
-from scheimpflug.io.atomic import atomic_path
+from scheimpflug.app.plotting import pyplot as _plt
+from scheimpflug.app.plotting import save_tight as _save
 
 __all__ = ["plot_distributions", "plot_pareto", "plot_sensitivity", "plot_sweep", "plot_tornado", "tornado_bars"]
 
 
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _save(fig, path) -> None:
-    with atomic_path(Path(path)) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    _plt().close(fig)
 
 
 def _col(rows, key):

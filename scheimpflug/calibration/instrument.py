@@ -86,7 +86,10 @@ def _plane(model) -> tuple[np.ndarray, float]:
     n = np.cross(e_s, e_h)
     norm = float(np.linalg.norm(n))
     if not norm > 0:
-        raise CalibrationError("the calibration's sheet frame is degenerate (its axes are parallel)")
+        raise CalibrationError("the calibration gives no laser sheet (its sheet frame is degenerate): a camera-only "
+                               "calibration, e.g. `calibrate --method target` without laser frames at two or more "
+                               "poses; a twin needs the sheet's plane — calibrate with laser frames, or give an OpenCV "
+                               "export holding its laser_plane")
     n = n / norm
     dist = float(n @ origin)
     return (n, dist) if dist >= 0 else (-n, -dist)

@@ -25,6 +25,7 @@ __all__ = [
     "preset_tables",
     "read_toml",
     "rig_from_dict",
+    "with_stage_keys",
 ]
 
 PRESETS = ("paper", "paper-as-built")
@@ -177,3 +178,39 @@ def preset_tables(name: str) -> dict:
         raise RigError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     text = resources.files("scheimpflug.model").joinpath("presets", f"{name}.toml").read_text("utf-8")
     return tomllib.loads(text)
+
+
+def with_stage_keys(text: str, keys: Mapping[str, float], note: str) -> str:
+    """A rig file's text with ``keys`` set in its ``[stage]`` table, under a comment line ``note``.
+
+    Keys already there are replaced, the others added after the table's header; a ``[stage]``
+    table is appended when the file has none.  An earlier call's note (a comment line
+    beginning ``# table keys fitted by``) is dropped with the keys it named.
+
+    Parameters
+    ----------
+    text : str
+        The rig file's text (TOML).
+    keys : mapping of str to float
+        ``[stage]`` keys and their values (written as TOML floats).
+    note : str
+        The comment line written above them (without ``#``).
+
+    Returns
+    -------
+    str
+        The new text, ending in a newline.
+    """
+    from scheimpflug.model.assembly import toml_value
+
+    lines = text.splitlines()
+    new = [f"{k} = {toml_value(float(v))}" for k, v in keys.items()]
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == "[stage]")
+    except StopIteration:
+        return text.rstrip("\n") + f"\n\n[stage]\n# {note}\n" + "\n".join(new) + "\n"
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].lstrip().startswith("[")), len(lines))
+    body = [line for line in lines[start + 1:end]
+            if line.split("=", 1)[0].strip() not in keys and line.strip() != f"# {note}"
+            and not line.startswith("# table keys fitted by")]                 # an earlier fit's note
+    return "\n".join(lines[:start + 1] + [f"# {note}"] + new + body + lines[end:]) + "\n"

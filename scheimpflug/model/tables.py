@@ -291,14 +291,31 @@ class Stage:
         the laser plane (FabScan's table centre lies 0.49 mm off its plane).
     table_radius_mm : float, default 0.0
         Radius of the turntable's disc in the twin [mm], in [0, 1e5] (0 = no disc): a disc
-        centred on the rotary axis whose top is the table plane (``rotary_table_z_mm``); it
-        stands still (rotationally symmetric about the bearing axis) and is lit and in the
-        truth like a housing board (:mod:`sim.backgrounds`).
+        centred on the rotary axis whose top is the table plane (``rotary_table_z_mm``; the
+        ``table_top_*``, ``table_tilt_*`` and ``table_axis_tilt_*`` keys move it); it stands still
+        (rotationally symmetric about the bearing axis) unless its top is tilted, and is lit and in
+        the truth like a housing board (:mod:`sim.backgrounds`).
     table_thickness_mm : float, default 10.0
         Thickness of that disc below its top [mm], in (0, 1e4].
     table_material : str, default "cardboard"
         The disc's material, a tag of ``scenes.MATERIALS``, in {"metal", "knurled-metal",
         "cardboard", "tape", "paper", "white-plastic", "marble"}.
+    table_top_offset_mm : float, default 0.0
+        Where the disc's top lies along the axis from the table plane, + up the axis [mm], in
+        [-100, 100]: a real table's top need not be where a calibration puts its platform
+        (``scheimpflug rig housing --table`` fits it, :mod:`scheimpflug.turntable_top`); the part
+        stays on the table plane.
+    table_tilt_deg, table_tilt_azimuth_deg : float, default 0.0
+        Tilt of the disc's top to its bearing axis [deg], in [0, 10], and the direction its normal
+        leans to in the table's own frame, from its x toward its y at angle 0 [deg], in [-360, 360]:
+        the disc turns with the table about the axis, so its line wobbles once per turn
+        (:mod:`scheimpflug.turntable_top`); 0 = a top square to the axis (the disc then stands
+        still, as before).
+    table_axis_tilt_deg, table_axis_tilt_azimuth_deg : float, default 0.0
+        Lean of the disc's own axis (the one it turns about, through its top's centre) from the
+        rotary axis [deg], in [0, 10], toward an azimuth in the table's frame at angle 0 [deg], in
+        [-360, 360]: the mean plane of a real top need not be square to the calibrated axis
+        (:mod:`scheimpflug.turntable_top`).  The part still turns about the rotary axis.
     runout_um : float, default 0.0
         Radial runout of the rotary axis (once per turn) [µm], in [0, 1e5].
     translation_scale_ppm : float, default 0.0
@@ -377,6 +394,11 @@ class Stage:
     table_radius_mm: float = 0.0
     table_thickness_mm: float = 10.0
     table_material: str = "cardboard"
+    table_top_offset_mm: float = 0.0
+    table_tilt_deg: float = 0.0
+    table_tilt_azimuth_deg: float = 0.0
+    table_axis_tilt_deg: float = 0.0
+    table_axis_tilt_azimuth_deg: float = 0.0
     runout_um: float = 0.0
     translation_scale_ppm: float = 0.0
     translation_periodic_um: float = 0.0

@@ -20,7 +20,7 @@ import numpy as np
 
 from scheimpflug.errors import StudyError
 
-from .figures import FIGURES, scale_sigma, to_scale
+from .figures import scale_sigma, to_scale
 from .posterior import CHAINS, Likelihood, abc_weights, noise_correlation, resample, run_mcmc, summarise
 from .surrogate import fit_gp
 
@@ -47,7 +47,7 @@ def observed_on_scale(spec) -> tuple[np.ndarray, np.ndarray]:
     """
     obs, sig = [], []
     for f in spec.fitted:
-        scale = FIGURES[f.name].scale
+        scale = f.stat_scale
         obs.append(to_scale(scale, f.measured))
         sig.append(scale_sigma(scale, f.measured, f.absolute, f.relative))
     return np.array(obs), np.array(sig)
@@ -61,7 +61,7 @@ def _design_arrays(spec, records: list[dict]) -> tuple[np.ndarray, np.ndarray]:
         for j, f in enumerate(spec.fitted):
             v = r["figures"].get(f.name)
             if v is not None:
-                values[i, j] = to_scale(FIGURES[f.name].scale, v)
+                values[i, j] = to_scale(f.stat_scale, v)
     return units, values
 
 
@@ -85,7 +85,7 @@ def _surrogates(spec, units, values, sigma) -> tuple[list, dict]:
         ok = np.isfinite(values[:, j])
         gp = fit_gp(units[ok], values[ok, j], seed=spec.seed)
         c = gp.cross_validation()
-        c.update(scale=FIGURES[f.name].scale, uncertainty=float(sigma[j]), ok=bool(c["error"] < sigma[j]),
+        c.update(scale=f.stat_scale, uncertainty=float(sigma[j]), ok=bool(c["error"] < sigma[j]),
                  length=[float(x) for x in gp.length])
         models.append(gp)
         cv[f.name] = c

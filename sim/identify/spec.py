@@ -211,12 +211,21 @@ class FigureSpec:
         Uncertainty (1 σ) in the figure's unit, or None.
     relative : float or None
         Uncertainty as a fraction of the value, or None.
+    scale : {"log", "log1m", "linear"} or None
+        Its statistical scale when it is not a registry figure (a scan's image-level figures,
+        :mod:`sim.identify.scan`); None = the registry's.
     """
 
     name: str
     measured: float
     absolute: float | None = None
     relative: float | None = None
+    scale: str | None = None
+
+    @property
+    def stat_scale(self) -> str:
+        """The scale the surrogate and the likelihood use (its own, else the registry's)."""
+        return self.scale or FIGURES[self.name].scale
 
     @property
     def has_uncertainty(self) -> bool:

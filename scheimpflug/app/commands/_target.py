@@ -76,6 +76,15 @@ def add_target_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--bow-mm", type=number(-1e3, 1e3, unit="mm"),
                    help="bow of the print, + toward the camera (default 0)")
     g.add_argument("--plate-material", help="material of the plate (default white-plastic)")
+    g.add_argument("--pose-from", metavar="FRAME[,FRAME...]",
+                   help="the poses of real frames instead of drawn ones: the pattern found whole in each frame "
+                        "(a dim laser-off frame is brightened ×2, ×4, ×8) and placed by --pose-calibration's camera "
+                        "(solvePnP); the rig must be built from that calibration (rig from-calibration)")
+    g.add_argument("--pose-calibration", metavar="CAL.json",
+                   help="with --pose-from: the calibration (camera_matrix, dist_coeffs) whose camera frame is the "
+                        "rig's instrument frame")
+    g.add_argument("--pose-channel", default=None, metavar="r|g|b|gray",
+                   help="with --pose-from: the channel of colour frames the pattern is found in (default gray)")
     g = p.add_argument_group("flood light and camera pass (every scenario)")
     g.add_argument("--flood-w-m2", type=number(0, 1e5, unit="W/m²"),
                    help="the flood light's irradiance at its aim point (rig key [environment] "

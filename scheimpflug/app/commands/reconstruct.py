@@ -70,6 +70,15 @@ def add_parser(sub):
     p.add_argument("--drop-isolated", action="store_true",
                    help="drop a row's stripe when neither adjacent row has one within 2 px "
                         "(lone detections: noise or stray light at a part's edge)")
+    housing = p.add_mutually_exclusive_group()
+    housing.add_argument("--keep-housing", action="store_true",
+                         help="keep the housing's points of a real scan (default for a folder written by "
+                              "'import': drop the still points on the still walls' lines and, when the "
+                              "calibration gives the turntable's radius, the points beyond it)")
+    housing.add_argument("--drop-housing", action="store_true",
+                         help="drop the housing's points of a rendered scan too (default for a rendered "
+                              "folder: keep every point; its parts are often surfaces of revolution about "
+                              "the axis, which stand still)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     add_model_options(p)
@@ -207,6 +216,7 @@ def _from_folder(args, t0: float):
     from scheimpflug.io.frames import check_distinct_frames
 
     check_distinct_frames(folder, [i for i, r in enumerate(st.rows) if len(r)])   # a frame listed twice
+    st, housing = _drop_housing(args, folder, st, calibration)
     stats = st.stats
     own_axis = args.axis_mm is None and not args.axis_from     # the calibration's, a line in 3-D
     cloud = reconstruct_profiles(st.rows, st.u, [r.angle_deg for r in folder.frames], calibration,
@@ -228,7 +238,7 @@ def _from_folder(args, t0: float):
     summary = {"out": str(args.out), "n_points": len(cloud), "n_frames": len(folder),
                "axis_mm": axis_mm, "axis_source": axis_source, "method": args.method,
                "saturated": args.saturated, **stats, "saturated_points": int(cloud.saturated.sum()),
-               "quality_filter": quality, "seconds": round(time.perf_counter() - t0, 3)}
+               "quality_filter": quality, "housing": housing, "seconds": round(time.perf_counter() - t0, 3)}
     kept = (f"; quality filter: {_dropped_text(quality)} dropped of {quality['n_points']}"
             if quality["filter"] else "; no quality filter")
     print(f"reconstruct: {summary['n_points']} points from {summary['n_frames']} frames "
@@ -237,6 +247,40 @@ def _from_folder(args, t0: float):
           f"({axis_source}), {summary['seconds']:.1f} s → {args.out}", file=sys.stderr)
     return cloud, folder, summary, lambda: write_point_cloud(
         args.out, cloud, comment=f"scheimpflug reconstruct {args.dir} axis_mm={axis_mm:.6g}")
+
+
+def imported_scan(folder) -> bool:
+    """Whether a frame folder holds real frames (written by ``scheimpflug import``), not rendered ones."""
+    import json
+
+    try:
+        return json.loads((folder.path / "manifest.json").read_text()).get("source") == "scheimpflug import"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _drop_housing(args, folder, st, calibration):
+    """The stripes without the housing's points, as the options and the folder say; and the summary block."""
+    from scheimpflug.errors import FrameError
+    from scheimpflug.still_points import separate_housing
+
+    real = imported_scan(folder)
+    reason = ("--keep-housing" if args.keep_housing else "--drop-housing" if args.drop_housing
+              else "a real scan (written by 'import')" if real else "a rendered scan: every point kept")
+    if args.keep_housing or not (real or args.drop_housing):
+        return st, {"applied": False, "reason": reason}
+    split = separate_housing(st, calibration)
+    n_before = sum(len(r) for r in st.rows)
+    block = {"applied": True, "reason": reason, **split.to_json_dict()}
+    if n_before and block["dropped"] == n_before:
+        raise FrameError(f"{args.dir}: all {n_before} stripe points are the housing's (still, or beyond the "
+                         "turntable's radius): see --keep-housing")
+    radius = f", {split.beyond_turntable} beyond the turntable's {split.radius_mm:g} mm radius" \
+        if split.radius_mm is not None else ", no turntable radius in the calibration"
+    print(f"reconstruct: housing: {block['dropped']} of {n_before} stripe points dropped ({split.still} still on "
+          f"the walls' lines{radius}){'; ' + split.note if split.note else ''}; --keep-housing keeps them",
+          file=sys.stderr)
+    return st.select(split.keep), block
 
 
 def _apply_quality(args, cloud, calibration, folder, axis_mm: float):

@@ -48,7 +48,9 @@ _APPLIES = {
     "steps": ("calibration",), "step_mm": ("calibration",), "start_mm": ("calibration",),
     "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary", "target"),
     "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"), "housing": ("rotary",),
+    "angles_deg": ("rotary",), "twin": ("rotary",),
     "blocker_thickness_mm": ("blocker",), "room_light": ("target",),
+    "pose_from": ("target",), "pose_calibration": ("target",), "pose_channel": ("target",),
     **{k: ("target",) for k in TARGET_OPTIONS},
     **{k: ("blocker", "rotary") for k in ("background", "background_material", "background_height_mm",
                                           "background_distance_mm")},
@@ -100,6 +102,13 @@ def add_parser(sub):
                    help="rotary: a scanner's fixed boards (walls, floor) in the instrument frame, the rig's "
                         "camera frame (docs/reference/interface.md; scheimpflug rig housing writes one); "
                         "refused beside a rig file's own [[housing.board]], which renders without it")
+    g.add_argument("--angles-deg", type=_angles, metavar="START:STEP|A,B,...",
+                   help="rotary: the frames' angles [deg]: one turn from START by STEP, or a list "
+                        "(write --angles-deg=-360:1.8 for a negative start); default: --step-deg's turn, "
+                        "with --twin the real scan's angles")
+    g.add_argument("--twin", metavar="TWIN_DIR",
+                   help="rotary: render a twin built by 'twin build' (its rig — the identified one when "
+                        "there is one —, part.ply and housing.toml); not with --rig, --preset, --part, --housing")
     g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
                    help="blocker thickness [mm] (default 2)")
     add_target_options(p)
@@ -132,6 +141,44 @@ def _workers(text: str):
     return n
 
 
+def _angles(text: str) -> list[float]:
+    """``--angles-deg``: ``START:STEP`` (one turn) or a comma-separated list [deg]."""
+    import argparse
+    import math
+
+    try:
+        if ":" in text:
+            start, step = (float(x) for x in text.split(":"))
+            if not (math.isfinite(start) and math.isfinite(step) and 0 < step <= 360):
+                raise ValueError
+            return [start + i * step for i in range(max(1, int(round(360.0 / step))))]
+        angles = [float(x) for x in text.split(",")]
+        if not all(math.isfinite(a) for a in angles):
+            raise ValueError
+        return angles
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected START:STEP (0 < STEP <= 360) or a list A,B,... "
+                                         "of finite angles [deg]") from None
+
+
+def _apply_twin(args) -> None:
+    """``--twin``: the twin folder's rig, part and housing as the options, its scan's angles by default."""
+    if not args.twin:
+        return
+    given = [flag for flag, v in (("--rig", args.rig), ("--preset", args.preset), ("--part", args.part),
+                                  ("--housing", args.housing)) if v]
+    if given:
+        raise ScheimpflugError(f"--twin gives the rig, the part and the housing: not with {', '.join(given)}")
+    from sim.twin import load_twin
+
+    twin = load_twin(args.twin)
+    args.rig, args.part = str(twin.rig), str(twin.part)
+    args.housing = str(twin.housing) if twin.housing else None
+    args.twin_materials = twin.materials or None
+    if args.angles_deg is None and args.step_deg is None:
+        args.angles_deg = twin.angles_deg or None
+
+
 def _truth_every(value: str | None, scenario: str) -> int:
     if value is None:
         return {"rotary": 30, "target": 0}.get(scenario, 1)
@@ -155,7 +202,8 @@ def _scenario_options(args) -> dict:
             raise ScheimpflugError(f"{flag} applies to the {' and '.join(scen)} scenario"
                                    f"{'s' if len(scen) > 1 else ''} only, not {args.scenario!r}")
     names = {"calibration": ("steps", "step_mm", "start_mm", "plate_height_mm"),
-             "blocker": ("frames", *_BACKGROUND), "rotary": ("part", "step_deg", "frames", "housing", *_BACKGROUND),
+             "blocker": ("frames", *_BACKGROUND),
+             "rotary": ("part", "step_deg", "frames", "housing", "angles_deg", *_BACKGROUND),
              "target": ()}[args.scenario]
     opts = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
     if args.scenario == "target":
@@ -248,12 +296,18 @@ def _run(args) -> int:
 
     if args.scenario not in SCENARIOS:
         raise ScheimpflugError(f"unknown scenario {args.scenario!r} (known: {', '.join(SCENARIOS)})")
+    if args.twin and args.scenario == "rotary":
+        _apply_twin(args)
+    if args.angles_deg is not None and args.step_deg is not None:
+        raise ScheimpflugError("--angles-deg and --step-deg: give one (the angles, or a turn by its step)")
     opts = _scenario_options(args)
     if args.seed < 0:
         raise ScheimpflugError(f"--seed {args.seed}: must be >= 0")
     if args.spp is not None and args.spp < 1:
         raise ScheimpflugError(f"--spp {args.spp}: must be >= 1")
     rig = _rig(args)
+    if args.scenario == "target":
+        _given_poses(args, rig, opts)
     _check_spp(args.spp, rig)
     workers = _check_job(args, rig, opts)
     _check_out(args.out)
@@ -263,12 +317,36 @@ def _run(args) -> int:
     def warn(msg):
         print(f"scheimpflug render: warning: {msg}", file=sys.stderr)
 
+    materials = getattr(args, "twin_materials", None)
+    if materials:
+        from sim.materials import MaterialSettings
+
+        materials = MaterialSettings(**materials)          # the twin's identified albedo and roughness
     with Progress(0, label=f"render {args.scenario}", quiet=args.quiet) as bar:
         stats, manifest = render_folder(rig, args.scenario, args.out, seed=args.seed, spp=args.spp,
-                                        progress=bar, warn=warn, workers=workers, **opts)
+                                        progress=bar, warn=warn, workers=workers, materials=materials or None,
+                                        **opts)
     if args.json:
         print_json(_summary(args, stats, manifest, workers))
     return 0
+
+
+def _given_poses(args, rig, opts: dict) -> None:
+    """``--pose-from``: the real frames' poses of the pattern, in the rig frame (``opts["rig_from_patterns"]``)."""
+    if not args.pose_from:
+        if args.pose_calibration or args.pose_channel:
+            raise ScheimpflugError("--pose-calibration and --pose-channel go with --pose-from FRAME[,FRAME...]")
+        return
+    if not args.pose_calibration:
+        raise ScheimpflugError("--pose-from needs --pose-calibration CAL.json (the camera that places the pattern)")
+    if args.poses is not None or args.on_table:
+        raise ScheimpflugError("--pose-from gives the poses: not with --poses or --on-table")
+    from scheimpflug.board_laser import frame_poses
+    from sim.pose_twin import rig_from_camera_poses
+
+    files = [f for f in args.pose_from.split(",") if f]
+    poses = frame_poses(files, args.pose_calibration, opts["pattern"], args.pose_channel or "gray")
+    opts["rig_from_patterns"] = rig_from_camera_poses(rig, poses)
 
 
 def _pattern_advice(args, rig, opts: dict) -> None:

@@ -65,16 +65,27 @@ def add_parser(sub) -> argparse.ArgumentParser:
         description="Find still flat walls in a frame folder (a turntable scanner's back walls: one column "
                     "range of the frames per wall), map their stripe points through the calibration to "
                     "3-D lines and write them as boards of a housing file (instrument frame: the "
-                    "calibration's camera frame) for render rotary --housing.",
+                    "calibration's camera frame) for render rotary --housing.  With --table, fit the "
+                    "turntable's top from its line (its height along the axis, the lean of its mean "
+                    "plane, the tilt that makes it wobble: scheimpflug.turntable_top) and write its "
+                    "[stage] keys into the rig file --rig (built from the same calibration).",
     )
     hs.add_argument("folder", metavar="FOLDER", help="frame folder of a scan (scheimpflug import)")
     hs.add_argument("--calibration", metavar="FILE", required=True,
                     help="the calibration whose camera frame the boards are given in")
-    hs.add_argument("--walls", metavar="C0:C1[,C0:C1 ...]", required=True,
-                    help="image column ranges [px], one per wall, where its stripe shows in every frame")
+    hs.add_argument("--walls", metavar="C0:C1[,C0:C1 ...]",
+                    help="image column ranges [px], one per wall, where its stripe shows in every frame "
+                         "(written to --out)")
+    hs.add_argument("--table", metavar="C0:C1",
+                    help="image column range [px] where the turntable's top shows its line: fit the top and "
+                         "write table_top_offset_mm, table_tilt_deg, table_tilt_azimuth_deg, "
+                         "table_axis_tilt_deg, table_axis_tilt_azimuth_deg into --rig's [stage]")
+    hs.add_argument("--rig", metavar="RIG.toml",
+                    help="with --table: the rig file (rig from-calibration of the same calibration) whose "
+                         "table frame the fit uses and whose [stage] it updates in place")
     hs.add_argument("--fabscan-distortion", choices=("apply", "as-fabscan"), default="as-fabscan",
                     help="FabScanPi config.json: as in rig from-calibration (use the rig's choice)")
-    hs.add_argument("--out", metavar="HOUSING.toml", required=True, help="the housing file to write")
+    hs.add_argument("--out", metavar="HOUSING.toml", help="with --walls: the housing file to write")
     add_force_option(hs)
     hs.set_defaults(func=run_housing)
     return p
@@ -108,15 +119,15 @@ def _is_fabscan_file(path: str) -> bool:
         return False
 
 
-def _ranges(text: str) -> list[tuple[float, float]]:
+def _ranges(text: str, option: str = "--walls") -> list[tuple[float, float]]:
     out = []
     for item in text.split(","):
         try:
             a, b = (float(x) for x in item.split(":"))
         except ValueError:
-            raise ScheimpflugError(f"--walls {text!r}: expected column ranges C0:C1[,C0:C1 ...]") from None
+            raise ScheimpflugError(f"{option} {text!r}: expected column ranges C0:C1[,C0:C1 ...]") from None
         if not a < b:
-            raise ScheimpflugError(f"--walls {item!r}: the range's first column must be below its last")
+            raise ScheimpflugError(f"{option} {item!r}: the range's first column must be below its last")
         out.append((a, b))
     return out
 
@@ -125,15 +136,70 @@ def run_housing(args: argparse.Namespace) -> int:
     from scheimpflug.calibration.instrument import calibration_sheet_model
     from scheimpflug.fixed_lines import walls_of_folder
     from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.reconstruct import extract_folder_stripes
 
-    check_output(args.out, "--out", force=args.force, inputs=[args.calibration])
-    ranges = _ranges(args.walls)
+    if not args.walls and not args.table:
+        raise ScheimpflugError("rig housing: give --walls (with --out), --table (with --rig), or both")
+    if args.walls and not args.out:
+        raise ScheimpflugError("--walls needs --out HOUSING.toml (the housing file to write)")
+    if args.out and not args.walls:
+        raise ScheimpflugError("--out is the housing file of --walls: give --walls too "
+                               "(the table's keys go into --rig)")
+    if args.table and not args.rig:
+        raise ScheimpflugError("--table needs --rig RIG.toml (the rig whose [stage] gets the table's keys)")
+    if args.out:
+        check_output(args.out, "--out", force=args.force, inputs=[args.calibration])
+    ranges = _ranges(args.walls) if args.walls else []
+    table = _ranges(args.table, "--table") if args.table else []
+    if len(table) > 1:
+        raise ScheimpflugError(f"--table {args.table!r}: one column range")
     cal = calibration_sheet_model(args.calibration, args.fabscan_distortion)
-    boards, figures = walls_of_folder(open_frame_folder(args.folder), cal, ranges)
-    comment = (f"Housing found in {args.folder} through {args.calibration} (scheimpflug rig housing).\n"
-               "Instrument frame: the calibration's camera frame [mm].\n" +
-               "\n".join(f"{b.name}: columns {f['columns_px']}, {f['points']} points of {f['frames']} frames, "
-                         f"straightness {f['rms_mm']:.3f} mm" for b, f in zip(boards, figures)))
-    write_text_atomic(args.out, housing_to_toml(boards, comment))
-    print(f"wrote {args.out} ({len(boards)} boards)", file=sys.stderr)
+    folder = open_frame_folder(args.folder)
+    stripes = extract_folder_stripes(folder, "cog", keep_saturated=True)      # once, for the walls and the table
+    rig_text = _table_keys_text(folder, stripes, cal, table[0], args) if table else None
+    if ranges:
+        boards, figures = walls_of_folder(folder, cal, ranges, stripes=stripes)
+        comment = (f"Housing found in {args.folder} through {args.calibration} (scheimpflug rig housing).\n"
+                   "Instrument frame: the calibration's camera frame [mm].\n" +
+                   "\n".join(f"{b.name}: columns {f['columns_px']}, {f['points']} points of {f['frames']} frames, "
+                             f"straightness {f['rms_mm']:.3f} mm" for b, f in zip(boards, figures)))
+        write_text_atomic(args.out, housing_to_toml(boards, comment))
+        print(f"wrote {args.out} ({len(boards)} boards)", file=sys.stderr)
+    if rig_text is not None:
+        write_text_atomic(args.rig, rig_text)
+        print(f"wrote the table's keys into {args.rig} [stage]", file=sys.stderr)
     return 0
+
+
+def _table_keys_text(folder, stripes, cal, columns, args) -> str:
+    """The rig file's text with the fitted table keys in ``[stage]`` (checked: it loads)."""
+    import tomllib
+
+    from scheimpflug.errors import RigError
+    from scheimpflug.model.rigfile import load_rig, rig_from_dict, with_stage_keys
+    from scheimpflug.turntable_top import table_top_of_folder
+    from sim.backgrounds import camera_from_table
+
+    rig = load_rig(args.rig)
+    if rig.stage.axis_tilt_deg < 90.0 and not rig.stage.table_radius_mm > 0:
+        print(f"note: {args.rig} has no table disc ([stage] table_radius_mm = 0): the keys do nothing until it has "
+              "one", file=sys.stderr)
+    try:
+        top = table_top_of_folder(folder, cal, columns, camera_from_table(rig), stripes=stripes)
+    except ValueError as exc:
+        raise ScheimpflugError(f"--table {args.table}: {exc}") from None
+    print(f"table top from {top.n_points} points of {top.n_frames} frames: offset {top.offset_mm:+.4f} ± "
+          f"{top.offset_se_mm:.4f} mm along the axis, lean {top.lean_deg:.4f} ± {top.lean_se_deg:.4f}° toward "
+          f"{top.lean_azimuth_deg:.2f}°, tilt {top.tilt_deg:.4f} ± {top.tilt_se_deg:.4f}° toward "
+          f"{top.azimuth_deg:.2f} ± {top.azimuth_se_deg:.2f}°; residual {top.rms_px:.3f} px RMS along the column "
+          "(standard errors: points taken as independent, a lower bound)", file=sys.stderr)
+    text = with_stage_keys(Path(args.rig).read_text("utf-8"), top.rig_keys(),
+                           f"table keys fitted by scheimpflug rig housing {args.folder} --table {args.table}")
+    data = tomllib.loads(text)
+    if isinstance(data.get("housing"), str):
+        data.pop("housing")                  # its boards are not what is checked here
+    try:
+        rig_from_dict(data)
+    except RigError as exc:
+        raise ScheimpflugError(f"--table: the fitted keys do not make a valid rig: {exc}") from None
+    return text
