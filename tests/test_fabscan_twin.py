@@ -243,13 +243,9 @@ def test_twins_wall_lines_fall_on_the_real_ones(scan200, tmp_path, variant):
     radius and moves once per turn by 3.7 px (a tilted disc), which no fixed board can follow.
     With the calibrated distortion (``apply``): 1.36 and 3.35 px.
 
-    With the twin's table disc (FabScan's ``turntable.radius`` 70 mm, its top the calibrated platform
-    plane, standing still; the housing the wall alone), measured (2026-12-07), not tuned: line 1
-    unchanged, 0.981 px; line 2 19.38 px RMS per column over 151 columns, its bias −18.7 px (the real
-    line above the twin's): the line is steep there (2.2 px of row per column), so that is ≈ 8 px across
-    it, and ≈ 0.7 mm of table height along FabScan's platform axis (a row moves 25–30 px per mm there,
-    by ``cv2.projectPoints``) — the real table's top is not where FabScan's calibrated platform origin
-    puts it, and it wobbles once per turn, which the twin's still disc does not.
+    With the twin's table disc where FabScan's calibration puts the platform (70 mm, still), line 2 was
+    19.38 px RMS per column (RESULTS); the table's top found from the frames, a disc that wobbles:
+    :func:`test_twins_table_line_falls_on_the_real_one`.
     """
     rig_path = _rig_file(tmp_path, "as-fabscan")
     housing = tmp_path / "housing.toml"
@@ -267,24 +263,9 @@ def test_twins_wall_lines_fall_on_the_real_ones(scan200, tmp_path, variant):
     assert math.sqrt(np.mean(rms1 ** 2)) < 1.0                 # the still wall: within 1 px RMS per column
     assert math.sqrt(np.mean(bias1 ** 2)) < 1.0 and math.sqrt(np.mean(bias2 ** 2)) < 1.0
     assert 2.0 < math.sqrt(np.mean(rms2 ** 2)) < 4.0           # the turning disc: its wobble, not the twin
-    # line 2 again with the twin's table disc (FabScan's radius, 70 mm; still, no wobble): the housing
-    # holds the wall alone, the disc's top is the table plane of FabScan's calibration — measured, not tuned
-    wall = tmp_path / "wall.toml"
-    assert main(["rig", "housing", str(scan200), "--calibration", str(CONFIG), "--walls", "{}:{}".format(*WALLS[0]),
-                 "--fabscan-distortion", "as-fabscan", "--out", str(wall)]) == 0
-    out = tmp_path / "twin-disc"
-    assert main(["render", "rotary", "--rig", str(_rig_file(tmp_path, "as-fabscan", disc=True)), "--part", "sphere",
-                 "--step-deg", "90", "--frames", "2", "--housing", str(wall), "--truth-pixels", "none", "--out",
-                 str(out), "--quiet"]) == 0
-    disc = _wall_points(out)
-    rms1d, bias1d = _per_column(real[0], disc[0])
-    rms2d, bias2d = _per_column(real[1], disc[1])
     print(f"line 1 {math.sqrt(np.mean(rms1 ** 2)):.3f} px RMS (bias {math.sqrt(np.mean(bias1 ** 2)):.3f}) over "
           f"{len(rms1)} columns; line 2 without the disc {math.sqrt(np.mean(rms2 ** 2)):.3f} px RMS (bias "
-          f"{math.sqrt(np.mean(bias2 ** 2)):.3f}) over {len(rms2)} columns; with the disc: line 1 "
-          f"{math.sqrt(np.mean(rms1d ** 2)):.3f} px, line 2 {math.sqrt(np.mean(rms2d ** 2)):.3f} px RMS (bias "
-          f"{math.sqrt(np.mean(bias2d ** 2)):.3f}, mean {np.mean(bias2d):+.3f}) over {len(rms2d)} columns")
-    assert math.sqrt(np.mean(rms1d ** 2)) < 1.0 and len(rms2d) > 100
+          f"{math.sqrt(np.mean(bias2 ** 2)):.3f}) over {len(rms2)} columns")
 
 
 @needs_real

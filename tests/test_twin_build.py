@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from scheimpflug.app.cli import EXIT_ERROR, main
+from scheimpflug.model.rigfile import with_stage_keys
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 CONFIG = REAL / "fabscan" / "dummy.config.json"
@@ -34,6 +35,7 @@ WALLS = (("wall_a", [-82.0299, 26.1948, 156.1291], [0.999345, -0.035974, -0.0040
          ("wall_b", [-69.1944, 42.7084, 177.8381], [0.097816, -0.614134, -0.783116], [0.994867, 0.039856, 0.093009],
           25.62))
 ANGLES = "0:45"
+TABLE_RADIUS_MM = 55.0
 
 
 def _box_stl(path: Path) -> Path:
@@ -59,6 +61,8 @@ def box_scan(tmp_path_factory, variant):
     tmp = tmp_path_factory.mktemp("twin_build")
     rig = tmp / "fabscan.toml"
     assert main(["rig", "from-calibration", str(CONFIG), "--preset", "rpi-v2-binned", "--out", str(rig)]) == 0
+    # a disc smaller than FabScan's 70 mm, so that its rim shows in the frames (as the real one's does)
+    rig.write_text(with_stage_keys(rig.read_text(), {"table_radius_mm": TABLE_RADIUS_MM}, "test_twin_build's disc"))
     scan = tmp / "scan"
     assert main(["render", "rotary", "--rig", str(rig), "--part", str(_box_stl(tmp / "box.stl")),
                  f"--angles-deg={ANGLES}", "--housing", str(_housing(tmp / "walls.toml")), "--truth-pixels", "none",
@@ -80,6 +84,18 @@ def test_twin_build_writes_the_layout(box_scan):
     assert meta["files"] == {"rig": "rig.toml", "part": "part.ply", "housing": "housing.toml", "identified_rig": None}
     for name in ("rig.toml", "part.ply", "housing.toml"):
         assert (twin / name).is_file()
+
+
+def test_twin_build_finds_the_flat_table_and_its_rim(box_scan):
+    """The scan's disc is flat, square to its axis, at the calibrated table plane, 55 mm in radius: the
+    table step finds no offset, lean or tilt, and the radius where the line turns down the rim."""
+    _, _, twin = box_scan
+    table = json.loads((twin / "twin.json").read_text())["table"]
+    fit = table["fit"]
+    assert fit is not None, table["note"]
+    assert abs(fit["offset_mm"]) < 0.05 and fit["tilt_deg"] < 0.05 and fit["lean_deg"] < 0.05
+    assert table["radius_mm"] == pytest.approx(TABLE_RADIUS_MM, abs=0.5)
+    assert "table_radius_mm = " in (twin / "rig.toml").read_text()
 
 
 def test_twin_build_finds_the_boards_lines(box_scan):

@@ -19,7 +19,8 @@ Unknowns (:func:`default_unknowns`, each a key with a prior; ``unknowns`` replac
   ``environment.ambient_irradiance_w_m2`` carries;
 * ``laser.waist_um`` (the sheet's waist), ``chain.glare_fraction`` and
   ``chain.glare_scale_um`` (the halo's energy and scale), ``chain.bloom_spill_fraction``
-  (blooming), ``laser.speckle_contrast``, ``environment.ambient_irradiance_w_m2``;
+  (blooming), ``chain.black_level_dn`` (the camera's pedestal: a black pixel's value in its
+  files), ``laser.speckle_contrast``, ``environment.ambient_irradiance_w_m2``;
 * ``material.cardboard_albedo`` (the housing boards and the table, cardboard) and
   ``material.metal_alpha`` (the part: a mesh renders as ``metal``,
   :func:`scenes.load_part`): fields of :class:`sim.materials.MaterialSettings`, not rig keys
@@ -235,6 +236,7 @@ def default_unknowns(tables: dict) -> dict:
            "chain.glare_scale_um": {"range": [chain["glare_scale_um"] / 5.0, chain["glare_scale_um"] * 5.0],
                                     "prior": "log-uniform"},
            "chain.bloom_spill_fraction": {"range": [0.0, 1.0]},
+           "chain.black_level_dn": {"range": [0.0, 4.0]},
            "laser.speckle_contrast": {"range": [0.0, 1.0]}}
     if env["ambient_irradiance_w_m2"] > 0:
         amb = env["ambient_irradiance_w_m2"]

@@ -195,7 +195,11 @@ def _base_rig(scan: _Scan, calibration: Path):
 
 
 def _step_table(scan: _Scan, calibration: Path, regions: dict) -> dict:
-    """The table's top fitted from the scan's still table line (:mod:`scheimpflug.turntable_top`), as rig keys."""
+    """The table's top fitted from the scan's still table line (:mod:`scheimpflug.turntable_top`), as rig keys.
+
+    The table region holds the top's line and, beyond the disc's radius, the line down its rim: the
+    radius first (where the line turns down), then the top fitted on the lines inside it.
+    """
     from scheimpflug.turntable_top import table_top_of_folder
     from sim.backgrounds import camera_from_table
 
@@ -205,28 +209,50 @@ def _step_table(scan: _Scan, calibration: Path, regions: dict) -> dict:
     rig, _ = _base_rig(scan, calibration)
     if not rig.stage.table_radius_mm > 0:
         return {"keys": {}, "fit": None, "note": "the rig has no table disc ([stage] table_radius_mm = 0)"}
+    radius, top = _disc_radius_and_top(scan, regions["table"])
+    if top is None:
+        return {"keys": {}, "fit": None, "radius_mm": radius, "note": "no line of the table's top inside its rim"}
     try:
-        top = table_top_of_folder(scan.folder, scan.cal, tuple(regions["table"]), camera_from_table(rig),
-                                  detector=scan.opts.detector, stripes=scan.stripes)
+        fit = table_top_of_folder(scan.folder, scan.cal, top, camera_from_table(rig), detector=scan.opts.detector,
+                                  stripes=scan.stripes)
     except ValueError as exc:
-        return {"keys": {}, "fit": None, "note": f"the table's top not fitted: {exc}"}
-    keys = top.rig_keys()
-    radius = _disc_radius(scan, regions["table"])
+        return {"keys": {}, "fit": None, "radius_mm": radius, "note": f"the table's top not fitted: {exc}"}
+    keys = fit.rig_keys()
     if radius is not None:
         keys["table_radius_mm"] = radius
-    return {"keys": keys, "fit": top.to_json_dict(), "radius_mm": radius, "note": None}
+    return {"keys": keys, "fit": fit.to_json_dict(), "radius_mm": radius, "top_lines_px": list(top), "note": None}
 
 
-def _disc_radius(scan: _Scan, table: tuple) -> float | None:
-    """The disc's radius: where the table's line turns down its rim (:mod:`scheimpflug.turntable_top`)."""
-    from scheimpflug.still_points import on_lines
+RIM_MARGIN_MM = 1.0   # the top's lines: their points this much inside the disc's radius at least [mm]
+
+
+def _disc_radius_and_top(scan: _Scan, table: tuple) -> tuple[float | None, tuple[float, float] | None]:
+    """The disc's radius and the range of the top's lines [mm], [px].
+
+    The radius: where the table's line turns down its rim; the top: the longest run of the table
+    region's lines whose median point lies inside it by :data:`RIM_MARGIN_MM`.
+    """
+    from scheimpflug.still_points import axis_coordinates_mm, on_lines
     from scheimpflug.stripe import image_pixels
     from scheimpflug.turntable_top import disc_radius_mm
 
     st = scan.stripes
     sel = np.concatenate(on_lines(st, [table]))
-    u, v = image_pixels(np.concatenate(st.rows)[sel], np.concatenate(st.u)[sel], st.along)
-    return disc_radius_mm(scan.cal, u, v)
+    line = np.concatenate(st.rows)[sel]
+    u, v = image_pixels(line, np.concatenate(st.u)[sel], st.along)
+    radius = disc_radius_mm(scan.cal, u, v)
+    found = axis_coordinates_mm(scan.cal, u, v)
+    if radius is None or found is None:
+        return radius, (float(table[0]), float(table[1]))
+    lines = np.unique(line)
+    r_med = np.array([np.median(found[0][line == k]) for k in lines])
+    inside = lines[r_med < radius - RIM_MARGIN_MM]
+    if inside.size < 2:
+        return radius, None
+    cut = np.flatnonzero(np.diff(inside) > 4)
+    runs = np.split(inside, cut + 1)
+    run = max(runs, key=len)
+    return radius, (float(run[0]), float(run[-1]))
 
 
 def _step_rig(twin_dir: Path, scan: _Scan, calibration: Path, table: dict) -> dict:
