@@ -43,7 +43,7 @@ calibration's ``camera_from_pixel``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -95,9 +95,11 @@ class TableTop:
         Returns
         -------
         dict
-            Every field under its own name.
+            Every field under its own name (a non-finite one None).
         """
-        return {k: (getattr(self, k) if math.isfinite(getattr(self, k)) else None) for k in self.__dataclass_fields__}
+        from scheimpflug.io.atomic import finite_json
+
+        return finite_json(asdict(self))
 
     def rig_keys(self) -> dict:
         """The ``[stage]`` keys of the twin's disc (:class:`scheimpflug.model.tables.Stage`).

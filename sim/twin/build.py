@@ -142,9 +142,18 @@ class _Scan:
 
         self.folder = open_frame_folder(scan_dir)
         self.cal = calibration_sheet_model(calibration, opts.fabscan_distortion)
-        self.opts, self._progress, self._stripes = opts, progress_factory, None
+        self.opts, self._progress, self._stripes, self._split = opts, progress_factory, None, None
         self.angles = _angles(self.folder)
         _check_applicable(self.cal, self.folder)
+
+    @property
+    def split(self):
+        """The scan's housing split (:func:`scheimpflug.still_points.separate_housing`), computed once."""
+        if self._split is None:
+            from scheimpflug.still_points import separate_housing
+
+            self._split = separate_housing(self.stripes, self.cal)
+        return self._split
 
     @property
     def stripes(self):
@@ -269,9 +278,7 @@ def _step_rig(twin_dir: Path, scan: _Scan, calibration: Path, table: dict) -> di
 
 
 def _step_regions(twin_dir: Path, scan: _Scan) -> dict:
-    from scheimpflug.still_points import separate_housing
-
-    split = separate_housing(scan.stripes, scan.cal)
+    split = scan.split
     return {"regions": {k: [v[0], v[1]] for k, v in split.regions.items()}, "housing_split": split.to_json_dict()}
 
 
@@ -327,15 +334,14 @@ def _step_housing(twin_dir: Path, scan: _Scan, regions: dict) -> dict:
 def _step_part(twin_dir: Path, scan: _Scan, regions: dict) -> dict:
     from scheimpflug.io.meshfile import write_mesh
     from scheimpflug.model.rig import load_rig
-    from scheimpflug.still_points import on_lines, separate_housing
+    from scheimpflug.still_points import on_lines
 
     from .part import part_model
 
     st = scan.stripes
     if "part" not in regions:
         raise FrameError(f"{scan.folder.path}: the stripe moves on no line: no part turning on the table to model")
-    split = separate_housing(st, scan.cal)
-    keep = [k & p for k, p in zip(split.keep, on_lines(st, [regions["part"]]))]
+    keep = [k & p for k, p in zip(scan.split.keep, on_lines(st, [regions["part"]]))]
     model = part_model(st.select(keep), scan.angles, scan.cal, load_rig(twin_dir / RIG_FILE))
     write_mesh(twin_dir / PART_FILE, model.vertices_mm, model.faces,
                comment=f"scheimpflug twin build: the part of {scan.folder.path}, part frame (z = 0 on the table)")
