@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scheimpflug.errors import RigError, ScheimpflugError
+from scheimpflug.errors import MeshError, RigError, ScheimpflugError
 from scheimpflug.model.camera import lens_state
 from scheimpflug.model.hinge import hinge_geometry
 from scheimpflug.model.plan import (
@@ -645,7 +645,7 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
                     frames: int | None = None, truth_pixels_every: int = 30, background: str = "none",
                     background_material: str = "cardboard", background_height_mm: float = 250.0,
                     background_distance_mm: float | None = None, housing: str | None = None,
-                    angles_deg=None) -> Scenario:
+                    angles_deg=None, part_material: str | None = None) -> Scenario:
     """A part on the rotary stage at θ_i = i·step_deg over one turn (or at given angles).
 
     Parameters
@@ -677,6 +677,10 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     angles_deg : sequence of float, optional
         The frames' angles [deg], frame i at ``angles_deg[i]`` (``step_deg`` then unused;
         ``frames`` still keeps the first N); recorded as ``angles_deg`` in the params.
+    part_material : str, optional
+        The part's material tag (:data:`sim.materials.MATERIALS`) for a mesh file (passed to
+        :func:`load_assembly` as ``material``) or every part of a preset; default the part's own
+        (a mesh: ``metal``).  Recorded as ``part_material`` in the params.
 
     Returns
     -------
@@ -689,7 +693,8 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     ScheimpflugError
         When ``step_deg`` is not > 0 or ``frames`` is not an integer ≥ 1.
     MeshError
-        For an unknown part or a bad mesh or scene file, or an unknown background or material.
+        For an unknown part or a bad mesh or scene file, or an unknown background or material
+        (``part_material`` included; a scene file's parts keep the file's tags: refused).
     RigError
         For a bad housing file (:func:`scheimpflug.model.housing.load_housing`), a housing file
         given beside the rig's own housing, or a housing that hides the whole sheet from the
@@ -701,17 +706,42 @@ def rotary_scenario(rig: Rig, seed: int = 0, part: str = "cylinder", step_deg: f
     if frames is not None:
         _positive_int("frames", frames)
         n_turn = min(n_turn, frames)
-    assembly = load_assembly(part, seed=seed)
+    assembly = _rotary_assembly(part, seed, part_material)
     specs = _rotary_frames(rig, seed, [i * step_deg for i in range(n_turn)] if angles is None else angles[:n_turn])
     params = {"part": part, "step_deg": step_deg, "frames": n_turn,
               "parts": [{"name": p.name, "object_id": p.object_id, "material": p.material,
                          "analytic": p.analytic} for p in assembly.parts]}
     if angles is not None:
         params["angles_deg"] = angles[:n_turn]
+    if part_material is not None:
+        params["part_material"] = part_material
     scenario = Scenario("rotary", params, assembly, specs, _reference_pose(rig),
                         truth_pixels_every, tuple(axis_warnings(rig)))
     return _with_background(rig, scenario, background, background_material, background_height_mm,
                             background_distance_mm, housing)
+
+
+def _rotary_assembly(part: str, seed: int, material: str | None):
+    """The rotary part, its material tag set (a mesh file: ``load_assembly(material=)``; a preset: each part's)."""
+    import dataclasses
+    from pathlib import Path
+
+    from scenes.meshfile import MESH_SUFFIXES
+
+    from .materials import MATERIALS
+
+    if material is None:
+        return load_assembly(part, seed=seed)
+    if material not in MATERIALS:
+        raise MeshError(f"part_material {material!r}: unknown material tag (known: {', '.join(MATERIALS)})")
+    suffix = Path(str(part)).suffix.lower()
+    if suffix == ".toml":
+        raise MeshError(f"part_material {material!r}: {part!r} is a scene file, which gives its parts' "
+                        "materials itself (set them in the file)")
+    if suffix in MESH_SUFFIXES:
+        return load_assembly(part, seed=seed, material=material)
+    asm = load_assembly(part, seed=seed)
+    return dataclasses.replace(asm, parts=tuple(dataclasses.replace(p, material=material) for p in asm.parts))
 
 
 def _angle_list(angles_deg) -> list[float]:

@@ -706,15 +706,28 @@ class LightTransport:
 
 
 _TABLES: dict = {}
+#: Media whose tables (and their kernels) one process keeps; a new medium beyond them empties the
+#: caches (an identification renders a medium of its own per run: unbounded, they grew 0.2–0.3 GB a run).
+MAX_CACHED_MEDIA = 4
 
 
 def _table_for(medium):
-    """The (cached, per process) :class:`SubsurfaceTable` of a medium, or None if g ≠ 0."""
+    """The (cached, per process) :class:`SubsurfaceTable` of a medium, or None if g ≠ 0.
+
+    At most :data:`MAX_CACHED_MEDIA` media are kept: a new one beyond them empties this cache and the
+    kernels built from its tables (keyed by the table's ``id``, which a new table may reuse), so a
+    process's memory does not grow with the media it has rendered.  Each kernel is built from its
+    key alone: a frame does not depend on what was cached before.
+    """
     from .subsurface import SubsurfaceTable
 
     if medium.g != 0.0:
         return None
     if medium not in _TABLES:
+        if len(_TABLES) >= MAX_CACHED_MEDIA:
+            _TABLES.clear()
+            _SENSOR_KERNELS.clear()
+            _SURFACE_KERNELS.clear()
         _TABLES[medium] = SubsurfaceTable(medium)
     return _TABLES[medium]
 

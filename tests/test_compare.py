@@ -206,6 +206,75 @@ def test_wall_stillness_of_known_frame_offsets(tmp_path):
         assert lo <= v["straightness_mm"]["twin"] <= hi < own + 0.006, det      # the still twin: its own error
 
 
+def _reference_wall_points(folder, frames, walls, detectors):
+    """The walls' points as compare found them before one reading served both passes: each frame read
+    again for each detector, every detector's stripe extracted on its own."""
+    from scheimpflug.reconstruct import dn_per_electron
+    from scheimpflug.stripe import extract_stripes, image_pixels, oriented
+
+    out = {d: {w: ([], [], []) for w in walls} for d in detectors}
+    for d in detectors:
+        for j, i in enumerate(frames):
+            raw = folder.read(int(i))
+            prof = extract_stripes(oriented(raw, folder.stripe_along), d, window_px="auto",
+                                   saturation_dn=folder.saturation_dn(raw), saturated="edges",
+                                   dn_per_electron=dn_per_electron(folder))
+            for w, lines in walls.items():
+                m = (prof.rows >= lines[0]) & (prof.rows <= lines[-1])
+                u, v = image_pixels(prof.rows[m], prof.u[m], folder.stripe_along)
+                out[d][w][0].append(u)
+                out[d][w][1].append(v)
+                out[d][w][2].append(np.full(int(m.sum()), j, np.int64))
+    return {d: {w: tuple(np.concatenate(a) for a in parts) for w, parts in per.items()} for d, per in out.items()}
+
+
+def _reference_interval(sheet, n_frames, draws, seed):
+    """The bootstrap as first written: each resample's points gathered frame by frame with a mask."""
+    from scheimpflug.fixed_lines import fixed_line
+
+    rng = np.random.default_rng(seed)
+    st = []
+    for _ in range(draws):
+        draw = rng.integers(0, n_frames, n_frames)
+        lines = []
+        for s, h, f in sheet.values():
+            parts = [(s[f == k], h[f == k], np.full(int((f == k).sum()), n)) for n, k in enumerate(draw)]
+            lines.append(fixed_line(*(np.concatenate(p) for p in zip(*parts))))
+        st.append(float(np.sqrt(np.mean([x.rms_mm ** 2 for x in lines]))))
+    return float(np.percentile(st, 5)), float(np.percentile(st, 95))
+
+
+def test_one_reading_gives_the_walls_points_and_figures_of_separate_passes(tmp_path):
+    """compare reads each frame once for its figures and every detector's wall points (the figure
+    detector's extraction shared) and resamples its bootstrap by index: the points and the detectors'
+    block are exactly those of the separate passes and the masked resampling it replaced."""
+    from scheimpflug.compare.detectors import _sheet_points, detector_figures
+    from scheimpflug.compare.pairing import pair_by_angle
+    from scheimpflug.compare.summary import compare_folders
+    from scheimpflug.io.frames import open_frame_folder
+    from scheimpflug.stripe import METHODS
+
+    real = open_frame_folder(_folder(tmp_path / "real", [0, 10, 20], seed=3, wall_offset=0.3, speckle=0.2))
+    twin = open_frame_folder(_folder(tmp_path / "twin", [20, 0, 10], seed=4, speckle=0.2, clip=2050))
+    pairs = pair_by_angle(real, twin, range(3))
+    comp = compare_folders(real, twin, REGIONS, pairs, wall_detectors=METHODS)
+    walls = {"wall_left": comp.real.lines["wall_left"]}
+    for got, folder, frames in ((comp.real, real, pairs.real), (comp.twin, twin, pairs.twin)):
+        ref = _reference_wall_points(folder, frames, walls, METHODS)
+        assert set(got.wall_points) == set(METHODS)
+        for d in METHODS:
+            for a, b in zip(got.wall_points[d]["wall_left"], ref[d]["wall_left"]):
+                # exact: same run (one extraction of the same frame with the same options, twice)
+                assert a.dtype == b.dtype and np.array_equal(a, b), d
+            assert len(ref[d]["wall_left"][0]) > 60, d
+    out = detector_figures(comp.real.wall_points, comp.twin.wall_points, _ScaledPixels(), 3, draws=20, seed=7)
+    for d in METHODS:
+        sheet = _sheet_points(comp.twin.wall_points[d], _ScaledPixels())
+        lo, hi = _reference_interval(sheet, 3, 20, 7)
+        # exact: copy (each resample gathers the same points in the same order; fixed_line's arithmetic after)
+        assert (out[d]["straightness_mm"]["twin_lo90"], out[d]["straightness_mm"]["twin_hi90"]) == (lo, hi), d
+
+
 # ------------------------------------------------------------------ the command
 
 
@@ -339,3 +408,41 @@ def test_a_twin_written_as_its_camera_writes_is_imported_like_the_real_frames(tm
         assert res["regions"][region]["position_px"]["mean"] == pytest.approx(0.4, abs=0.05)
         assert res["regions"][region]["peak_dn"]["twin"] == pytest.approx(res["regions"][region]["peak_dn"]["real"],
                                                                           abs=3.0)
+
+
+def test_a_twin_whose_faint_stripe_the_direction_check_refuses_is_compared(tmp_path, capsys):
+    """The twin's RGB frames: a faint stripe along the rows and a glaring line down the image (a lit
+    edge) that the importer's direction check takes for the stripe.  compare imports them with the
+    real folder's direction as known (issue 36: they were refused) and measures the stripe."""
+    from scheimpflug.errors import FrameError
+    from scheimpflug.io.importer import frames_with_angles, import_frames
+
+    angles = [0, 10, 20]
+    real = _folder(tmp_path / "real", angles, seed=1, peak=180.0, bg=5.0, noise=0.0, clip=255)
+    m = json.loads((real / "manifest.json").read_text())
+    m.update(adc_bits=8, channel="r", source="scheimpflug import")
+    (real / "manifest.json").write_text(json.dumps(m))
+    for f in sorted(glob.glob(str(real / "frames" / "*.png"))):
+        assert cv2.imwrite(f, cv2.imread(f, cv2.IMREAD_UNCHANGED).astype(np.uint8))
+    twin = tmp_path / "twin"
+    (twin / "frames").mkdir(parents=True)
+    rng, entries = np.random.default_rng(2), []
+    col = np.arange(ALONG)
+    for i, a in enumerate(angles):
+        red = _frame(a, rng, peak=14.0, bg=20.0, noise=1.0, clip=255, shift=0.4).astype(np.float64)
+        red += 230.0 * np.exp(-0.5 * ((col - 200.0) / 1.2) ** 2)[None, :]        # the glare line, every row
+        bgr = np.dstack([np.full_like(red, 3), np.full_like(red, 3), np.clip(red, 0, 255)]).astype(np.uint8)
+        name = f"frames/{i:05d}.png"
+        assert cv2.imwrite(str(twin / name), bgr)
+        entries.append({"file": name, "angle_deg": float(a)})
+    (twin / "manifest.json").write_text(json.dumps({
+        "format": "scheimpflug-frames/1", "complete": True, "scenario": "rotary", "scenario_params": {},
+        "adc_bits": 12, "stripe_along": "rows", "frames": entries}))
+    with pytest.raises(FrameError, match="--stripe-along rows, but the stripe runs down the image"):
+        import_frames(frames_with_angles([twin / e["file"] for e in entries], angles), tmp_path / "checked",
+                      channel="r", stripe_along="rows")
+    capsys.readouterr()
+    assert main(["compare", str(real), str(twin), "--regions", "part=80:180", "--json", "--quiet"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["frames"] == 3
+    assert res["regions"]["part"]["position_px"]["mean"] == pytest.approx(0.4, abs=0.1)   # faint: 14 DN, σ 1 DN

@@ -131,7 +131,8 @@ def test_closed_loop_recovers_the_twins_own_values(tmp_path, figures, variant):
     real = _real_scan(twin, tmp_path, [-360.0, -300.0, -240.0, -180.0, -120.0, -60.0], TRUTH)
     seen = []
     res = identify_scan(twin, real, REGIONS, fit_frames=[0, 2, 4], held_frames=[1, 3], out=tmp_path / "id",
-                        unknowns=PRIORS, runs=12, refine=0, seed=5, progress=lambda d, t: seen.append((d, t)))
+                        unknowns=PRIORS, runs=12, refine=0, seed=5, progress=lambda d, t: seen.append((d, t)),
+                        part_material="metal")
     assert seen[-1] == (14, 14) and res["runs"]["count"] == 14
     for key, truth in TRUTH.items():
         got = res["identified"][key]
@@ -145,7 +146,7 @@ def test_closed_loop_recovers_the_twins_own_values(tmp_path, figures, variant):
     assert f"power_mw = {power['value']:.4g}" in rig
     # a rerun resumes: no run again, the same result
     again = identify_scan(twin, real, REGIONS, fit_frames=[0, 2, 4], held_frames=[1, 3], out=tmp_path / "id",
-                          unknowns=PRIORS, runs=12, refine=0, seed=5)
+                          unknowns=PRIORS, runs=12, refine=0, seed=5, part_material="metal", workers=1)
     assert again["identified"] == res["identified"]
     print(json.dumps({k: {q: round(v[q], 4) for q in ("value", "lo90", "hi90")}
                       for k, v in res["identified"].items()}), res["runs"])

@@ -80,6 +80,13 @@ def test_twin_build_writes_the_layout(box_scan):
     assert meta["angles_deg"] == [45.0 * k for k in range(8)]
     assert meta["steps"]["identify"] == {"status": "not run", "reason": "--no-identify"}
     assert meta["identified"] is None and meta["files"]["identified_rig"] is None
+    # the part's material: the default translucent tag and, without an identification, its tabulated medium
+    from dataclasses import asdict
+
+    from sim.materials import TRANSLUCENT
+
+    assert meta["options"]["part_material"] == "white-plastic"
+    assert meta["part_material"] == {"tag": "white-plastic", "medium": asdict(TRANSLUCENT["white-plastic"])}
     assert {"part", "table"} <= set(meta["regions"])
     assert meta["files"] == {"rig": "rig.toml", "part": "part.ply", "housing": "housing.toml", "identified_rig": None}
     for name in ("rig.toml", "part.ply", "housing.toml"):
@@ -161,6 +168,7 @@ def test_render_twin_puts_the_stripe_where_the_scan_has_it(box_scan):
                  str(out), "--quiet"]) == 0
     man = json.loads((out / "manifest.json").read_text())
     assert [f["angle_deg"] for f in man["frames"]] == [0.0, 45.0] and man["stripe_along"] == "rows"
+    assert man["scenario_params"]["part_material"] == "white-plastic"          # twin.json's part material
     meta = json.loads((twin / "twin.json").read_text())
     # the walls: the lines of each found board, 5 px in from its ends (beyond, the board's end face)
     ranges = [("part", *meta["regions"]["part"], 1.5)] + [
@@ -207,6 +215,11 @@ def test_bad_input_one_error_each(box_scan, tmp_path, capsys):
                  "--no-identify"]) == EXIT_ERROR
     assert "has no 'angle_deg': not a rotary scan" in capsys.readouterr().err
     assert not (tmp_path / "t1").exists()
+    # an unknown inference backend: refused before anything is made
+    assert main(["twin", "build", str(scan), "--calibration", str(CONFIG), "--out", str(tmp_path / "t3"),
+                 "--inference", "torch+hand"]) == EXIT_ERROR
+    assert "--inference: inference backend 'torch+hand' is not known" in capsys.readouterr().err
+    assert not (tmp_path / "t3").exists()
     # an unreadable calibration
     bad = tmp_path / "bad.json"
     bad.write_text("{")

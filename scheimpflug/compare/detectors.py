@@ -24,7 +24,8 @@ import numpy as np
 
 from scheimpflug.callbacks import ProgressCallback, report
 
-__all__ = ["BOOTSTRAP_DRAWS", "BOOTSTRAP_SEED", "WALLS", "detector_figures", "wall_points"]
+__all__ = ["BOOTSTRAP_DRAWS", "BOOTSTRAP_SEED", "WALLS", "detector_figures", "frame_wall_points", "joined_wall_points",
+           "wall_points"]
 
 WALLS = ("wall_left", "wall_right")
 """The regions whose lines are walls."""
@@ -34,11 +35,85 @@ BOOTSTRAP_SEED = 0
 """Seed of the bootstrap's random draws."""
 
 
+def frame_wall_points(frame, walls: dict, detectors, *, saturation_dn: float, dn_per_electron: float,
+                      along: str, extracted: dict | None = None) -> dict:
+    """The stripe points in each wall's lines, per detector, of one oriented frame.
+
+    The whole frame is searched (the "auto" window and the noise floor are the frame's, as
+    :func:`scheimpflug.fixed_lines.walls_of_folder` has them), the points in each wall's lines kept.
+
+    Parameters
+    ----------
+    frame : (lines, across) ndarray
+        A frame as the detector reads it (:func:`scheimpflug.stripe.oriented`) [DN].
+    walls : dict of str to ndarray int64
+        Per wall, its lines (:func:`scheimpflug.compare.figures.region_lines`), increasing [px].
+    detectors : sequence of str
+        Stripe centre methods (:data:`scheimpflug.stripe.METHODS`).
+    saturation_dn : float
+        The frame's saturation level [DN].
+    dn_per_electron : float
+        The folder's noise gain (:func:`scheimpflug.reconstruct.dn_per_electron`) [DN].
+    along : {"columns", "rows"}
+        The folder's ``stripe_along`` (to turn the points back into image pixels).
+    extracted : dict of str to StripeProfile, optional
+        Profiles of this frame already extracted with the same options (``window_px="auto"``,
+        ``saturated="edges"``, this saturation and gain), e.g. the figure pass's: used, not
+        extracted again.
+
+    Returns
+    -------
+    dict of str to dict of str to (u_px, v_px)
+        Per detector and wall: the points' image pixels [px] (float64).
+    """
+    from scheimpflug.stripe import extract_stripes, image_pixels
+
+    out = {}
+    for d in detectors:
+        prof = (extracted or {}).get(d)
+        if prof is None:
+            prof = extract_stripes(frame, d, window_px="auto", saturation_dn=saturation_dn, saturated="edges",
+                                   dn_per_electron=dn_per_electron)
+        out[d] = {}
+        for w, lines in walls.items():
+            m = (prof.rows >= lines[0]) & (prof.rows <= lines[-1])
+            out[d][w] = image_pixels(prof.rows[m], prof.u[m], along)
+    return out
+
+
+def joined_wall_points(per_frame: list) -> dict:
+    """:func:`frame_wall_points` of successive frames joined into one set per detector and wall.
+
+    Parameters
+    ----------
+    per_frame : list of dict
+        :func:`frame_wall_points` of each frame, in order (all of the same detectors and walls).
+
+    Returns
+    -------
+    dict of str to dict of str to (u_px, v_px, frame)
+        Per detector and wall: image pixels [px] and the position of the point's frame in ``per_frame``
+        (int64).
+    """
+    if not per_frame:
+        return {}
+    out = {}
+    for d, walls in per_frame[0].items():
+        out[d] = {}
+        for w in walls:
+            u = [p[d][w][0] for p in per_frame]
+            v = [p[d][w][1] for p in per_frame]
+            f = [np.full(len(x), j, np.int64) for j, x in enumerate(u)]
+            out[d][w] = (np.concatenate(u), np.concatenate(v), np.concatenate(f))
+    return out
+
+
 def wall_points(folder, frames, walls: dict, detectors, progress: ProgressCallback | None = None) -> dict:
     """The stripe points in each wall's region, per detector, of the given frames.
 
-    The whole frame is searched as :func:`scheimpflug.fixed_lines.walls_of_folder` does (the "auto"
-    window from the frame's stripe), the points in each wall's lines kept.
+    Each frame read once and searched whole by every detector (:func:`frame_wall_points`);
+    ``compare`` collects the same points in its figure pass
+    (:func:`scheimpflug.compare.figures.measure_folder`'s ``wall_detectors``).
 
     Parameters
     ----------
@@ -60,25 +135,21 @@ def wall_points(folder, frames, walls: dict, detectors, progress: ProgressCallba
         ``frames`` (int64).
     """
     from scheimpflug.reconstruct import dn_per_electron
-    from scheimpflug.stripe import extract_stripes, image_pixels, oriented
+    from scheimpflug.stripe import oriented
 
     gain = dn_per_electron(folder)
-    acc = {d: {w: ([], [], []) for w in walls} for d in detectors}
+    per_frame = []
+    frames = list(frames)
     for j, i in enumerate(frames):
         raw = folder.read(int(i))
-        frame, sat = oriented(raw, folder.stripe_along), folder.saturation_dn(raw)
-        for d in detectors:
-            prof = extract_stripes(frame, d, window_px="auto", saturation_dn=sat, saturated="edges",
-                                   dn_per_electron=gain)
-            for w, lines in walls.items():
-                m = (prof.rows >= lines[0]) & (prof.rows <= lines[-1])
-                u, v = image_pixels(prof.rows[m], prof.u[m], folder.stripe_along)
-                acc[d][w][0].append(u)
-                acc[d][w][1].append(v)
-                acc[d][w][2].append(np.full(int(m.sum()), j, np.int64))
+        per_frame.append(frame_wall_points(oriented(raw, folder.stripe_along), walls, detectors,
+                                           saturation_dn=folder.saturation_dn(raw), dn_per_electron=gain,
+                                           along=folder.stripe_along))
         report(progress, j + 1, len(frames))
-    return {d: {w: tuple(np.concatenate(a) for a in parts) for w, parts in per.items()}
-            for d, per in acc.items()}
+    if not per_frame:
+        empty = (np.zeros(0), np.zeros(0), np.zeros(0, np.int64))
+        return {d: dict.fromkeys(walls, empty) for d in detectors}
+    return joined_wall_points(per_frame)
 
 
 def _sheet_points(points: dict, calibration) -> dict:
@@ -110,22 +181,41 @@ def _figures(sheet: dict) -> tuple[float, float]:
             float(np.sqrt(np.mean([x.stillness_mm ** 2 for x in lines]))))
 
 
-def _resampled(sheet: dict, draw: np.ndarray) -> dict:
-    """The walls' points of the frames ``draw`` (positions; a frame drawn k times counts as k frames)."""
+def _by_frame(sheet: dict, n_frames: int) -> dict:
+    """Per wall, its points sorted by frame (stable: a frame's points in their order) and each frame's span."""
     out = {}
     for w, (s, h, f) in sheet.items():
-        parts = [(s[f == k], h[f == k], np.full(int((f == k).sum()), n)) for n, k in enumerate(draw)]
-        cat = tuple(np.concatenate(p) for p in zip(*parts))
-        if len(cat[0]) >= 3:
-            out[w] = cat
+        order = np.argsort(f, kind="stable")
+        starts = np.searchsorted(f[order], np.arange(n_frames), side="left")
+        ends = np.searchsorted(f[order], np.arange(n_frames), side="right")
+        out[w] = (s[order], h[order], starts, ends - starts)
+    return out
+
+
+def _resampled(grouped: dict, draw: np.ndarray) -> dict:
+    """The walls' points of the frames ``draw`` (positions; a frame drawn k times counts as k frames).
+
+    ``grouped``: :func:`_by_frame`.  Frame ``draw[n]``'s points come n-th, in their own order,
+    labelled n.
+    """
+    out = {}
+    for w, (s, h, starts, counts) in grouped.items():
+        lengths = counts[draw]
+        total = int(lengths.sum())
+        if total < 3:
+            continue
+        first = np.cumsum(lengths) - lengths                      # where each drawn frame's points begin
+        idx = np.repeat(starts[draw] - first, lengths) + np.arange(total)
+        out[w] = (s[idx], h[idx], np.repeat(np.arange(len(draw)), lengths))
     return out
 
 
 def _bootstrap(sheet: dict, n_frames: int, draws: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
+    grouped = _by_frame(sheet, n_frames)
     st, sl = np.full(draws, np.nan), np.full(draws, np.nan)
     for b in range(draws):
-        st[b], sl[b] = _figures(_resampled(sheet, rng.integers(0, n_frames, n_frames)))
+        st[b], sl[b] = _figures(_resampled(grouped, rng.integers(0, n_frames, n_frames)))
     return st, sl
 
 

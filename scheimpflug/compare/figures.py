@@ -62,7 +62,7 @@ The figures of one region in one frame:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +72,7 @@ from scheimpflug.callbacks import ProgressCallback, report
 from scheimpflug.errors import FrameError
 
 __all__ = ["BACKGROUND_WIDTH_PX", "CORE_FWHM", "FIGURES", "FolderMeasures", "HALO_WIDTH_PX",
-           "MIN_SPECKLE_LINES", "NOISE_TRIM", "PROFILE_REACH_PX", "SPECKLE_TREND_LINES", "folder_figures",
+           "MIN_SPECKLE_LINES", "NOISE_TRIM", "PROFILE_REACH_PX", "SPECKLE_TREND_LINES", "extract", "folder_figures",
            "measure_folder", "measure_frame", "region_lines", "stripe_positions"]
 
 CORE_FWHM = 3.0
@@ -118,6 +118,9 @@ class FolderMeasures:
         Per region and frame, the mean profile across the stripe over the detected lines, each
         line's taken around its centre pixel (offsets −PROFILE_REACH_PX … +PROFILE_REACH_PX) [DN];
         NaN where none.
+    wall_points : dict, default {}
+        With ``wall_detectors`` (:func:`measure_folder`): per detector and wall, the stripe points of
+        the frames in the wall's lines (:func:`scheimpflug.compare.detectors.joined_wall_points`).
     """
 
     frames: np.ndarray
@@ -126,6 +129,7 @@ class FolderMeasures:
     positions: dict
     figures: dict
     profiles: dict
+    wall_points: dict = field(default_factory=dict)
 
 
 def region_lines(regions, n_lines: int) -> dict[str, np.ndarray]:
@@ -284,8 +288,37 @@ def _region_figures(frame: np.ndarray, lines: np.ndarray, u: np.ndarray, n_lines
     }
 
 
-def measure_frame(frame, regions, *, saturation_dn: float, detector: str = "cog",
-                  dn_per_electron: float = 0.0) -> dict[str, tuple[np.ndarray, dict[str, float], np.ndarray]]:
+def extract(frame, detector: str, *, saturation_dn: float, dn_per_electron: float = 0.0):
+    """The stripe of one oriented frame as every pass of a comparison finds it.
+
+    :func:`scheimpflug.stripe.extract_stripes` with the window fitted to the frame's stripe
+    (``window_px="auto"``), a saturated line's centre from its edges, ``saturation_dn`` and
+    ``dn_per_electron``.
+
+    Parameters
+    ----------
+    frame : (lines, across) ndarray
+        A frame as the detector reads it (:func:`scheimpflug.stripe.oriented`) [DN].
+    detector : str
+        Stripe centre method (:data:`scheimpflug.stripe.METHODS`).
+    saturation_dn : float
+        The frame's saturation level [DN].
+    dn_per_electron : float, default 0.0
+        The folder's noise gain [DN].
+
+    Returns
+    -------
+    StripeProfile
+        The stripe points, one per line where it is found.
+    """
+    from scheimpflug.stripe import extract_stripes
+
+    return extract_stripes(frame, detector, window_px="auto", saturation_dn=saturation_dn, saturated="edges",
+                           dn_per_electron=dn_per_electron)
+
+
+def measure_frame(frame, regions, *, saturation_dn: float, detector: str = "cog", dn_per_electron: float = 0.0,
+                  profile=None) -> dict[str, tuple[np.ndarray, dict[str, float], np.ndarray]]:
     """The stripe positions and figures of one oriented frame, per region.
 
     Parameters
@@ -300,6 +333,8 @@ def measure_frame(frame, regions, *, saturation_dn: float, detector: str = "cog"
         Stripe centre method (:data:`scheimpflug.stripe.METHODS`).
     dn_per_electron : float, default 0.0
         The folder's noise gain (:func:`scheimpflug.reconstruct.dn_per_electron`) [DN].
+    profile : StripeProfile, optional
+        The frame's stripe, :func:`extract` of it with these options (default: extracted here).
 
     Returns
     -------
@@ -308,10 +343,8 @@ def measure_frame(frame, regions, *, saturation_dn: float, detector: str = "cog"
         ((m_r,) float64), its figures (module docstring) and its mean profile across the stripe
         (:attr:`FolderMeasures.profiles`) [DN].
     """
-    from scheimpflug.stripe import extract_stripes
-
-    prof = extract_stripes(frame, detector, window_px="auto", saturation_dn=saturation_dn,
-                           saturated="edges", dn_per_electron=dn_per_electron)
+    prof = profile if profile is not None else extract(frame, detector, saturation_dn=saturation_dn,
+                                                        dn_per_electron=dn_per_electron)
     out = {}
     for name, lines in regions.items():
         pos = np.full(len(lines), np.nan)
@@ -339,8 +372,8 @@ def _frame_indices(folder, frames) -> np.ndarray:
     return idx
 
 
-def measure_folder(folder, regions, *, frames=None, detector: str = "cog",
-                   progress: ProgressCallback | None = None) -> FolderMeasures:
+def measure_folder(folder, regions, *, frames=None, detector: str = "cog", progress: ProgressCallback | None = None,
+                   walls=(), wall_detectors=()) -> FolderMeasures:
     """Stripe positions and figures of a folder's frames, per region and frame (module docstring).
 
     Parameters
@@ -355,17 +388,24 @@ def measure_folder(folder, regions, *, frames=None, detector: str = "cog",
         Stripe centre method (:data:`scheimpflug.stripe.METHODS`).
     progress : ProgressCallback, optional
         ``progress(done, total)`` after each frame.
+    walls : sequence of str, default ()
+        Regions whose lines are walls (:data:`scheimpflug.compare.detectors.WALLS`).
+    wall_detectors : sequence of str, default ()
+        Detectors whose stripe points in the walls' lines are collected from the same reading of
+        each frame (:func:`scheimpflug.compare.detectors.frame_wall_points`; ``detector``'s own
+        extraction shared): :attr:`FolderMeasures.wall_points`.
 
     Returns
     -------
     FolderMeasures
-        The positions and the per-frame figures.
+        The positions and the per-frame figures (and the walls' points).
 
     Raises
     ------
     FrameError
         A frame index outside the folder, a bad region, an unreadable frame.
     """
+    from scheimpflug.compare.detectors import frame_wall_points, joined_wall_points
     from scheimpflug.reconstruct import dn_per_electron
     from scheimpflug.stripe import oriented
 
@@ -373,24 +413,30 @@ def measure_folder(folder, regions, *, frames=None, detector: str = "cog",
     idx = _frame_indices(folder, frames)
     n_lines = folder.columns if folder.stripe_along == "rows" else folder.rows
     lines = region_lines(regions, n_lines)
+    wall_lines = {w: lines[w] for w in walls if w in lines} if wall_detectors else {}
     gain = dn_per_electron(folder)
     positions = {r: np.full((len(idx), len(v)), np.nan) for r, v in lines.items()}
     figures = {r: {f: np.full(len(idx), np.nan) for f in FIGURES} for r in lines}
     profiles = {r: np.full((len(idx), 2 * PROFILE_REACH_PX + 1), np.nan) for r in lines}
+    walls_per_frame = []
     for j, i in enumerate(idx):
         raw = folder.read(int(i))
-        frame = oriented(raw, folder.stripe_along)
-        got = measure_frame(frame, lines, saturation_dn=folder.saturation_dn(raw), detector=detector,
-                            dn_per_electron=gain)
+        frame, sat = oriented(raw, folder.stripe_along), folder.saturation_dn(raw)
+        prof = extract(frame, detector, saturation_dn=sat, dn_per_electron=gain)
+        got = measure_frame(frame, lines, saturation_dn=sat, detector=detector, dn_per_electron=gain, profile=prof)
         for r, (pos, figs, mean_prof) in got.items():
             positions[r][j] = pos
             profiles[r][j] = mean_prof
             for f, v in figs.items():
                 figures[r][f][j] = v
+        if wall_lines:
+            walls_per_frame.append(frame_wall_points(frame, wall_lines, wall_detectors, saturation_dn=sat,
+                                                     dn_per_electron=gain, along=folder.stripe_along,
+                                                     extracted={detector: prof}))
         report(progress, j + 1, len(idx))
     angles = np.array([np.nan if folder.frames[i].angle_deg is None else folder.frames[i].angle_deg
                        for i in idx], dtype=np.float64)
-    return FolderMeasures(idx, angles, lines, positions, figures, profiles)
+    return FolderMeasures(idx, angles, lines, positions, figures, profiles, joined_wall_points(walls_per_frame))
 
 
 def folder_figures(folder, regions, *, frames=None, detector: str = "cog") -> dict[str, dict[str, float]]:

@@ -46,9 +46,13 @@ Stripe orientation
     that show the laser (:func:`stripe_direction`; a pattern set's laser frames,
     in room light less their pose's laser-off frame).  A given direction that
     the frames clearly contradict is refused, a weak contradiction is a warning.
-    Recorded in the manifest (``stripe_along``, and ``stripe_detection``: what was
-    given, found, and how many frames said which), where the pipeline's
-    extraction follows it.
+    A *known* direction (``stripe_known``: the caller knows it, e.g. a twin's
+    frames of a real camera whose folder records it) is not looked for in the
+    frames and never refused or warned of: a faint or glaring stripe cannot stop
+    the import.  Recorded in the manifest (``stripe_along``, and ``stripe_detection``:
+    what was given, found, and how many frames said which; ``known`` true and
+    nothing examined for a known direction), where the pipeline's extraction
+    follows it.
 Positions
     a CSV with a header naming ``file`` and ``stage_mm`` (translation stage,
     calibration plates) or ``angle_deg`` (rotary stage); ``file`` is matched
@@ -438,6 +442,8 @@ def _one_channel(img: np.ndarray, channel: str, p: Path) -> np.ndarray:
         img = img[:, :, :3]
     if img.shape[2] != 3:
         raise FrameError(f"frame {str(p)!r} has {img.shape[2]} channels: neither grey nor colour")
+    if channel in ("r", "g", "b"):            # one weight 1, two 0: the channel itself, as the weighting gives it
+        return np.ascontiguousarray(img[:, :, int(np.argmax(w))])
     top = float(np.iinfo(img.dtype).max)
     grey = img.astype(np.float64) @ w
     return np.clip(np.rint(grey), 0, top).astype(img.dtype)
@@ -969,6 +975,12 @@ def _auto_stripe(votes: dict[str, list[Path]], examined: int, found: str | None)
     return found
 
 
+def _known_stripe(given: str) -> tuple[str, dict]:
+    """A known direction and its ``stripe_detection``: nothing examined, nothing refused."""
+    return given, {"given": given, "known": True, "found": None, "examined": 0, "columns": 0, "rows": 0,
+                   "unclear": 0}
+
+
 def _check_given_stripe(given: str, votes: dict[str, list[Path]], examined: int) -> None:
     other = "rows" if given == "columns" else "columns"
     mine, theirs = len(votes[given]), len(votes[other])
@@ -1021,8 +1033,9 @@ def _pose_names(frames: list[ImportedFrame]) -> str:
 def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | None = None,
                   adc_bits: int | None = None, scenario: str | None = None,
                   scenario_params: dict | None = None, msb_aligned: bool = False, channel: str | None = None,
-                  backgrounds=None, stripe_along: str = "auto", exif_orientation: str = "stored",
-                  room_light: bool = False, progress: ProgressCallback | None = None) -> Path:
+                  backgrounds=None, stripe_along: str = "auto", stripe_known: bool = False,
+                  exif_orientation: str = "stored", room_light: bool = False,
+                  progress: ProgressCallback | None = None) -> Path:
     """Write a frame folder (manifest + PNG frames) from source frames with positions.
 
     Parameters
@@ -1051,6 +1064,9 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
     stripe_along : {"auto", "columns", "rows"}, default "auto"
         Which way the stripe runs in the frames; "auto" finds it (:func:`stripe_direction`).
         Recorded (module docstring).
+    stripe_known : bool, default False
+        ``stripe_along`` (``"columns"`` or ``"rows"``) is known, not to be checked: the frames
+        are not examined for it and it is never refused or warned of (module docstring).
     exif_orientation : {"stored", "apply"}, default "stored"
         Frames with an EXIF orientation tag imported as stored (with a warning) or turned as
         viewers turn them.
@@ -1073,7 +1089,8 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         the largest value and what it suggests), a rig of another size, a stripe direction the
         frames contradict or frames that disagree on it, a non-finite scenario parameter, an
         output that is a file, not empty, not creatable (or filled meanwhile by another import),
-        a bad ``adc_bits``, ``stripe_along``, ``exif_orientation`` or ``room_light`` without poses.
+        a bad ``adc_bits``, ``stripe_along``, ``exif_orientation``, ``room_light`` without poses or
+        ``stripe_known`` without a direction.
 
     Warns
     -----
@@ -1084,6 +1101,9 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
         into ``out`` (removed when their import is gone, named when no owner is recorded).
     """
     _check_request(frames, stripe_along, exif_orientation, channel, room_light)
+    if stripe_known and stripe_along not in STRIPE_ALONG:
+        raise FrameError(f"--stripe-known needs the direction: --stripe-along {' or '.join(STRIPE_ALONG)}, not "
+                         f"{stripe_along!r}")
     params, out = _checked_params(scenario_params), Path(out)
     if room_light:
         params = {**params, "room_light": True}
@@ -1098,7 +1118,8 @@ def import_frames(frames: list[ImportedFrame], out: str | Path, *, rig: dict | N
     _warn_radians(frames)
     _warn_orientations(sources, frames, exif_orientation)
     partners = _laser_off_partners(frames, room_light)
-    along, detection = _decide_stripe(stripe_along, *_stripe_votes(frames, images, partners))
+    along, detection = (_known_stripe(stripe_along) if stripe_known
+                        else _decide_stripe(stripe_along, *_stripe_votes(frames, images, partners)))
     default = {"stage_mm": "calibration", "angle_deg": "rotary", "pose": "target"}[frames[0].key]
     manifest = {"format": FORMAT, "complete": True, "scenario": scenario or default, "scenario_params": params,
                 "adc_bits": bits, "stripe_along": along, "stripe_detection": detection, "source": "scheimpflug import",

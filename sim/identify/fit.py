@@ -10,26 +10,104 @@ otherwise (or with ``method = "abc"``) ABC on the Latin hypercube's runs (drawn
 from the prior, as ABC needs), the reason said — and the posterior draws at which
 the held-out figures are rendered.  :func:`refinement_draws` places the optional
 refinement runs (``[identify] refine``) where a first fit's tempered posterior is.
+
+The inference backend (:class:`Inference`, :func:`parse_inference`): which fit of the
+surrogates (``"hand"``, :func:`sim.identify.surrogate.fit_gp`, or ``"sklearn"``, scikit-learn's
+``GaussianProcessRegressor``) and which sampler (``"hand"``, the random-walk Metropolis
+:func:`sim.identify.posterior.run_mcmc`, or ``"emcee"``, emcee's ensemble sampler) — the
+``backend`` argument, else the spec's ``inference`` attribute when it has one, else
+:data:`DEFAULT_INFERENCE`.  Every backend gives the same outputs (summary, samples,
+diagnostics); the one used is recorded as ``inference``.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from scheimpflug.errors import StudyError
 
 from .figures import scale_sigma, to_scale
-from .posterior import CHAINS, Likelihood, abc_weights, noise_correlation, resample, run_mcmc, summarise
-from .surrogate import fit_gp
+from .posterior import CHAINS, SAMPLERS, Likelihood, abc_weights, noise_correlation, resample, run_sampler, summarise
+from .surrogate import SURROGATES, fit_surrogate
 
-__all__ = ["MAX_SAMPLES_KEPT", "REFINE_TEMPER", "fit_posterior", "observed_on_scale", "refinement_draws"]
+__all__ = ["DEFAULT_INFERENCE", "MAX_SAMPLES_KEPT", "REFINE_TEMPER", "RHAT_LIMIT", "Inference", "fit_posterior",
+           "observed_on_scale", "parse_inference", "refinement_draws"]
 
 #: Posterior samples kept in ``posterior.json`` (for the plots) [-].
 MAX_SAMPLES_KEPT = 4000
 #: The first fit's likelihood is tempered by this factor (variances × it) to place the refinement runs [-].
 REFINE_TEMPER = 4.0
+#: A sampler whose largest split R̂ exceeds this has not converged: its intervals are not the posterior's, and
+#: the fit says so (``mcmc.converged``, a warning) [-].
+RHAT_LIMIT = 1.1
+
+
+@dataclass(frozen=True)
+class Inference:
+    """The inference backend: the surrogates' fit and the sampler (module docstring).
+
+    Parameters
+    ----------
+    surrogate : {"hand", "sklearn"}
+        :data:`sim.identify.surrogate.SURROGATES`.
+    sampler : {"hand", "emcee"}
+        :data:`sim.identify.posterior.SAMPLERS`.
+    """
+
+    surrogate: str = "hand"
+    sampler: str = "hand"
+
+    def __str__(self) -> str:
+        return f"{self.surrogate}+{self.sampler}"
+
+
+#: The backend used when neither the call nor the spec names one (the measured comparison,
+#: ``benchmarks/inference_backends.py``, chose it).
+DEFAULT_INFERENCE = Inference("hand", "hand")
+
+
+def parse_inference(value) -> Inference:
+    """An inference backend from its name, ``"SURROGATE+SAMPLER"`` (``"sklearn+emcee"``), or as given.
+
+    Parameters
+    ----------
+    value : str, Inference or None
+        ``"SURROGATE+SAMPLER"``; one name alone sets the surrogate (``"sklearn"``) or the sampler
+        (``"emcee"``), the other part the default's; None = :data:`DEFAULT_INFERENCE`.
+
+    Returns
+    -------
+    Inference
+        The backend.
+
+    Raises
+    ------
+    StudyError
+        A name that is not one of :data:`~sim.identify.surrogate.SURROGATES` ×
+        :data:`~sim.identify.posterior.SAMPLERS`.
+    """
+    if value is None:
+        return DEFAULT_INFERENCE
+    if isinstance(value, Inference):
+        parts = (value.surrogate, value.sampler)
+    else:
+        text = str(value).strip().lower()
+        parts = tuple(text.split("+"))
+        if len(parts) == 1:
+            parts = ((text, DEFAULT_INFERENCE.sampler) if text in SURROGATES and text != "hand"
+                     else (DEFAULT_INFERENCE.surrogate, text) if text in SAMPLERS and text != "hand" else (text, text))
+    if len(parts) != 2 or parts[0] not in SURROGATES or parts[1] not in SAMPLERS:
+        raise StudyError(f"inference backend {str(value)!r} is not known: write SURROGATE+SAMPLER with the surrogate "
+                         f"one of {', '.join(SURROGATES)} and the sampler one of {', '.join(SAMPLERS)} "
+                         "(e.g. 'sklearn+emcee')")
+    return Inference(*parts)
+
+
+def _inference(spec, backend) -> Inference:
+    return parse_inference(backend if backend is not None else getattr(spec, "inference", None))
 
 
 def observed_on_scale(spec) -> tuple[np.ndarray, np.ndarray]:
@@ -79,11 +157,12 @@ def _check_measured(spec, records, values: np.ndarray) -> None:
                              "most of the prior; narrow the ranges or change the experiment")
 
 
-def _surrogates(spec, units, values, sigma) -> tuple[list, dict]:
+def _surrogates(spec, units, values, sigma, backend=None) -> tuple[list, dict]:
+    surrogate = _inference(spec, backend).surrogate
     models, cv = [], {}
     for j, f in enumerate(spec.fitted):
         ok = np.isfinite(values[:, j])
-        gp = fit_gp(units[ok], values[ok, j], seed=spec.seed)
+        gp = fit_surrogate(units[ok], values[ok, j], seed=spec.seed, surrogate=surrogate)
         c = gp.cross_validation()
         c.update(scale=f.stat_scale, uncertainty=float(sigma[j]), ok=bool(c["error"] < sigma[j]),
                  length=[float(x) for x in gp.length])
@@ -123,7 +202,7 @@ def _kept(samples: np.ndarray) -> np.ndarray:
     return samples[::step]
 
 
-def fit_posterior(spec, records: list[dict], warn=None) -> dict:
+def fit_posterior(spec, records: list[dict], warn=None, *, backend=None) -> dict:
     """The posterior of ``spec``'s free parameters from its design runs (module docstring).
 
     Parameters
@@ -134,14 +213,20 @@ def fit_posterior(spec, records: list[dict], warn=None) -> dict:
         The design runs' records (:func:`sim.identify.runs.run_one`), in run order: the Latin
         hypercube's ``spec.runs`` first, then the refinement runs (if any).
     warn : callable, optional
-        Receives the fallback's reason, one line.
+        Receives the fallback's reason or the sampler's non-convergence, one line.
+    backend : str or Inference, optional
+        The inference backend (:func:`parse_inference`); default the spec's ``inference``
+        attribute when it has one, else :data:`DEFAULT_INFERENCE`.
 
     Returns
     -------
     dict
-        ``method`` (``surrogate`` or ``abc``), ``fallback`` (why ABC, or ""), ``surrogate_cv_error``
+        ``inference`` (``"SURROGATE+SAMPLER"``), ``method`` (``surrogate`` or ``abc``), ``fallback``
+        (why ABC, or ""), ``surrogate_cv_error``
         (per fitted figure: ``n``, ``rmse``, ``noise``, ``error``, ``z_rms``, ``uncertainty``, ``ok``,
-        ``scale``, ``length``), ``noise_correlation``, ``mcmc`` or ``abc`` diagnostics, ``summary``
+        ``scale``, ``length``), ``noise_correlation``, ``mcmc`` (``chains``, ``steps``, ``acceptance``,
+        ``rhat``, ``converged`` (max R̂ ≤ :data:`RHAT_LIMIT`; a warning when not); with emcee also
+        ``autocorr_steps``) or ``abc`` diagnostics, ``summary``
         (:func:`sim.identify.posterior.summarise`), ``samples`` (unit coordinates, at most
         :data:`MAX_SAMPLES_KEPT`), ``weights`` (ABC) and ``draws`` (the held-out runs' unit
         coordinates).
@@ -149,17 +234,18 @@ def fit_posterior(spec, records: list[dict], warn=None) -> dict:
     Raises
     ------
     StudyError
-        A fitted figure that too few design runs measured.
+        A fitted figure that too few design runs measured; an unknown backend.
     """
     from threadpoolctl import threadpool_limits
 
+    inference = _inference(spec, backend)
     units, values = _design_arrays(spec, records)
     _check_measured(spec, records, values)
     with threadpool_limits(limits=1, user_api="blas"):     # small matrices: one thread is the fastest
-        return _fit(spec, units, values, warn)
+        return _fit(spec, units, values, warn, inference)
 
 
-def refinement_draws(spec, records: list[dict]) -> list[list[float]]:
+def refinement_draws(spec, records: list[dict], *, backend=None) -> list[list[float]]:
     """Where the refinement runs go: draws of a first fit's posterior, tempered :data:`REFINE_TEMPER` × wider.
 
     The Latin hypercube's runs give a first surrogate; its likelihood raised to the power
@@ -174,6 +260,8 @@ def refinement_draws(spec, records: list[dict]) -> list[list[float]]:
         The spec (``spec.refine`` > 0).
     records : list of dict
         The Latin hypercube's runs.
+    backend : str or Inference, optional
+        As :func:`fit_posterior`'s.
 
     Returns
     -------
@@ -183,27 +271,30 @@ def refinement_draws(spec, records: list[dict]) -> list[list[float]]:
     Raises
     ------
     StudyError
-        A fitted figure that too few runs measured.
+        A fitted figure that too few runs measured; an unknown backend.
     """
     from threadpoolctl import threadpool_limits
 
+    inference = _inference(spec, backend)
     units, values = _design_arrays(spec, records)
     _check_measured(spec, records, values)
     with threadpool_limits(limits=1, user_api="blas"):
         obs, sigma = observed_on_scale(spec)
-        models, _ = _surrogates(spec, units, values, sigma)
+        models, _ = _surrogates(spec, units, values, sigma, inference)
         lik = Likelihood(models, obs, sigma, _residual_correlation(models, values))
 
         def tempered(u):
             return lik(u) / REFINE_TEMPER
-        chain = run_mcmc(tempered, spec.parameters, _starts(spec, tempered, units), spec.seed + 1)
+        chain = run_sampler(inference.sampler, tempered, spec.parameters, _starts(spec, tempered, units),
+                            spec.seed + 1)
         return _draws(spec, chain["samples"], spec.refine, 0x4EF1).tolist()
 
 
-def _fit(spec, units: np.ndarray, values: np.ndarray, warn) -> dict:
+def _fit(spec, units: np.ndarray, values: np.ndarray, warn, inference: Inference) -> dict:
     obs, sigma = observed_on_scale(spec)
-    models, cv = _surrogates(spec, units, values, sigma)
-    out = {"surrogate_cv_error": cv, "fallback": "", "observed": obs.tolist(), "sigma": sigma.tolist()}
+    models, cv = _surrogates(spec, units, values, sigma, inference)
+    out = {"inference": str(inference), "surrogate_cv_error": cv, "fallback": "", "observed": obs.tolist(),
+           "sigma": sigma.tolist()}
     bad = [f"{name} (error {c['error']:.3g} ≥ uncertainty {c['uncertainty']:.3g} on its {c['scale']} scale)"
            for name, c in cv.items() if not c["ok"]]
     if spec.method == "abc" or bad:
@@ -216,11 +307,20 @@ def _fit(spec, units: np.ndarray, values: np.ndarray, warn) -> dict:
         return _abc(spec, units[:n], values[:n], obs, sigma, out)
     corr = _residual_correlation(models, values)
     lik = Likelihood(models, obs, sigma, corr)
-    chain = run_mcmc(lik, spec.parameters, _starts(spec, lik, units), spec.seed)
+    chain = run_sampler(inference.sampler, lik, spec.parameters, _starts(spec, lik, units), spec.seed)
     samples = chain["samples"]
+    mcmc = {"chains": chain["chains"], "steps": chain["steps"], "acceptance": chain["acceptance"],
+            "rhat": [float(x) for x in chain["rhat"]]}
+    if "autocorr_steps" in chain:
+        mcmc["autocorr_steps"] = chain["autocorr_steps"]
+    mcmc["converged"] = bool(max(mcmc["rhat"]) <= RHAT_LIMIT)
+    if not mcmc["converged"] and warn:
+        worst = int(np.argmax(mcmc["rhat"]))
+        warn(f"the {inference.sampler} sampler has not converged (split R̂ {mcmc['rhat'][worst]:.2f} > {RHAT_LIMIT} "
+             f"for {spec.parameters[worst].key}): the intervals are not the posterior's; a longer chain or more "
+             "figures would be needed")
     out.update(method="surrogate", noise_correlation=corr.tolist(), summary=summarise(spec.parameters, samples),
-               mcmc={"chains": chain["chains"], "steps": chain["steps"], "acceptance": chain["acceptance"],
-                     "rhat": [float(x) for x in chain["rhat"]]},
+               mcmc=mcmc,
                samples=_kept(samples).tolist(), weights=None,
                draws=_draws(spec, samples, spec.posterior_draws, 0xD4A3).tolist())
     return out

@@ -290,11 +290,12 @@ def summarise_identification(spec: IdentifySpec, fit: dict, design: list[dict], 
         ``parameters`` (``key``, ``mean``, ``lo90``, ``hi90``, ``identifiable`` and more),
         ``correlation`` ({``keys``, ``matrix``}), ``held_out`` and ``fitted`` (per figure: the
         measured value, the 90 % predictive interval of the posterior draws, ``inside``),
-        ``surrogate_cv_error``, ``method``, ``fallback``, ``runs``, ``complete``.
+        ``surrogate_cv_error``, ``method``, ``fallback``, ``inference``, ``runs``, ``complete``.
     """
     not_measured = {f.name: [r["run"] for r in design if r["figures"].get(f.name) is None] for f in spec.fitted}
     return {
         "name": spec.name, "method": fit["method"], "fallback": fit["fallback"], "complete": True,
+        "inference": fit.get("inference", "hand+hand"),      # a fit of an earlier version: the hand backends
         "parameters": fit["summary"]["parameters"],
         "correlation": {"keys": spec.keys, "matrix": fit["summary"]["correlation"]},
         "held_out": [_interval_row(f, [r["figures"].get(f.name) for r in held]) for f in spec.held_out],

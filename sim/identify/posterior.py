@@ -20,6 +20,12 @@ design runs of highest likelihood, the proposal adapted during the burn-in (scal
 to an acceptance of 0.2–0.4, then the chains' covariance × 2.38²/d) and fixed
 after it; the split R̂ of every parameter is reported.  Deterministic for a seed.
 
+Or (``sampler = "emcee"``, :data:`SAMPLERS`) emcee's affine-invariant ensemble sampler
+(Goodman & Weare 2010; Foreman-Mackey et al. 2013) on the same log posterior:
+:data:`EMCEE_WALKERS` walkers (at least 2d + 2) started around the same starting points,
+:data:`EMCEE_BURN` steps dropped, :data:`EMCEE_KEEP` kept, every :data:`THIN` th; the split R̂ over
+the walkers and emcee's integrated autocorrelation time are reported.  Deterministic for a seed.
+
 ABC (the fallback when a surrogate's cross-validated error is not below the
 measurement uncertainty it is used with, or ``method = "abc"``): likelihood-free,
 the design runs themselves weighted by the prior and a Gaussian kernel of the
@@ -34,12 +40,14 @@ parameter is identifiable: its 90 % interval, in unit coordinates, narrower than
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
 
-__all__ = ["CHAINS", "CORRELATION_SHRINK", "EDGE_FRACTION", "FLAT_WIDTH_RATIO", "Likelihood", "abc_weights",
-           "noise_correlation", "predictive_interval", "resample", "run_mcmc", "summarise"]
+__all__ = ["CHAINS", "CORRELATION_SHRINK", "EDGE_FRACTION", "FLAT_WIDTH_RATIO", "SAMPLERS", "Likelihood",
+           "abc_weights", "noise_correlation", "predictive_interval", "resample", "run_emcee", "run_mcmc",
+           "run_sampler", "summarise"]
 
 #: Chains of the MCMC [-].
 CHAINS = 16
@@ -51,6 +59,10 @@ FLAT_WIDTH_RATIO = 0.8
 #: An identifiable parameter whose 90 % interval reaches within this fraction (unit coordinates) of a
 #: prior bound is reported at that edge: the figures may ask for more than the prior allows [-].
 EDGE_FRACTION = 0.02
+#: The samplers :func:`run_sampler` knows.
+SAMPLERS = ("hand", "emcee")
+#: emcee: walkers (at least 2d + 2), burn-in steps dropped and steps kept (every THIN th) [-].
+EMCEE_WALKERS, EMCEE_BURN, EMCEE_KEEP = 32, 1000, 3000
 #: Weight of the identity in the estimated noise correlation between figures [-].
 CORRELATION_SHRINK = 0.2
 
@@ -162,13 +174,7 @@ def run_mcmc(log_likelihood, parameters, starts: np.ndarray, seed: int) -> dict:
     x = np.array(starts, dtype=np.float64)
     c, d = x.shape
 
-    def logp(u):
-        lp = _log_prior(parameters, u)
-        ok = np.isfinite(lp)
-        out = np.full(len(u), -np.inf)
-        if ok.any():
-            out[ok] = lp[ok] + log_likelihood(u[ok])
-        return out
+    logp = _log_posterior(log_likelihood, parameters)
     lp = logp(x)
     step = np.full(c, 0.1)
     chol = np.eye(d)
@@ -196,6 +202,87 @@ def run_mcmc(log_likelihood, parameters, starts: np.ndarray, seed: int) -> dict:
     chains = np.stack(kept, axis=1)
     return {"samples": chains.reshape(-1, d), "acceptance": accepted / (c * KEEP_STEPS),
             "rhat": _split_rhat(chains), "chains": c, "steps": KEEP_STEPS}
+
+
+def _log_posterior(log_likelihood, parameters):
+    def logp(u):
+        lp = _log_prior(parameters, u)
+        ok = np.isfinite(lp)
+        out = np.full(len(u), -np.inf)
+        if ok.any():
+            out[ok] = lp[ok] + log_likelihood(u[ok])
+        return out
+    return logp
+
+
+def run_emcee(log_likelihood, parameters, starts: np.ndarray, seed: int) -> dict:
+    """The ensemble sampler of emcee on the unit cube of the priors (module docstring).
+
+    Parameters
+    ----------
+    log_likelihood : callable
+        ``(m, d) → (m,)`` log likelihood at unit coordinates.
+    parameters : sequence of sim.identify.spec.Parameter
+        The free parameters (their priors).
+    starts : (k, d) ndarray
+        Starting points [-]; the walkers start around them (cycled, 0.01 apart).
+    seed : int
+        Seed of the walkers' starts and moves [-].
+
+    Returns
+    -------
+    dict
+        As :func:`run_mcmc`'s — ``samples`` ((walkers · EMCEE_KEEP / THIN, d) unit coordinates),
+        ``acceptance``, ``rhat`` (split R̂ over the walkers), ``chains`` (walkers), ``steps`` —
+        and ``autocorr_steps`` ((d,) emcee's integrated autocorrelation time, steps).
+    """
+    import emcee
+
+    starts = np.asarray(starts, dtype=np.float64)
+    d = starts.shape[1]
+    walkers = max(EMCEE_WALKERS, 2 * d + 2)
+    rng = np.random.default_rng(np.random.SeedSequence((seed, 0xE3CE)))
+    x0 = starts[np.arange(walkers) % len(starts)] + 0.01 * rng.standard_normal((walkers, d))
+    x0 = np.clip(x0, 1e-6, 1 - 1e-6)
+    sampler = emcee.EnsembleSampler(walkers, d, _log_posterior(log_likelihood, parameters), vectorize=True)
+    sampler.random_state = np.random.RandomState(int(rng.integers(2 ** 31))).get_state()
+    sampler.run_mcmc(x0, EMCEE_BURN + EMCEE_KEEP, progress=False)
+    chains = np.swapaxes(sampler.get_chain(discard=EMCEE_BURN, thin=THIN), 0, 1)      # (walkers, kept, d)
+    quiet = logging.getLogger("emcee.autocorr")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)       # a flat parameter's long τ is reported in the result, not logged
+    try:
+        tau = sampler.get_autocorr_time(discard=EMCEE_BURN, quiet=True)
+    finally:
+        quiet.setLevel(level)
+    accepted = np.mean(np.diff(sampler.get_log_prob()[EMCEE_BURN - 1:], axis=0) != 0)
+    return {"samples": chains.reshape(-1, d), "acceptance": float(accepted), "rhat": _split_rhat(chains),
+            "chains": walkers, "steps": EMCEE_KEEP, "autocorr_steps": [float(t) for t in tau]}
+
+
+def run_sampler(sampler: str, log_likelihood, parameters, starts: np.ndarray, seed: int) -> dict:
+    """The named sampler (:data:`SAMPLERS`): :func:`run_mcmc` (``"hand"``) or :func:`run_emcee`.
+
+    Parameters
+    ----------
+    sampler : {"hand", "emcee"}
+        Which.
+    log_likelihood : callable
+        ``(m, d) → (m,)`` log likelihood at unit coordinates.
+    parameters : sequence of sim.identify.spec.Parameter
+        The free parameters (their priors).
+    starts : (k, d) ndarray
+        Starting points [-] (:data:`CHAINS` of them for ``"hand"``).
+    seed : int
+        Seed [-].
+
+    Returns
+    -------
+    dict
+        As :func:`run_mcmc`'s.
+    """
+    run = run_emcee if sampler == "emcee" else run_mcmc
+    return run(log_likelihood, parameters, starts, seed)
 
 
 def abc_weights(parameters, units: np.ndarray, values: np.ndarray, observed, sigma) -> np.ndarray:

@@ -21,17 +21,26 @@ Unknowns (:func:`default_unknowns`, each a key with a prior; ``unknowns`` replac
   ``chain.glare_scale_um`` (the halo's energy and scale), ``chain.bloom_spill_fraction``
   (blooming), ``chain.black_level_dn`` (the camera's pedestal: a black pixel's value in its
   files), ``laser.speckle_contrast``, ``environment.ambient_irradiance_w_m2``;
-* ``material.cardboard_albedo`` (the housing boards and the table, cardboard) and
-  ``material.metal_alpha`` (the part: a mesh renders as ``metal``,
-  :func:`scenes.load_part`): fields of :class:`sim.materials.MaterialSettings`, not rig keys
-  — the twin's renderer takes them (``render rotary`` does not); they are reported in the
-  result, and written as comments in the identified rig.
+* ``material.cardboard_albedo`` (the housing boards and the table, cardboard) and the part's
+  material: fields of :class:`sim.materials.MaterialSettings` (or of the part's medium), not rig
+  keys — the twin's renderer takes them (``render rotary --twin`` from ``twin.json``); they are
+  reported in the result, and written as comments in the identified rig.  The part renders as
+  ``part_material`` (:data:`DEFAULT_PART_MATERIAL`, ``white-plastic``: a tag neither the table nor
+  the housing has).  A translucent tag is a rough dielectric boundary over a scattering medium
+  (:mod:`sim.subsurface`; ``[twin] subsurface`` is set on, in the identified rig too), its
+  ``material.part_sigma_s_per_mm`` (reduced scattering) and ``material.part_diffusion_mm`` (the
+  diffusion length, which sets the absorption: :func:`absorption_per_mm`) the unknowns
+  (:data:`PART_MEDIUM_PRIORS`, log-uniform; ``material.part_sigma_a_per_mm`` may replace the diffusion
+  length in ``unknowns``), replacing the tag's
+  tabulated medium (:func:`part_medium`; the boundary's η and α stay the tag's); a metal tag
+  (``metal``, the old model) has ``material.metal_alpha`` (``knurled-metal``:
+  ``material.knurled_alpha``) instead.
 
 Known, not fitted: ``chain.jpeg_quality`` from the real JPEGs' quantisation tables
 (:func:`sim.jpeg.jpeg_quality_of_file`; FabScan's scan-2_1: 95 exactly).  Left out, no key
-for them: the subsurface mean free path of a mesh part (``[twin] subsurface`` renders only
-the fixed tags' media of :data:`sim.materials.TRANSLUCENT`; a mesh part is ``metal``) and a
-diffuse part's albedo (a mesh part has no albedo key).
+for them: the translucent boundary's index η and roughness α, the medium's phase function
+(isotropic, g = 0: σ_s is the reduced coefficient), the part's colour beyond its medium, and the
+choice between a translucent and a metal part (the caller's ``part_material``, not fitted).
 
 The fit is :func:`sim.identify.fit.fit_posterior`, as ``scheimpflug identify``'s: a Latin
 hypercube of design runs over the priors, refinement runs where a first fit's tempered
@@ -48,6 +57,14 @@ predictive interval: at the fitted frames, the surrogate's prediction at posteri
 with the twin's noise (mean, surrogate variance, τ²); at the held-out frames, the held-out
 run's value plus the same spread around the median's prediction, with the noise of that
 one run added (√2 τ): the surrogate knows the fitted frames only.
+
+The runs render in spawned worker processes at once (``workers``, default :func:`default_workers`: one
+per core while the memory holds them, each with cores / workers threads; each run rendered from its own
+seed, as in one process — :mod:`sim.workers` renders frames alike; fresh workers after every
+:data:`RUNS_PER_WORKER` runs each, as the renderer's per-medium caches grow): a twin's render alone keeps
+about one core busy (FabScan's metal twin: 840 s of CPU in 769 s).  FabScan's
+scan-2_1 (a translucent part): ≈ 13 s of CPU per run of 6 frames in a one-thread worker, against ≈ 11 s
+for the metal part.
 
 Files in ``out``: ``identify_scan.json`` (identity; a rerun with the same inputs resumes,
 other inputs are refused), ``real.json`` (the real frames' figures per frame),
@@ -80,14 +97,26 @@ from ..dataset.spec import sample_seed
 from ..jobfolder import JobKind, open_job, remove_temporaries
 from ..study.spec import _with_value
 from .figures import from_scale, to_scale
-from .fit import _design_arrays, _surrogates, fit_posterior, observed_on_scale, refinement_draws
+from .fit import (
+    DEFAULT_INFERENCE,
+    _design_arrays,
+    _surrogates,
+    fit_posterior,
+    observed_on_scale,
+    parse_inference,
+    refinement_draws,
+)
 from .job import identified_rig_text
 from .posterior import resample
 from .runs import RUN_FILE, run_folder
 from .spec import FigureSpec, Parameter, _parse_parameter
 
-__all__ = ["DEFAULT_FRAMES", "FIGURE_SCALES", "SCAN_FORMAT", "SIGMA_FLOOR", "ScanSpec", "default_frames",
-           "default_unknowns", "identify_scan", "render_at_angles"]
+_DEFAULT_INFERENCE = f"{DEFAULT_INFERENCE.surrogate}+{DEFAULT_INFERENCE.sampler}"
+
+__all__ = ["DEFAULT_FRAMES", "DEFAULT_PART_MATERIAL", "FIGURE_SCALES", "PART_MEDIUM_KEYS", "PART_MEDIUM_PRIORS",
+           "RUNS_PER_WORKER", "SCAN_FORMAT",
+           "SIGMA_FLOOR", "ScanSpec", "absorption_per_mm", "default_frames", "default_unknowns", "identify_scan",
+           "material_settings", "part_medium", "render_at_angles"]
 
 SCAN_FORMAT = 1
 META_FILE = "identify_scan.json"
@@ -110,6 +139,19 @@ SIGMA_FLOOR = {"fwhm_px": 0.05, "peak_dn": 0.05, "saturated_fraction": 0.01, "ha
                "background_dn": 0.5, "noise_dn": 0.3, "speckle_contrast": 0.01, "detection_rate": 0.02}
 #: Frames fitted and held out by default (:func:`default_frames`) [-].
 DEFAULT_FRAMES = 6
+#: The part's material tag by default (:func:`identify_scan`): translucent, its medium identified.
+DEFAULT_PART_MATERIAL = "white-plastic"
+#: Priors of a translucent part's medium (log-uniform): the reduced scattering coefficient σ_s' over
+#: plaster, resins and plastics (~0.5–50 /mm; the tabulated media of :data:`sim.materials.TRANSLUCENT`
+#: hold 2.5–53 /mm) [1/mm] and the diffusion length L_d = 1/√(3 σ_a (σ_a + σ_s')) [mm], the decay length of
+#: the glow's exponential wings, from 0.3 mm to 10 mm: over σ_s' ∈ [0.5, 50] that spans the absorption
+#: σ_a ≈ 7·10⁻⁵–1.7 /mm (:func:`absorption_per_mm`).  Not σ_a itself: σ_a = 10⁻⁴ with σ_s' = 0.7 is a
+#: 35 mm diffusion length, whose tabulated response (over ±6 L_d, :mod:`sim.subsurface`) took > 7 GB and
+#: minutes for one full frame (measured; a worker was killed out of memory).  ``material.part_sigma_a_per_mm``
+#: is accepted in ``unknowns`` instead of the diffusion length.
+PART_MEDIUM_PRIORS = {"part_sigma_s_per_mm": (0.5, 50.0), "part_diffusion_mm": (0.3, 10.0)}
+#: The material unknowns of a translucent part's medium (:func:`material_settings`).
+PART_MEDIUM_KEYS = ("part_sigma_s_per_mm", "part_sigma_a_per_mm", "part_diffusion_mm")
 #: Posterior samples behind a predictive interval [-].
 _PREDICTIVE_SAMPLES = 400
 _SE_MEDIAN = math.sqrt(math.pi / 2.0)      # the median's standard error over the mean's, Gaussian scatter
@@ -148,6 +190,8 @@ class ScanSpec:
         Where the rig came from.
     held_out : tuple
         Empty: a scan's held-out figures are its held-out frames' (:func:`identify_scan`).
+    inference : str
+        The inference backend, ``"SURROGATE+SAMPLER"`` (:func:`sim.identify.fit.parse_inference`).
     """
 
     name: str
@@ -161,6 +205,7 @@ class ScanSpec:
     rig_tables: dict
     rig_source: str
     held_out: tuple = ()
+    inference: str = "hand+hand"
 
     @property
     def keys(self) -> list[str]:
@@ -181,6 +226,7 @@ class _Scan:
     held_frames: tuple
     channel: str | None
     known: dict
+    part_material: str = "metal"
 
 
 # ------------------------------------------------------------------ inputs
@@ -212,13 +258,17 @@ def default_frames(n_frames: int, parity: int, count: int = DEFAULT_FRAMES) -> l
     return sorted({int(pool[min(int(p), len(pool) - 1)]) for p in pos})
 
 
-def default_unknowns(tables: dict) -> dict:
+def default_unknowns(tables: dict, part_material: str = DEFAULT_PART_MATERIAL) -> dict:
     """The unknowns of a scan's twin and their priors (module docstring), around the rig's values.
 
     Parameters
     ----------
     tables : dict
         The twin's rig tables (``rig_to_dict``).
+    part_material : str, default :data:`DEFAULT_PART_MATERIAL`
+        The part's material tag: a translucent one has its medium's ``material.part_sigma_s_per_mm``
+        and ``material.part_diffusion_mm`` (:data:`PART_MEDIUM_PRIORS`), ``metal`` its
+        ``material.metal_alpha``, ``knurled-metal`` its ``material.knurled_alpha``.
 
     Returns
     -------
@@ -242,9 +292,104 @@ def default_unknowns(tables: dict) -> dict:
         amb = env["ambient_irradiance_w_m2"]
         out["environment.ambient_irradiance_w_m2"] = {"range": [amb / 10.0, amb * 10.0], "prior": "log-uniform"}
     out["material.cardboard_albedo"] = {"range": [0.1, 0.9]}
-    out["material.metal_alpha"] = {"range": [0.05, 1.0]}
+    out.update(_part_unknowns(part_material))
     if chain["format"] == "png16":            # no camera chain: its keys do nothing
         out = {k: v for k, v in out.items() if not k.startswith("chain.")}
+    return out
+
+
+def _part_unknowns(part_material: str) -> dict:
+    from ..materials import is_translucent
+
+    if is_translucent(part_material):
+        return {_MATERIAL + k: {"range": list(v), "prior": "log-uniform"} for k, v in PART_MEDIUM_PRIORS.items()}
+    alpha = "knurled_alpha" if part_material == "knurled-metal" else "metal_alpha"
+    return {_MATERIAL + alpha: {"range": [0.05, 1.0]}}
+
+
+def absorption_per_mm(sigma_s_per_mm: float, diffusion_mm: float) -> float:
+    """The absorption coefficient of a medium with this reduced scattering and diffusion length.
+
+    The diffusion approximation's σ_eff = 1/L_d = √(3 σ_a (σ_a + σ_s')), solved for σ_a.
+
+    Parameters
+    ----------
+    sigma_s_per_mm : float
+        Reduced scattering coefficient σ_s' ≥ 0 [1/mm].
+    diffusion_mm : float
+        Diffusion length L_d > 0 [mm].
+
+    Returns
+    -------
+    float
+        σ_a = (√(σ_s'² + 4 / (3 L_d²)) − σ_s') / 2 [1/mm].
+    """
+    s = float(sigma_s_per_mm)
+    return 0.5 * (math.sqrt(s * s + 4.0 / (3.0 * float(diffusion_mm) ** 2)) - s)
+
+
+def part_medium(part_material: str, sigma_s_per_mm: float | None = None,
+                sigma_a_per_mm: float | None = None):
+    """A translucent tag's medium with its scattering and absorption coefficients replaced.
+
+    Parameters
+    ----------
+    part_material : str
+        A translucent tag of :data:`sim.materials.TRANSLUCENT` (its boundary's η and α are kept).
+    sigma_s_per_mm, sigma_a_per_mm : float, optional
+        The (reduced) scattering and the absorption coefficients [1/mm]; None keeps the tag's.
+
+    Returns
+    -------
+    sim.materials.Translucent
+        The medium.
+    """
+    from ..materials import TRANSLUCENT
+
+    base = TRANSLUCENT[part_material]
+    return replace(base, sigma_s_per_mm=base.sigma_s_per_mm if sigma_s_per_mm is None else float(sigma_s_per_mm),
+                   sigma_a_per_mm=base.sigma_a_per_mm if sigma_a_per_mm is None else float(sigma_a_per_mm),
+                   source="identified from the scan's frames (sim.identify.scan)")
+
+
+def material_settings(values: dict, part_material: str | None) -> dict:
+    """:class:`sim.materials.MaterialSettings` fields from material unknowns' values.
+
+    Parameters
+    ----------
+    values : dict
+        ``FIELD`` (without ``material.``) → value: fields of MaterialSettings, and
+        ``part_sigma_s_per_mm``, ``part_sigma_a_per_mm`` or ``part_diffusion_mm`` (σ_a from it and
+        σ_s', :func:`absorption_per_mm`), the part's medium.
+    part_material : str or None
+        The part's tag; the part's medium replaces that tag's in ``translucent``.
+
+    Returns
+    -------
+    dict
+        Keyword arguments of MaterialSettings (``translucent`` holding every tabulated medium, the
+        part's replaced) .
+
+    Raises
+    ------
+    ValueError
+        A part medium's value without a translucent part tag.
+    """
+    from ..materials import TRANSLUCENT, is_translucent
+
+    out = {k: v for k, v in values.items() if k not in PART_MEDIUM_KEYS}
+    medium = {k: v for k, v in values.items() if k in PART_MEDIUM_KEYS}
+    if medium:
+        if part_material is None or not is_translucent(part_material):
+            raise ValueError(f"{sorted(medium)[0]}: the part's medium needs a translucent part tag "
+                             f"({', '.join(sorted(TRANSLUCENT))}), the part is {part_material or 'metal'!r}")
+        if "part_sigma_a_per_mm" in medium and "part_diffusion_mm" in medium:
+            raise ValueError("part_sigma_a_per_mm and part_diffusion_mm: give one (the diffusion length sets σ_a)")
+        sigma_s = medium.get("part_sigma_s_per_mm", TRANSLUCENT[part_material].sigma_s_per_mm)
+        sigma_a = medium.get("part_sigma_a_per_mm")
+        if "part_diffusion_mm" in medium:
+            sigma_a = absorption_per_mm(sigma_s, medium["part_diffusion_mm"])
+        out["translucent"] = {**TRANSLUCENT, part_material: part_medium(part_material, sigma_s, sigma_a)}
     return out
 
 
@@ -306,10 +451,41 @@ def _known_jpeg(real, tables: dict) -> dict:
                                    "source": f"the quantisation tables of {Path(src).name}"}}
 
 
-def _inputs(twin_dir, real_folder, regions, fit_frames, held_frames) -> _Scan:
+def _others_materials(tables: dict, housing: Path | None) -> set:
+    """The material tags of the twin's still objects: the table's disc and the housing's boards."""
+    from scheimpflug.model.housing import load_housing
+
+    tags = {tables["stage"].get("table_material", "cardboard")}
+    boards = tables.get("housing") or []
+    if housing is not None:
+        try:
+            boards = load_housing(housing)
+        except (RigError, OSError, ValueError) as exc:
+            raise _fail(f"{str(housing)!r}: {exc}") from None
+    return tags | {b["material"] if isinstance(b, dict) else b.material for b in boards}
+
+
+def _part_tables(tables: dict, housing: Path | None, part_material: str) -> dict:
+    """The rig tables for a part of this tag: ``[twin] subsurface`` on for a translucent one (checked)."""
+    from ..materials import MATERIALS, is_translucent
+
+    if part_material not in MATERIALS:
+        raise _fail(f"part material {part_material!r}: unknown material tag (known: {', '.join(MATERIALS)})")
+    if not is_translucent(part_material):
+        return tables
+    shared = {part_material} & _others_materials(tables, housing)
+    if shared:
+        raise _fail(f"part material {part_material!r}: the table or the housing is of that tag too, and the "
+                    "part's identified medium would be theirs: give the part another translucent tag "
+                    f"(e.g. {DEFAULT_PART_MATERIAL!r})")
+    return _with_value(tables, "twin.subsurface", True)
+
+
+def _inputs(twin_dir, real_folder, regions, fit_frames, held_frames, part_material: str) -> _Scan:
     from scheimpflug.io.frames import open_frame_folder
 
     tables, part, housing = _twin_inputs(Path(twin_dir))
+    tables = _part_tables(tables, housing, part_material)
     try:
         real = real_folder if hasattr(real_folder, "frames") else open_frame_folder(real_folder)
     except FrameError as exc:
@@ -334,7 +510,7 @@ def _inputs(twin_dir, real_folder, regions, fit_frames, held_frames) -> _Scan:
     along = real.columns if real.stripe_along == "rows" else real.rows
     manifest = json.loads((Path(real.path) / "manifest.json").read_text("utf-8"))
     return _Scan(tables, part, housing, real, _check_regions(regions, along), fit, held,
-                 manifest.get("channel"), known)
+                 manifest.get("channel"), known, part_material)
 
 
 def _parameters(unknowns: dict, tables: dict) -> tuple:
@@ -354,12 +530,18 @@ def _material_parameter(key: str, value) -> Parameter:
 
     field_name = key[len(_MATERIAL):]
     ok = isinstance(value, dict) and isinstance(value.get("range"), (list, tuple)) and len(value["range"]) == 2
-    if not ok or field_name not in ("cardboard_albedo", "tape_albedo", "metal_alpha", "knurled_alpha"):
+    fields = ("cardboard_albedo", "tape_albedo", "metal_alpha", "knurled_alpha", *PART_MEDIUM_KEYS)
+    if not ok or field_name not in fields:
         raise _fail(f"unknown {key!r} = {value!r}: material unknowns are material.cardboard_albedo, "
-                    "tape_albedo, metal_alpha or knurled_alpha with { range = [lo, hi] }")
+                    "tape_albedo, metal_alpha, knurled_alpha, part_sigma_s_per_mm, part_sigma_a_per_mm or "
+                    "part_diffusion_mm with { range = [lo, hi] }")
     lo, hi = (float(v) for v in value["range"])
     try:
-        MaterialSettings(**{field_name: lo}), MaterialSettings(**{field_name: hi})
+        if field_name in PART_MEDIUM_KEYS:
+            if not (lo > 0 and math.isfinite(hi)):
+                raise ValueError(f"a coefficient's range must lie in (0, inf) [1/mm], got [{lo:g}, {hi:g}]")
+        else:
+            MaterialSettings(**{field_name: lo}), MaterialSettings(**{field_name: hi})
     except (ValueError, TypeError) as exc:
         raise _fail(f"{key}: {exc}") from None
     if not lo < hi:
@@ -379,7 +561,7 @@ def _figures_function():
 
 
 def render_at_angles(tables: dict, part, housing, angles_deg, out, *, seed: int,
-                     materials: dict | None = None) -> Path:
+                     materials: dict | None = None, part_material: str | None = None) -> Path:
     """Render the twin's rotary scan at given turntable angles into a frame folder (resumable).
 
     Parameters
@@ -387,7 +569,7 @@ def render_at_angles(tables: dict, part, housing, angles_deg, out, *, seed: int,
     tables : dict
         The rig tables.
     part : path
-        The part's mesh (renders as its default tag, ``metal``).
+        The part's mesh.
     housing : path or None
         A housing file (None: the rig's own housing, or none).
     angles_deg : sequence of float
@@ -398,6 +580,9 @@ def render_at_angles(tables: dict, part, housing, angles_deg, out, *, seed: int,
         Render seed [-].
     materials : dict, optional
         :class:`sim.materials.MaterialSettings` fields.
+    part_material : str, optional
+        The part's material tag (default the mesh's, ``metal``); a translucent one renders its
+        medium when the rig's ``[twin] subsurface`` is on.
 
     Returns
     -------
@@ -414,6 +599,8 @@ def render_at_angles(tables: dict, part, housing, angles_deg, out, *, seed: int,
         return MitsubaTwin(rig_, assembly, materials=settings, **kw)
 
     options = {"part": str(part), "angles_deg": [float(a) for a in angles_deg], "truth_pixels_every": 0}
+    if part_material is not None:
+        options["part_material"] = part_material
     if housing is not None:
         options["housing"] = str(housing)
     with warnings.catch_warnings():
@@ -426,29 +613,20 @@ def render_at_angles(tables: dict, part, housing, angles_deg, out, *, seed: int,
 def _grey_folder(rendered: Path, out: Path, channel: str | None, stripe_along: str) -> Path:
     """A chain's colour frames read as the real ones were imported (``channel``); grey frames as they are.
 
-    Each file goes through the importer's reader (:func:`scheimpflug.io.importer.read_image`) into an
-    8-bit grey frame folder with the rendered angles and the real folder's ``stripe_along`` (the
-    twin's camera is the real one: its direction is known, not detected — a faint or glaring
-    stripe would make the importer's detection refuse a run).
+    The path ``compare`` takes (:func:`scheimpflug.io.twin_frames.grey_twin_frames`): the importer with
+    the rendered angles, the real folder's ``channel`` and its ``stripe_along`` *known* (the twin's
+    camera is the real one: not detected, so a faint or glaring stripe cannot make a run refuse).
+    Frame i of the folder returned is rendered frame i (the importer orders frames by angle: the
+    rendered angles must not decrease).  ``out`` is rebuilt (a killed run's copy removed).
     """
-    import cv2
+    from scheimpflug.io.twin_frames import grey_twin_frames
 
-    from scheimpflug.io.importer import read_image
-
-    manifest = json.loads((rendered / "manifest.json").read_text("utf-8"))
-    if "chain" not in str(manifest.get("pixel_value", "")):
-        return rendered
-    (out / "frames").mkdir(parents=True, exist_ok=True)
-    frames = []
-    for i, f in enumerate(manifest["frames"]):
-        name = f"frames/{i:05d}.png"
-        if not cv2.imwrite(str(out / name), read_image(rendered / f["file"], channel or "r")):
-            raise StudyError(f"cannot write {str(out / name)!r}")
-        frames.append({"file": name, "angle_deg": f["angle_deg"]})
-    write_json_atomic(out / "manifest.json", {"format": manifest["format"], "complete": True, "scenario": "rotary",
-                                              "scenario_params": {}, "adc_bits": 8, "stripe_along": stripe_along,
-                                              "channel": channel or "r", "frames": frames})
-    return out
+    angles = [f.get("angle_deg") for f in json.loads((rendered / "manifest.json").read_text("utf-8"))["frames"]]
+    if any(b is not None and a is not None and b < a for a, b in zip(angles, angles[1:])):
+        raise StudyError(f"{str(rendered)!r}: the rendered angles decrease; the grey frames would come in "
+                         "another order than the run's frames")
+    shutil.rmtree(out, ignore_errors=True)
+    return grey_twin_frames(rendered, out, channel=channel, stripe_along=stripe_along)
 
 
 def _per_frame(folder, regions: dict, frames) -> dict:
@@ -509,7 +687,8 @@ def _run_one(plan: _RunPlan, scan: _Scan, out: Path) -> dict:
             tables = _with_value(tables, key, v)
     angles = [scan.real.frames[i].angle_deg for i in plan.frames]
     rendered = render_at_angles(tables, scan.part, scan.housing, angles, partial / "render", seed=plan.seed,
-                                materials=materials)
+                                materials=material_settings(materials, scan.part_material),
+                                part_material=scan.part_material)
     grey = _grey_folder(rendered, partial / "frames", scan.channel, scan.real.stripe_along)
     per_frame = _per_frame(grey, scan.regions, range(len(angles)))
     record = {"run": plan.index, "role": plan.role, "seed": plan.seed, "values": plan.values,
@@ -561,13 +740,16 @@ def _figure_specs(observed: dict, records: list, least: int) -> tuple[tuple, dic
 # ------------------------------------------------------------------ the job
 
 
-def _identity(scan: _Scan, twin_dir: Path, unknowns: dict, runs: int, refine: int, seed: int) -> dict:
+def _identity(scan: _Scan, twin_dir: Path, unknowns: dict, runs: int, refine: int, seed: int,
+              inference: str) -> dict:
     twin = {p.name: file_sha256(p) for p in (twin_dir / "rig.toml", scan.part, scan.housing) if p is not None}
     real = {"path": str(Path(scan.real.path).resolve()),
             "manifest": file_sha256(Path(scan.real.path) / "manifest.json")}
     setup = {"regions": {k: list(v) for k, v in scan.regions.items()}, "fit_frames": list(scan.fit_frames),
              "held_frames": list(scan.held_frames), "unknowns": unknowns, "runs": runs, "refine": refine,
-             "seed": seed, "figures": sorted(FIGURE_SCALES)}
+             "seed": seed, "figures": sorted(FIGURE_SCALES), "part_material": scan.part_material}
+    if inference != _DEFAULT_INFERENCE:          # recorded when not the default: earlier folders still resume
+        setup["inference"] = inference
     return {"format": SCAN_FORMAT, "kind": "identify-scan", "twin": twin, "real": real,
             "setup": json.loads(json.dumps(setup))}
 
@@ -583,8 +765,8 @@ def _real_figures(scan: _Scan, out: Path) -> dict:
 
 
 class _Counter:
-    def __init__(self, progress, total: int) -> None:
-        self.progress, self.total, self.done = progress, total, 0
+    def __init__(self, progress, total: int, workers: int = 1) -> None:
+        self.progress, self.total, self.done, self.workers = progress, total, 0, workers
 
     def step(self) -> None:
         self.done += 1
@@ -621,7 +803,9 @@ def _load_json(path: Path, make):
 
 def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frames=None, out, runs=None,
                   progress: ProgressCallback | None = None, unknowns: dict | None = None, refine: int | None = None,
-                  seed: int = 0, warn: Callable[[str], None] | None = None) -> dict:
+                  seed: int = 0, warn: Callable[[str], None] | None = None,
+                  part_material: str = DEFAULT_PART_MATERIAL, workers: int | None = None,
+                  inference: str | None = None) -> dict:
     """Identify the twin's unknowns from the real scan's frames (module docstring).
 
     Parameters
@@ -650,12 +834,25 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
         Base seed [-].
     warn : callable, optional
         Receives warnings (the ABC fallback, figures left out), one line each.
+    part_material : str, default :data:`DEFAULT_PART_MATERIAL`
+        The part's material tag (:data:`sim.materials.MATERIALS`); a translucent one renders its
+        medium (``[twin] subsurface`` set on), identified by ``material.part_sigma_s_per_mm`` and
+        ``material.part_diffusion_mm``; it must not be the table's or the housing's tag.
+    workers : int, optional
+        Processes rendering runs at once (spawned, each with cores / workers threads, each run
+        rendered from its own seed, fresh ones after every :data:`RUNS_PER_WORKER` runs each); default
+        :func:`default_workers`.
+    inference : str, optional
+        The inference backend, ``"SURROGATE+SAMPLER"`` (:func:`sim.identify.fit.parse_inference`;
+        default ``hand+hand``); another one is recorded in the folder's identity.
 
     Returns
     -------
     dict
-        ``identified`` (per unknown: ``value`` (posterior median), ``lo90``, ``hi90``, ``prior``,
-        ``identifiable``, ``at_prior_edge``, ``rig_key``), ``known`` (values fixed from the frames),
+        ``part_material`` (``tag``; ``medium``: for a translucent tag the medium at the posterior
+        medians, :class:`sim.materials.Translucent`'s fields, else None), ``identified`` (per
+        unknown: ``value`` (posterior median), ``lo90``, ``hi90``, ``prior``, ``identifiable``,
+        ``at_prior_edge``, ``rig_key``), ``known`` (values fixed from the frames),
         ``figures`` (``fitted`` and ``held_out``: per ``REGION.FIGURE`` the ``real`` and ``twin``
         values, ``lo90``, ``hi90``, ``inside``), ``not_fitted`` (figure → why), ``fit`` (method,
         fallback, surrogates' cross-validation, MCMC diagnostics), ``runs`` (``count``, ``wall_s``,
@@ -666,11 +863,16 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
     StudyError
         One error naming the problem: a missing twin file, real frames without angles or of
         another size, bad regions or frames (none to fit or hold out, overlapping), an unknown
-        key or a prior outside its key's range, an output folder holding another job.
+        key or a prior outside its key's range, an unknown part tag or one the table or housing
+        has too, an output folder holding another job.
     """
     warn = warn or (lambda msg: None)
-    scan = _inputs(twin_dir, real_folder, regions, fit_frames, held_frames)
-    unknowns = dict(default_unknowns(scan.tables) if unknowns is None else unknowns)
+    scan = _inputs(twin_dir, real_folder, regions, fit_frames, held_frames, part_material)
+    unknowns = dict(default_unknowns(scan.tables, part_material) if unknowns is None else unknowns)
+    try:               # a part medium's unknown with a metal part: refused
+        material_settings({k[len(_MATERIAL):]: 1.0 for k in unknowns if k.startswith(_MATERIAL)}, part_material)
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
     params = _parameters(unknowns, scan.tables)
     d = len(params)
     runs = max(8, 5 * d) if runs is None else int(runs)
@@ -678,12 +880,16 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
         raise _fail(f"runs = {runs}: {d} unknowns need at least {max(5, d + 2)} design runs")
     refine = max(4, runs // 2) if refine is None else int(refine)
     out = Path(out)
-    identity = _identity(scan, Path(twin_dir), unknowns, runs, refine, seed)
+    backend = parse_inference(inference)
+    inference = f"{backend.surrogate}+{backend.sampler}"
+    identity = _identity(scan, Path(twin_dir), unknowns, runs, refine, seed, inference)
     with open_job(out, _SCAN_JOB, identity, warn):
         (out / "runs").mkdir(parents=True, exist_ok=True)
         remove_temporaries(out, ("runs",))
         write_json_atomic(out / META_FILE, {**identity, "complete": False})
-        result = _identify(scan, params, runs, refine, seed, out, _Counter(progress, runs + refine + 2), warn)
+        n_workers = default_workers() if workers is None else max(1, int(workers))
+        result = _identify(scan, params, runs, refine, seed, out, _Counter(progress, runs + refine + 2, n_workers),
+                           warn, inference)
         result["files"] = {"identified_rig": str(out / IDENTIFIED_FILE), "result": str(out / RESULT_FILE)}
         write_json_atomic(out / RESULT_FILE, finite_json(json.loads(json.dumps(result, default=float))))
         write_json_atomic(out / META_FILE, {**identity, "complete": True})
@@ -691,11 +897,12 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
 
 
 def _identify(scan: _Scan, params: tuple, runs: int, refine: int, seed: int, out: Path, count: _Counter,
-              warn) -> dict:
+              warn, inference: str = "hand+hand") -> dict:
     t0 = time.perf_counter()
     real = _real_figures(scan, out)
     spec = ScanSpec(name="scan", seed=seed, runs=runs, refine=refine, posterior_draws=20, method="surrogate",
-                    parameters=params, fitted=(), rig_tables=scan.tables, rig_source="twin rig.toml")
+                    parameters=params, fitted=(), rig_tables=scan.tables, rig_source="twin rig.toml",
+                    inference=inference)
     records = _runs(_plans(spec, _design_units(seed, runs, len(params)), 0, "design", scan.fit_frames), scan,
                     out, count)
     observed = _observed(real["fit"])
@@ -720,12 +927,28 @@ def _identify(scan: _Scan, params: tuple, runs: int, refine: int, seed: int, out
     identified = _identified(fit, spec)
     write_text_atomic(out / IDENTIFIED_FILE, _rig_text(spec, fit, identified, scan.known))
     every = records + checks
-    return {"identified": identified, "known": scan.known, "figures": figures, "not_fitted": dropped,
+    return {"part_material": _part_result(scan.part_material, identified), "identified": identified,
+            "known": scan.known, "figures": figures, "not_fitted": dropped,
             "fit": {k: fit.get(k) for k in ("method", "fallback", "surrogate_cv_error", "mcmc", "abc")},
             "frames": {"fit": list(scan.fit_frames), "held_out": list(scan.held_frames)},
             "runs": {"count": len(every), "design": runs, "refine": refine, "checks": len(checks),
                      "wall_s": time.perf_counter() - t0, "cpu_s": sum(r["seconds"]["cpu"] for r in every),
                      "per_run_wall_s": float(np.median([r["seconds"]["wall"] for r in every]))}}
+
+
+def _part_result(part_material: str, identified: dict) -> dict:
+    """The part's tag and, for a translucent one, its medium at the posterior medians."""
+    from dataclasses import asdict
+
+    from ..materials import is_translucent
+
+    if not is_translucent(part_material):
+        return {"tag": part_material, "medium": None}
+    values = {k[len(_MATERIAL):]: v["value"] for k, v in identified.items()
+              if k[len(_MATERIAL):] in PART_MEDIUM_KEYS}
+    medium = material_settings(values, part_material)["translucent"][part_material] if values else \
+        part_medium(part_material)
+    return {"tag": part_material, "medium": asdict(medium)}
 
 
 def _followed(spec: ScanSpec, records: list, dropped: dict, warn) -> ScanSpec:
@@ -757,11 +980,103 @@ def _followed(spec: ScanSpec, records: list, dropped: dict, warn) -> ScanSpec:
 
 
 def _runs(plans: list, scan: _Scan, out: Path, count: _Counter) -> list[dict]:
-    done = []
-    for plan in plans:
-        done.append(_run_one(plan, scan, out))
-        count.step()
-    return done
+    """The plans' records, in order, rendered on ``count.workers`` worker processes (resumable alike).
+
+    The runs not done yet go in batches of ``workers`` × :data:`RUNS_PER_WORKER`, each batch on a fresh
+    pool (a worker's memory grows run by run; the pool's own ``max_tasks_per_child`` hung on Python 3.11).
+    """
+    from concurrent.futures import as_completed
+
+    records: list = [None] * len(plans)
+    todo = []
+    for i, plan in enumerate(plans):
+        if (run_folder(out, plan.index) / RUN_FILE).is_file():
+            records[i] = _run_one(plan, scan, out)          # done before: read back
+            count.step()
+        else:
+            todo.append(i)
+    batch = max(1, count.workers) * RUNS_PER_WORKER
+    for first in range(0, len(todo), batch):
+        part = todo[first:first + batch]
+        pool = _run_pool(scan, min(count.workers, len(part)))
+        try:
+            futures = {pool.submit(_worker_run, plans[i], str(out)): i for i in part}
+            for fut in as_completed(futures):
+                records[futures[fut]] = fut.result()
+                count.step()
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+    return records
+
+
+# ------------------------------------------------------------------ runs in worker processes
+
+_WORKER: dict = {}
+#: Runs a worker renders before it is replaced by a fresh one: the renderer keeps per-process caches of
+#: each medium's tabulated response and its kernels (:mod:`sim.transport`), and every run of a
+#: translucent part has a medium of its own — measured +0.2–0.3 GB of resident memory per run in one
+#: process (FabScan's twin: 1.0 GB after the first run, 2.4 GB after the fifth; a worker of the 84-run
+#: identification reached 14.5 GB without replacement; the renderer now keeps at most
+#: :data:`sim.transport.MAX_CACHED_MEDIA` media, and fresh workers stay as the guard) [-].
+RUNS_PER_WORKER = 6
+#: Resident memory of one run's worker: 1 GB after its first run of the FabScan twin, up to about
+#: 1 + 0.3 × :data:`RUNS_PER_WORKER` GB before it is replaced, with margin [B].
+WORKER_BYTES = 4.0e9
+
+
+def default_workers(n_cores: int | None = None, ram_bytes: float | None = None) -> int:
+    """Worker processes for the runs: one per core, as many as the memory holds (:data:`WORKER_BYTES`).
+
+    Parameters
+    ----------
+    n_cores : int, optional
+        Cores (default :func:`sim.threads.cores`) [-].
+    ram_bytes : float, optional
+        Memory (default the machine's) [B].
+
+    Returns
+    -------
+    int
+        At least 1 [-].
+    """
+    from ..threads import cores
+
+    n = cores() if n_cores is None else int(n_cores)
+    if ram_bytes is None:
+        ram_bytes = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    return max(1, min(n, int(ram_bytes // WORKER_BYTES)))
+
+
+def _init_run_worker(scan: _Scan, threads: int) -> None:
+    """Worker initializer: ignores SIGINT (the main process stops it), dies with it, sizes its threads."""
+    import signal
+
+    from ..threads import configure_threads
+    from ..workers import _die_with_parent
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
+    configure_threads(threads)
+    _WORKER["scan"] = scan
+
+
+def _worker_run(plan: _RunPlan, out: str) -> dict:
+    return _run_one(plan, _WORKER["scan"], Path(out))
+
+
+def _run_pool(scan: _Scan, workers: int):
+    """A pool of ``workers`` spawned processes for the runs.
+
+    One worker too (not this process): its memory grows run by run (:data:`RUNS_PER_WORKER`).
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from ..threads import cores
+
+    workers = max(1, int(workers))
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_run_worker, initargs=(scan, max(1, cores() // workers)))
 
 
 # ------------------------------------------------------------------ the result

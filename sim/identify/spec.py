@@ -11,6 +11,8 @@ Format (example: ``studies/examples/identify-paper.toml``)::
     method = "surrogate"      # "surrogate": a Gaussian process per figure, MCMC on it (ABC on the design
                               #   runs if a surrogate's cross-validated error is not below the measurement's
                               #   uncertainty); "abc": ABC on the design runs
+    inference = "hand+hand"   # optional: the surrogates' fit and the sampler, SURROGATE+SAMPLER — "hand" or
+                              #   "sklearn" + "hand" or "emcee" (sim.identify.fit.parse_inference)
     keep_frames = false       # keep every run's frame folders
     name = "…"                # optional; description = "…"
 
@@ -99,7 +101,8 @@ MAX_RUNS = 2000
 MIN_POSTERIOR_DRAWS = 20
 _MAX_POSTERIOR_DRAWS = 1000
 _TOP = {"identify", "rig", "parameters", "experiment", "fitted", "held_out"}
-_IDENTIFY_KEYS = {"seed", "runs", "refine", "posterior_draws", "method", "keep_frames", "name", "description"}
+_IDENTIFY_KEYS = {"seed", "runs", "refine", "posterior_draws", "method", "keep_frames", "name", "description",
+                  "inference"}
 _EXPERIMENT_KEYS = {"binning", "detector", "method", "stripe", "calibration", "pile_step_deg", "cylinder_step_deg",
                     "spp"}
 _DETECTORS = ("cog", "gaussian3", "blais-rioux", "edge", "paper")
@@ -314,6 +317,8 @@ class IdentifySpec:
         What the runs render.
     fitted, held_out : tuple of FigureSpec
         The measured figures.
+    inference : str
+        The inference backend, ``SURROGATE+SAMPLER`` (:func:`sim.identify.fit.parse_inference`).
     """
 
     raw: dict
@@ -332,6 +337,7 @@ class IdentifySpec:
     experiment: Experiment
     fitted: tuple
     held_out: tuple
+    inference: str = "hand+hand"
 
     @property
     def keys(self) -> list[str]:
@@ -537,8 +543,15 @@ def _parse_head(where: str, head: dict, n_params: int) -> dict:
     keep = head.get("keep_frames", False)
     if not isinstance(keep, bool):
         raise _fail(where, f"identify.keep_frames = {keep!r}: must be true or false")
+    from .fit import parse_inference
+
+    try:
+        inference = str(parse_inference(head.get("inference")))
+    except StudyError as exc:
+        raise _fail(where, f"[identify] {exc}") from None
     return {"seed": seed, "runs": runs, "refine": refine, "posterior_draws": draws, "keep_frames": keep,
-            "method": _choice(where, "identify.method", head.get("method", "surrogate"), ("surrogate", "abc"))}
+            "method": _choice(where, "identify.method", head.get("method", "surrogate"), ("surrogate", "abc")),
+            "inference": inference}
 
 
 def _positive(where: str, key: str, value, upper: float = math.inf) -> float:

@@ -20,6 +20,14 @@ Cross-validation is leave-one-out in closed form (Rasmussen & Williams 2006,
 those residuals is the error of predicting one new run; it contains the twin's
 noise τ, so the surrogate's own error (of the figure's mean) is
 ``√max(rmse² − τ², 0)``.  Pure numpy/scipy; no state.
+
+Two fits of that model (:data:`SURROGATES`): ``"hand"`` (:func:`fit_gp`, the kernel above,
+this module's own marginal-likelihood optimiser) and ``"sklearn"`` (:func:`fit_gp_sklearn`,
+scikit-learn's ``GaussianProcessRegressor`` with ``ConstantKernel × Matern(ν = 5/2, ARD) +
+WhiteKernel`` — no linear term — and its own L-BFGS-B restarts).  Both return a surrogate with
+the same methods (:meth:`GaussianProcess.predict`, :meth:`~GaussianProcess.loo`,
+:meth:`~GaussianProcess.cross_validation`, :attr:`~GaussianProcess.noise_sd`), so the posterior
+and the cross-validation are computed alike whichever fitted it.
 """
 
 from __future__ import annotations
@@ -31,13 +39,19 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.optimize import minimize
 
-__all__ = ["GaussianProcess", "fit_gp", "matern52"]
+__all__ = ["SURROGATES", "GaussianProcess", "LibraryGP", "fit_gp", "fit_gp_sklearn", "fit_surrogate",
+           "matern52"]
 
 _SQRT5 = math.sqrt(5.0)
 #: Bounds of the hyperparameters on the standardised scale: length scales over the unit cube,
 #: Matérn and linear variances, noise variance.
 _BOUNDS = {"length": (0.03, 30.0), "signal": (1e-4, 1e2), "linear": (1e-6, 1e2), "noise": (1e-8, 10.0)}
 _JITTER = 1e-10
+#: The surrogate fits :func:`fit_surrogate` knows.
+SURROGATES = ("hand", "sklearn")
+#: Optimiser starts of the scikit-learn fit: its initial kernel and this many random restarts, as
+#: many starts as :func:`fit_gp`'s [-].
+SKLEARN_RESTARTS = 7
 
 
 def matern52(xa: np.ndarray, xb: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -66,38 +80,13 @@ def _kernel(xa, xb, length, signal, linear):
     return signal * matern52(xa, xb, length) + linear * (1.0 + (xa - 0.5) @ (xb - 0.5).T)
 
 
-@dataclass(frozen=True)
-class GaussianProcess:
-    """A fitted Gaussian process of one figure (module docstring).
+class _Surrogate:
+    """What every fitted surrogate offers: prediction, closed-form leave-one-out, cross-validation.
 
-    Parameters
-    ----------
-    x : (n, d) ndarray
-        Training inputs (unit coordinates) [-].
-    z : (n,) ndarray
-        Training values on the figure's scale.
-    z_mean, z_scale : float
-        The standardisation: ``(z − z_mean) / z_scale``.
-    length : (d,) ndarray
-        Length scales [-].
-    signal, linear, noise : float
-        Matérn variance s², linear variance b², noise variance τ² (standardised).
-    chol : (n, n) ndarray
-        Lower Cholesky factor of ``K + τ² I``.
-    alpha : (n,) ndarray
-        ``(K + τ² I)⁻¹ z_std``.
+    A subclass holds ``x``, ``z``, ``z_mean``, ``z_scale``, ``noise``, ``chol``, ``alpha`` and
+    defines :meth:`_cross` (the signal kernel between new points and the runs) and
+    :meth:`_prior_var` (its value at a new point with itself), both standardised.
     """
-
-    x: np.ndarray
-    z: np.ndarray
-    z_mean: float
-    z_scale: float
-    length: np.ndarray
-    signal: float
-    linear: float
-    noise: float
-    chol: np.ndarray
-    alpha: np.ndarray
 
     @property
     def noise_sd(self) -> float:
@@ -120,11 +109,10 @@ class GaussianProcess:
             Variance of that mean (the surrogate's, without the noise τ²) on the scale.
         """
         xs = np.atleast_2d(np.asarray(xs, dtype=np.float64))
-        ks = _kernel(xs, self.x, self.length, self.signal, self.linear)
+        ks = self._cross(xs)
         mean = ks @ self.alpha
         v = solve_triangular(self.chol, ks.T, lower=True)
-        prior = self.signal + self.linear * (1.0 + np.sum((xs - 0.5) ** 2, axis=1))
-        var = np.maximum(prior - np.sum(v * v, axis=0), 0.0)
+        var = np.maximum(self._prior_var(xs) - np.sum(v * v, axis=0), 0.0)
         return self.z_mean + self.z_scale * mean, var * self.z_scale ** 2
 
     def loo(self) -> tuple[np.ndarray, np.ndarray]:
@@ -158,6 +146,85 @@ class GaussianProcess:
         return {"n": int(len(self.z)), "rmse": rmse, "noise": self.noise_sd,
                 "error": math.sqrt(max(rmse * rmse - self.noise_sd ** 2, 0.0)),
                 "z_rms": float(np.sqrt(np.mean(res * res / var)))}
+
+
+@dataclass(frozen=True)
+class GaussianProcess(_Surrogate):
+    """A Gaussian process of one figure fitted by :func:`fit_gp` (module docstring).
+
+    Parameters
+    ----------
+    x : (n, d) ndarray
+        Training inputs (unit coordinates) [-].
+    z : (n,) ndarray
+        Training values on the figure's scale.
+    z_mean, z_scale : float
+        The standardisation: ``(z − z_mean) / z_scale``.
+    length : (d,) ndarray
+        Length scales [-].
+    signal, linear, noise : float
+        Matérn variance s², linear variance b², noise variance τ² (standardised).
+    chol : (n, n) ndarray
+        Lower Cholesky factor of ``K + τ² I``.
+    alpha : (n,) ndarray
+        ``(K + τ² I)⁻¹ z_std``.
+    """
+
+    x: np.ndarray
+    z: np.ndarray
+    z_mean: float
+    z_scale: float
+    length: np.ndarray
+    signal: float
+    linear: float
+    noise: float
+    chol: np.ndarray
+    alpha: np.ndarray
+
+    def _cross(self, xs: np.ndarray) -> np.ndarray:
+        return _kernel(xs, self.x, self.length, self.signal, self.linear)
+
+    def _prior_var(self, xs: np.ndarray) -> np.ndarray:
+        return self.signal + self.linear * (1.0 + np.sum((xs - 0.5) ** 2, axis=1))
+
+
+@dataclass(frozen=True)
+class LibraryGP(_Surrogate):
+    """A Gaussian process of one figure fitted by scikit-learn (:func:`fit_gp_sklearn`).
+
+    Parameters
+    ----------
+    x : (n, d) ndarray
+        Training inputs (unit coordinates) [-].
+    z : (n,) ndarray
+        Training values on the figure's scale.
+    z_mean, z_scale : float
+        The standardisation: ``(z − z_mean) / z_scale``.
+    length : (d,) ndarray
+        Matérn length scales [-].
+    signal, noise : float
+        Constant (Matérn variance) s² and white-noise variance τ² (standardised).
+    chol : (n, n) ndarray
+        Lower Cholesky factor of ``K + τ² I`` (scikit-learn's ``L_``).
+    alpha : (n,) ndarray
+        ``(K + τ² I)⁻¹ z_std`` (scikit-learn's ``alpha_``).
+    """
+
+    x: np.ndarray
+    z: np.ndarray
+    z_mean: float
+    z_scale: float
+    length: np.ndarray
+    signal: float
+    noise: float
+    chol: np.ndarray
+    alpha: np.ndarray
+
+    def _cross(self, xs: np.ndarray) -> np.ndarray:
+        return self.signal * matern52(xs, self.x, self.length)
+
+    def _prior_var(self, xs: np.ndarray) -> np.ndarray:
+        return np.full(len(xs), self.signal)
 
 
 def _unpack(theta: np.ndarray, d: int):
@@ -228,15 +295,7 @@ def fit_gp(x, z, seed: int = 0) -> GaussianProcess:
     ValueError
         Fewer than 3 runs, shapes that do not match, or non-finite values.
     """
-    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-    z = np.asarray(z, dtype=np.float64)
-    if x.ndim != 2 or z.shape != (x.shape[0],) or x.shape[0] < 3:
-        raise ValueError(f"need (n, d) inputs and (n,) values with n >= 3, got {x.shape} and {z.shape}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(z))):
-        raise ValueError("the runs' coordinates and values must be finite")
-    mean, scale = float(np.mean(z)), float(np.std(z))
-    scale = scale if scale > 0 else 1.0
-    zs = (z - mean) / scale
+    x, z, mean, scale, zs = _standardised(x, z)
     d = x.shape[1]
     lo, hi = _log_bounds(d)
     best = None
@@ -251,3 +310,84 @@ def fit_gp(x, z, seed: int = 0) -> GaussianProcess:
     alpha = cho_solve((chol, True), zs)
     return GaussianProcess(x, z, mean, scale, length, float(signal), float(linear), float(noise + _JITTER),
                            chol, alpha)
+
+
+def _standardised(x, z):
+    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    z = np.asarray(z, dtype=np.float64)
+    if x.ndim != 2 or z.shape != (x.shape[0],) or x.shape[0] < 3:
+        raise ValueError(f"need (n, d) inputs and (n,) values with n >= 3, got {x.shape} and {z.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(z))):
+        raise ValueError("the runs' coordinates and values must be finite")
+    mean, scale = float(np.mean(z)), float(np.std(z))
+    scale = scale if scale > 0 else 1.0
+    return x, z, mean, scale, (z - mean) / scale
+
+
+def fit_gp_sklearn(x, z, seed: int = 0) -> LibraryGP:
+    """Fit the figure with scikit-learn's ``GaussianProcessRegressor`` (module docstring).
+
+    ``ConstantKernel(s²) × Matern(ℓ, ν = 5/2) + WhiteKernel(τ²)`` on the standardised values, the
+    same bounds as :func:`fit_gp`'s (:data:`_BOUNDS`), :data:`SKLEARN_RESTARTS` random restarts of
+    scikit-learn's L-BFGS-B seeded by ``seed`` (deterministic for it).
+
+    Parameters
+    ----------
+    x : (n, d) array_like
+        Unit coordinates of the runs [-].
+    z : (n,) array_like
+        The figure on its scale, one value per run.
+    seed : int
+        Seed of the restarts.
+
+    Returns
+    -------
+    LibraryGP
+        The fitted surrogate.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 runs, shapes that do not match, or non-finite values.
+    """
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+    x, z, mean, scale, zs = _standardised(x, z)
+    d = x.shape[1]
+    kernel = (ConstantKernel(1.0, _BOUNDS["signal"]) * Matern(np.full(d, 0.3), _BOUNDS["length"], nu=2.5)
+              + WhiteKernel(0.1, _BOUNDS["noise"]))
+    gpr = GaussianProcessRegressor(kernel, alpha=_JITTER, n_restarts_optimizer=SKLEARN_RESTARTS,
+                                   normalize_y=False, random_state=seed)
+    with warnings.catch_warnings():      # a bound reached is a fit, not a fault: the cross-validation judges it
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        gpr.fit(x, zs)
+    k = gpr.kernel_
+    signal, length, noise = float(k.k1.k1.constant_value), np.atleast_1d(k.k1.k2.length_scale), float(k.k2.noise_level)
+    return LibraryGP(x, z, mean, scale, np.broadcast_to(length, (d,)).astype(np.float64), signal,
+                     noise + _JITTER, np.asarray(gpr.L_), np.asarray(gpr.alpha_))
+
+
+def fit_surrogate(x, z, seed: int = 0, surrogate: str = "hand"):
+    """Fit one figure's surrogate with the named fit (:data:`SURROGATES`).
+
+    Parameters
+    ----------
+    x : (n, d) array_like
+        Unit coordinates of the runs [-].
+    z : (n,) array_like
+        The figure on its scale.
+    seed : int
+        Seed of the optimiser's starts.
+    surrogate : {"hand", "sklearn"}
+        :func:`fit_gp` or :func:`fit_gp_sklearn`.
+
+    Returns
+    -------
+    GaussianProcess or LibraryGP
+        The fitted surrogate.
+    """
+    return fit_gp_sklearn(x, z, seed) if surrogate == "sklearn" else fit_gp(x, z, seed)

@@ -18,7 +18,13 @@ recorded, and redoes it otherwise.
    wall.  A scan with no still wall has no housing: said, not an error;
 5. ``part``: ``part.ply`` from the scan's part points (:func:`sim.twin.part.part_model`);
 6. ``identify``: :func:`sim.identify.scan.identify_scan` into ``TWIN_DIR/identify/`` (its own resumable
-   job); recorded "not run" with the reason when skipped (``identify=False``) or unavailable.
+   job; when its inputs changed — another part material, other frames — the old folder is replaced);
+   recorded "not run" with the reason when skipped (``identify=False``) or unavailable.
+
+The part's material (``part_material``, default ``white-plastic``: a translucent medium whose
+scattering and absorption the identification fits; ``metal`` the old opaque model) is recorded in
+``twin.json`` as ``part_material``: its ``tag`` and, for a translucent tag, its ``medium`` (the
+identified one, or the tag's tabulated medium without an identification).
 
 The folder is a job folder (:func:`sim.jobfolder.open_job`): its identity is the twin format
 and the source (the scan's manifest and the calibration file, by hash); another scan's or
@@ -36,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scheimpflug.errors import CalibrationError, FrameError, ScheimpflugError
+from scheimpflug.errors import CalibrationError, FrameError, MeshError, ScheimpflugError
 from scheimpflug.io.atomic import finite_json, write_json_atomic, write_text_atomic
 
 from ..jobfolder import JobKind, open_job, remove_temporaries
@@ -76,6 +82,12 @@ class BuildOptions:
         Design runs of the identification (None: its default).
     detector : str
         Stripe detector of the regions and the part (``cog``).
+    part_material : str
+        The part's material tag (:data:`sim.materials.MATERIALS`; default
+        :data:`sim.identify.scan.DEFAULT_PART_MATERIAL`, translucent).
+    inference : str
+        The identification's inference backend, ``"SURROGATE+SAMPLER"``
+        (:func:`sim.identify.fit.parse_inference`; default ``hand+hand``).
     """
 
     preset: str | None = None
@@ -86,6 +98,8 @@ class BuildOptions:
     identify: bool = True
     runs: int | None = None
     detector: str = "cog"
+    part_material: str = "white-plastic"
+    inference: str = "hand+hand"
 
 
 def frame_selection(text: str, n_frames: int) -> list[int] | None:
@@ -358,7 +372,7 @@ def _step_identify(twin_dir: Path, scan_dir: Path, scan: _Scan, regions: dict, p
     with progress_factory("twin build: identify") as bar:
         result = identify_scan(twin_dir, scan_dir, {k: tuple(v) for k, v in regions.items()}, fit_frames=fit,
                                held_frames=held, out=twin_dir / IDENTIFY_DIR, runs=scan.opts.runs, progress=bar,
-                               warn=warn)
+                               warn=warn, part_material=scan.opts.part_material, inference=scan.opts.inference)
     return {"status": "done", "result": json.loads(json.dumps(finite_json(result), default=float))}
 
 
@@ -416,10 +430,14 @@ def build_twin(scan_dir, calibration, out, options: BuildOptions | None = None, 
         direction).
     ScheimpflugError
         A twin folder from another scan, calibration or version; a bad frame selection.
+    MeshError
+        An unknown part material tag.
     """
     import contextlib
 
     opts = options or BuildOptions()
+    _check_part_material(opts.part_material)
+    _check_inference(opts.inference)
     say, warn = say or (lambda m: None), warn or (lambda m: None)
     progress_factory = progress_factory or (lambda label: contextlib.nullcontext(None))
     scan_dir, calibration, twin_dir = Path(scan_dir), Path(calibration), Path(out)
@@ -466,6 +484,30 @@ def _run_steps(meta, twin_dir, scan_dir, scan, calibration, shas, progress_facto
     _identify(meta, twin_dir, scan_dir, scan, progress_factory, say, warn)
 
 
+def _check_inference(name: str) -> None:
+    """An unknown inference backend refused before anything is made (ScheimpflugError)."""
+    from sim.identify.fit import parse_inference
+
+    try:
+        parse_inference(name)
+    except ScheimpflugError as exc:
+        raise ScheimpflugError(f"--inference: {exc}") from None
+
+
+def _check_part_material(tag: str) -> None:
+    from sim.materials import MATERIALS
+
+    if tag not in MATERIALS:
+        raise MeshError(f"part material {tag!r}: unknown material tag (known: {', '.join(MATERIALS)})")
+
+
+def _part_material(tag: str) -> dict:
+    """``twin.json``'s ``part_material`` without an identification: the tag and its tabulated medium."""
+    from sim.materials import TRANSLUCENT
+
+    return {"tag": tag, "medium": asdict(TRANSLUCENT[tag]) if tag in TRANSLUCENT else None}
+
+
 def _regions(meta: dict) -> dict:
     return meta["steps"]["regions"]["result"]["regions"]
 
@@ -489,7 +531,14 @@ def _identify(meta, twin_dir, scan_dir, scan, progress_factory, say, warn) -> No
     o = scan.opts
     files = [RIG_FILE, PART_FILE] + ([HOUSING_FILE] if meta["files"]["housing"] else [])
     key = _key({"files": {f: _sha(twin_dir / f) for f in files}, "scan": meta["source"]["scan_manifest_sha256"],
-                "regions": meta["regions"], "fit": o.fit_frames, "held": o.held_frames, "runs": o.runs})
+                "regions": meta["regions"], "fit": o.fit_frames, "held": o.held_frames, "runs": o.runs,
+                "part_material": o.part_material, **({} if o.inference == "hand+hand" else {"inference": o.inference})})
+    old = (meta.get("steps") or {}).get("identify") or {}
+    if o.identify and old.get("key") not in (None, key) and (twin_dir / IDENTIFY_DIR).is_dir():
+        import shutil
+
+        shutil.rmtree(twin_dir / IDENTIFY_DIR)       # its inputs changed: the old job would be refused
+        say("twin build: identify: its inputs changed: the old identification removed")
     if not o.identify:
         rec = {"status": "not run", "reason": "--no-identify"}
     elif _done(meta, "identify", key, twin_dir):
@@ -506,5 +555,6 @@ def _identify(meta, twin_dir, scan_dir, scan, progress_factory, say, warn) -> No
     result = rec.get("result") or {}
     meta["identified"] = result.get("identified")
     meta["figures"] = result.get("figures")
+    meta["part_material"] = result.get("part_material") or _part_material(o.part_material)
     if rec["status"] == "done":
         meta["files"]["identified_rig"] = f"{IDENTIFY_DIR}/identified.toml"

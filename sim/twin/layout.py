@@ -11,7 +11,9 @@
   its ``identified.toml`` the rig with the identified values;
 * ``twin.json`` — ``format``, ``complete``, ``source`` (the scan and calibration, their hashes,
   the frame size), ``options``, ``angles_deg`` (the scan's), ``regions``, ``housing``,
-  ``part``, ``steps`` (per step its status, input key, files' hashes, seconds, result),
+  ``part``, ``part_material`` (the part's ``tag`` and, for a translucent tag, its ``medium``:
+  :class:`sim.materials.Translucent`'s fields; absent in a twin built before it: ``metal``),
+  ``steps`` (per step its status, input key, files' hashes, seconds, result),
   ``identified`` and ``figures`` (the identification's, or null), ``files`` (relative paths).
 """
 
@@ -52,7 +54,10 @@ class TwinFiles:
         Whether ``rig`` is the identified one.
     materials : dict
         The identified material settings that are not rig keys (:class:`sim.materials.MaterialSettings`
-        fields: ``cardboard_albedo``, ``metal_alpha`` …), empty without an identification.
+        fields: ``cardboard_albedo``, ``metal_alpha`` …; ``translucent`` with the part's medium for a
+        translucent part), empty without an identification and a translucent part.
+    part_material : str or None
+        The part's material tag (``twin.json``'s ``part_material``); None: the mesh's, ``metal``.
     """
 
     rig: Path
@@ -61,6 +66,7 @@ class TwinFiles:
     angles_deg: list
     identified: bool
     materials: dict = field(default_factory=dict)
+    part_material: str | None = None
 
 
 def load_twin(twin_dir) -> TwinFiles:
@@ -99,15 +105,27 @@ def load_twin(twin_dir) -> TwinFiles:
     out = TwinFiles(rig=d / (identified or files.get("rig") or RIG_FILE), part=d / (files.get("part") or PART_FILE),
                     housing=d / files["housing"] if files.get("housing") else None,
                     angles_deg=[float(a) for a in meta.get("angles_deg") or []], identified=bool(identified),
-                    materials=_materials(meta) if identified else {})
+                    materials=_materials(meta, bool(identified)),
+                    part_material=(meta.get("part_material") or {}).get("tag"))
     for p in (out.rig, out.part, out.housing):
         if p is not None and not p.is_file():
             raise ScheimpflugError(f"{str(d)!r}: {p.name} is missing: run 'scheimpflug twin build' again")
     return out
 
 
-def _materials(meta: dict) -> dict:
-    """The identified ``material.*`` values of ``twin.json`` as MaterialSettings fields."""
-    found = meta.get("identified") or {}
-    return {k.split(".", 1)[1]: float(v["value"]) for k, v in found.items()
-            if k.startswith("material.") and isinstance(v, dict) and v.get("value") is not None}
+def _materials(meta: dict, identified: bool) -> dict:
+    """The identified ``material.*`` values of ``twin.json`` as MaterialSettings fields, the part's medium."""
+    from sim.identify.scan import PART_MEDIUM_KEYS
+    from sim.materials import TRANSLUCENT, Translucent
+
+    found = (meta.get("identified") or {}) if identified else {}
+    out = {k.split(".", 1)[1]: float(v["value"]) for k, v in found.items()
+           if k.startswith("material.") and isinstance(v, dict) and v.get("value") is not None}
+    out = {k: v for k, v in out.items() if k not in PART_MEDIUM_KEYS}      # in part_material's medium
+    part = meta.get("part_material") or {}
+    if part.get("tag") in TRANSLUCENT and isinstance(part.get("medium"), dict):
+        try:
+            out["translucent"] = {**TRANSLUCENT, part["tag"]: Translucent(**part["medium"])}
+        except (TypeError, ValueError) as exc:
+            raise ScheimpflugError(f"{TWIN_FILE}: part_material's medium {part['medium']!r}: {exc}") from None
+    return out

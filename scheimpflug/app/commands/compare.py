@@ -120,41 +120,25 @@ def _run(args: argparse.Namespace) -> int:
         return _compare(args, real, twin, twin_regions, t0, quiet)
 
 
-def _colour_files(folder: Path) -> list | None:
-    """The frame entries of a folder whose frames are colour files (a twin written as its camera writes), else None."""
-    import cv2
-
-    try:
-        entries = json.loads((folder / "manifest.json").read_text("utf-8"))["frames"]
-        img = cv2.imread(str(folder / entries[0]["file"]), cv2.IMREAD_UNCHANGED)
-    except (OSError, ValueError, KeyError, IndexError, TypeError):
-        return None                       # open_frames says what is wrong with the folder
-    return entries if img is not None and img.ndim == 3 else None
-
-
 def _as_imported(twin_path: Path, real, out: Path, args):
     """The twin's frame folder, its frames imported as the real ones were when its camera wrote colour files.
 
     A twin rendered with a camera chain writes RGB JPEG or PNG files, as the real camera; the
     real frames went through ``scheimpflug import`` (one channel, the stripe's direction): the
-    twin's go through the same import here — the real folder's ``channel`` and ``stripe_along``,
-    the twin's angles — so both are read by one path.  Grey frame folders are used as they are.
+    twin's go through the same import here (:func:`scheimpflug.io.twin_frames.grey_twin_frames`:
+    the real folder's ``channel``, its ``stripe_along`` as known — not detected, never refused —
+    and the twin's angles), so both are read by one path.  Grey frame folders are used as they are.
     """
     from scheimpflug.app.progress import Progress
-    from scheimpflug.io.frames import open_frame_folder
-    from scheimpflug.io.importer import frames_with_angles, import_frames
+    from scheimpflug.io.twin_frames import colour_frame_entries, grey_twin_frames
 
-    entries = _colour_files(twin_path)
-    if entries is None:
+    if colour_frame_entries(twin_path) is None:
         return open_frames(twin_path, args)
-    if any(e.get("angle_deg") is None for e in entries):
-        raise ScheimpflugError(f"{str(twin_path)!r}: a frame without angle_deg: not a rotary render to pair by angle")
     manifest = json.loads((Path(real.path) / "manifest.json").read_text("utf-8"))
-    frames = frames_with_angles([twin_path / e["file"] for e in entries], [e["angle_deg"] for e in entries])
-    with Progress(len(frames), label="compare: import the twin's frames", quiet=args.quiet or False) as bar:
-        import_frames(frames, out, channel=manifest.get("channel") or "r", stripe_along=real.stripe_along,
-                      progress=bar)
-    return open_frame_folder(out)
+    with Progress(0, label="compare: import the twin's frames", quiet=args.quiet or False) as bar:
+        folder = grey_twin_frames(twin_path, out, channel=manifest.get("channel"), stripe_along=real.stripe_along,
+                                  progress=bar)
+    return open_frames(folder, args)
 
 
 def _compare(args, real, twin, twin_regions, t0: float, quiet: bool) -> int:
@@ -170,14 +154,15 @@ def _compare(args, real, twin, twin_regions, t0: float, quiet: bool) -> int:
                       f"are not compared: {shown}", stacklevel=1)
     regions, source = _regions(args, real, twin_regions, calibration, quiet)
     with Progress(0, label="compare frames", quiet=quiet) as bar:
-        comp = compare_folders(real, twin, regions, pairs, detector=args.detector, progress=bar)
+        comp = compare_folders(real, twin, regions, pairs, detector=args.detector, progress=bar,
+                               wall_detectors=METHODS if calibration is not None else ())
     result = comp.result
     result.update({"pairs": [[int(r), int(t), float(a)] for r, t, a in zip(pairs.real, pairs.twin,
                                                                               pairs.angles_deg)],
                    "unmatched_real": [int(i) for i in pairs.unmatched_real], "regions_source": source,
                    "regions_px": {k: [float(v[0]), float(v[1])] for k, v in regions.items()},
                    "real": str(real.path), "twin": str(twin.path)})
-    result.update(_detectors(real, twin, pairs, comp, calibration, quiet))
+    result.update(_detectors(pairs, comp, calibration))
     if args.report:
         result["report"] = _write_report(args.report, real, twin, pairs, comp, args.force)
     result["seconds"] = time.perf_counter() - t0
@@ -188,21 +173,18 @@ def _compare(args, real, twin, twin_regions, t0: float, quiet: bool) -> int:
     return 0
 
 
-def _detectors(real, twin, pairs, comp, calibration, quiet: bool) -> dict:
-    from scheimpflug.app.progress import Progress
-    from scheimpflug.compare.detectors import BOOTSTRAP_DRAWS, BOOTSTRAP_SEED, WALLS, detector_figures, wall_points
+def _detectors(pairs, comp, calibration) -> dict:
+    """The detectors' block from the walls' points the frame pass collected (every detector, each frame read once)."""
+    from scheimpflug.compare.detectors import BOOTSTRAP_DRAWS, BOOTSTRAP_SEED, WALLS, detector_figures
 
-    walls = {w: comp.real.lines[w] for w in WALLS if w in comp.real.lines}
+    walls = [w for w in WALLS if w in comp.real.lines]
     if calibration is None:
         return {"detectors": {}, "detectors_note": "skipped: no --calibration (the walls' figures are in the "
                                                     "sheet's millimetres)"}
     if not walls:
         return {"detectors": {}, "detectors_note": "skipped: no wall region (wall_left, wall_right)"}
     n = len(pairs)
-    with Progress(0, label="compare detectors", quiet=quiet) as bar:
-        rp = wall_points(real, pairs.real, walls, METHODS, progress=lambda d, t: bar(d, 2 * n))
-        tp = wall_points(twin, pairs.twin, walls, METHODS, progress=lambda d, t: bar(n + d, 2 * n))
-    return {"detectors": detector_figures(rp, tp, calibration, n),
+    return {"detectors": detector_figures(comp.real.wall_points, comp.twin.wall_points, calibration, n),
             "detectors_note": f"walls {', '.join(walls)}; twin_lo90/hi90: percentile bootstrap over the twin's "
                               f"{n} frames ({BOOTSTRAP_DRAWS} draws, seed {BOOTSTRAP_SEED})"}
 

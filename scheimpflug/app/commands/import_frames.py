@@ -32,7 +32,8 @@ def add_parser(sub):
                                    "positions or rotary angles (a CSV, the file names, or --angles-deg), or as "
                                    "a pattern set (--scenario target); laser-off backgrounds are subtracted. "
                                    "Truncated, multi-page and mixed colour/grey files are refused; the stripe's "
-                                   "direction is found in the frames. A rig file is optional.")
+                                   "direction is found in the frames (or given, and checked; or known: "
+                                   "--stripe-known). A rig file is optional.")
     p.add_argument("frames", nargs="+", metavar="FRAMES",
                    help="frame files, or folders (their .png/.tif/.tiff/.jpg files in natural order: frame2 "
                         "before frame10)")
@@ -60,6 +61,9 @@ def add_parser(sub):
                    help="which way the laser stripe runs in the frames: columns (down the image: one point "
                         "per row) or rows (across it: one point per column); auto (default) finds it in the "
                         "frames that show the laser, and a direction the frames contradict is refused")
+    p.add_argument("--stripe-known", action="store_true",
+                   help="with --stripe-along columns|rows: the direction is known (e.g. a twin's frames of the "
+                        "real camera): not looked for in the frames, never refused or warned of")
     p.add_argument("--exif-orientation", choices=("stored", "apply"), default="stored",
                    help="frames whose EXIF orientation tag asks viewers to turn them: imported as stored "
                         "(default, with a warning; a calibration of the stored frames needs them so) or turned "
@@ -191,7 +195,8 @@ def _run(args) -> int:
         out = import_frames(frames, args.out, rig=rig, adc_bits=args.adc_bits, scenario=args.scenario,
                             scenario_params=params, msb_aligned=args.msb_aligned, channel=args.channel,
                             backgrounds=_backgrounds(args, files), stripe_along=args.stripe_along,
-                            exif_orientation=args.exif_orientation, room_light=args.room_light, progress=bar)
+                            stripe_known=args.stripe_known, exif_orientation=args.exif_orientation,
+                            room_light=args.room_light, progress=bar)
     bar.close()
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
@@ -244,6 +249,8 @@ def _stripe_text(s: dict) -> str:
     along, d = s["stripe_along"], s["stripe_detection"] or {}
     way = {"columns": "down the image, one point per row", "rows": "across the image, one point per column"}
     head = f"stripe_along {along} ({way[along]})"
+    if d.get("known"):
+        return head + ", known (not looked for in the frames)"
     if not d.get("examined"):
         return head + ", as given" if d.get("given") not in (None, "auto") else head + ": no laser frames to examine"
     seen = f"{d.get(along, 0)} of the {d['examined']} frame(s) that show the laser"

@@ -48,7 +48,7 @@ _APPLIES = {
     "steps": ("calibration",), "step_mm": ("calibration",), "start_mm": ("calibration",),
     "plate_height_mm": ("calibration",), "part": ("rotary",), "step_deg": ("rotary", "target"),
     "axis_mm": ("blocker", "rotary"), "frames": ("blocker", "rotary"), "housing": ("rotary",),
-    "angles_deg": ("rotary",), "twin": ("rotary",),
+    "angles_deg": ("rotary",), "twin": ("rotary",), "part_material": ("rotary",),
     "blocker_thickness_mm": ("blocker",), "room_light": ("target",),
     "pose_from": ("target",), "pose_calibration": ("target",), "pose_channel": ("target",),
     **{k: ("target",) for k in TARGET_OPTIONS},
@@ -92,6 +92,11 @@ def add_parser(sub):
                    help="plate height [mm] (default: the rig's [stage] calibration_plate_height_mm)")
     g = p.add_argument_group("blocker and rotary")
     g.add_argument("--part", help="rotary: part name or mesh file (default cylinder)")
+    g.add_argument("--part-material", metavar="TAG",
+                   help="rotary: the part's material tag (metal, knurled-metal, cardboard, tape, paper, "
+                        "white-plastic, marble) for a mesh file or every part of a preset (default: the "
+                        "part's own, metal for a mesh; with --twin the twin's); a translucent tag scatters "
+                        "inside with --subsurface or the rig's [twin] subsurface")
     g.add_argument("--step-deg", type=number(0, 360, lo_open=True, unit="deg"),
                    help="rotary: angle step [deg] (default 0.5)")
     g.add_argument("--axis-mm", type=number(-1e6, 1e6, unit="mm"),
@@ -108,7 +113,8 @@ def add_parser(sub):
                         "with --twin the real scan's angles")
     g.add_argument("--twin", metavar="TWIN_DIR",
                    help="rotary: render a twin built by 'twin build' (its rig — the identified one when "
-                        "there is one —, part.ply and housing.toml); not with --rig, --preset, --part, --housing")
+                        "there is one —, part.ply, its material and medium, and housing.toml); not with --rig, "
+                        "--preset, --part, --housing")
     g.add_argument("--blocker-thickness-mm", type=number(0, 100, lo_open=True, hi_open=True, unit="mm"),
                    help="blocker thickness [mm] (default 2)")
     add_target_options(p)
@@ -162,7 +168,7 @@ def _angles(text: str) -> list[float]:
 
 
 def _apply_twin(args) -> None:
-    """``--twin``: the twin folder's rig, part and housing as the options, its scan's angles by default."""
+    """``--twin``: the twin folder's rig, part, part material and housing as the options, its scan's angles."""
     if not args.twin:
         return
     given = [flag for flag, v in (("--rig", args.rig), ("--preset", args.preset), ("--part", args.part),
@@ -175,6 +181,8 @@ def _apply_twin(args) -> None:
     args.rig, args.part = str(twin.rig), str(twin.part)
     args.housing = str(twin.housing) if twin.housing else None
     args.twin_materials = twin.materials or None
+    if args.part_material is None:
+        args.part_material = twin.part_material
     if args.angles_deg is None and args.step_deg is None:
         args.angles_deg = twin.angles_deg or None
 
@@ -203,7 +211,7 @@ def _scenario_options(args) -> dict:
                                    f"{'s' if len(scen) > 1 else ''} only, not {args.scenario!r}")
     names = {"calibration": ("steps", "step_mm", "start_mm", "plate_height_mm"),
              "blocker": ("frames", *_BACKGROUND),
-             "rotary": ("part", "step_deg", "frames", "housing", "angles_deg", *_BACKGROUND),
+             "rotary": ("part", "part_material", "step_deg", "frames", "housing", "angles_deg", *_BACKGROUND),
              "target": ()}[args.scenario]
     opts = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
     if args.scenario == "target":
@@ -321,7 +329,7 @@ def _run(args) -> int:
     if materials:
         from sim.materials import MaterialSettings
 
-        materials = MaterialSettings(**materials)          # the twin's identified albedo and roughness
+        materials = MaterialSettings(**materials)          # the twin's identified albedo, roughness, part medium
     with Progress(0, label=f"render {args.scenario}", quiet=args.quiet) as bar:
         stats, manifest = render_folder(rig, args.scenario, args.out, seed=args.seed, spp=args.spp,
                                         progress=bar, warn=warn, workers=workers, materials=materials or None,

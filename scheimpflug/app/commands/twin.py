@@ -42,6 +42,14 @@ def add_parser(sub):
     b.add_argument("--held-frames", default="odd", metavar="even|odd|I,J,...",
                    help="frames it holds out (default odd)")
     b.add_argument("--runs", type=int, default=None, metavar="N", help="design runs of the identification")
+    b.add_argument("--part-material", default="white-plastic", metavar="TAG",
+                   help="the part's material tag (default white-plastic: a translucent medium whose "
+                        "scattering coefficient and diffusion length the identification fits; metal: an opaque "
+                        "rough metal, its roughness fitted; any tag of render --part-material, not the table's "
+                        "or housing's)")
+    b.add_argument("--inference", default="hand+hand", metavar="SURROGATE+SAMPLER",
+                   help="the identification's inference backend: surrogate hand|sklearn, sampler hand|emcee "
+                        "(default hand+hand; benchmarks/inference_backends.py compares them)")
     b.add_argument("--no-identify", action="store_true", help="leave the identification out (recorded 'not run')")
     b.add_argument("--quiet", action="store_true", help="no progress display")
     b.add_argument("--json", action="store_true", help="print twin.json as one JSON object")
@@ -62,7 +70,7 @@ def _run_build(args) -> int:
         raise ScheimpflugError(f"--runs {args.runs}: must be an integer >= 1")
     opts = BuildOptions(preset=args.preset, chain=args.chain, fabscan_distortion=args.fabscan_distortion,
                         fit_frames=args.fit_frames, held_frames=args.held_frames, identify=not args.no_identify,
-                        runs=args.runs)
+                        runs=args.runs, part_material=args.part_material, inference=args.inference)
 
     @contextlib.contextmanager
     def bar(label):
