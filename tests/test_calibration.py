@@ -123,6 +123,10 @@ def test_paper_processing_measures_in_whole_pixels(paper_folder, capsys):
                  "--quiet"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["F2_sigma_px_mm"] == pytest.approx(res.paper.F2_sigma_px_mm)
+    # whole pixels cannot determine the general model: not fitted, said, and refused when asked for
+    assert "whole-pixel stripe positions cannot determine the general model" in json.dumps(d)
+    assert main(["calibrate", str(path), "--detector", "paper", "--model", "general", "--quiet"]) != 0
+    assert "--model general: the paper detector's whole-pixel" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

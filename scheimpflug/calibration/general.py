@@ -942,7 +942,9 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     ------
     CalibrationError
         Unknown model, frames without ``stage_mm``, too few usable frames; with
-        ``model="general"``, intrinsics inconsistent with the calibration.
+        ``model="general"``, intrinsics inconsistent with the calibration or ``detector="paper"``
+        (whole pixels: the general model is not fitted, the paper form is chosen, and the
+        selection's reason says why).
     """
     if model not in ("paper", "general", "auto"):
         raise CalibrationError(f"unknown calibration model {model!r} (paper, general, auto)")
@@ -966,6 +968,16 @@ def calibrate_sheet_folder(folder: str | Path | FrameFolder, plate_height_mm: fl
     f, p, source = _rig_optics(ff, focal_length_mm, pixel_pitch_um)
     left_out = {name for name, _ in paper.skipped}        # e.g. a frame at a wrong stage position
     ms = [m for m in ms if m.file not in left_out]
+    if detector == "paper":
+        # whole-pixel positions (±½ px) hide the general model's sub-pixel bending: its fit does not
+        # converge (the paper rig's plate set: 2 200 evaluations, the distortion centre thousands of px off)
+        why = ("the paper detector's whole-pixel stripe positions cannot determine the general model "
+               "(its distortion bends the lines by less than their ½-px quantisation)")
+        if model == "general":
+            raise CalibrationError(f"--model general: {why}; use a sub-pixel detector")
+        sel = ModelSelection("paper", math.nan, 1.0, math.nan, math.nan, (0, 0), alpha, min_rss_drop,
+                             f"paper: {why}")
+        return SheetModelResult(paper.best, None, paper, None, None, sel, tuple(ms), tuple(skipped))
     try:
         pfit, gfit, general, sel = fit_sheet_models(ms, paper, focal_length_mm=f, pixel_pitch_um=p,
                                                     fit_k2=fit_k2,
