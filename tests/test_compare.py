@@ -376,18 +376,24 @@ def test_real_fabscan_frames_against_themselves(tmp_path, capsys):
             assert v[fig]["twin_lo90"] <= v[fig]["twin_hi90"], (det, fig)
 
 
+def _imported_real(path, angles):
+    """A real folder as ``import`` writes it: 8-bit grey frames of the red channel (no noise, peak 180 DN)."""
+    real = _folder(path, angles, seed=1, peak=180.0, bg=5.0, noise=0.0, clip=255)
+    m = json.loads((real / "manifest.json").read_text())
+    m.update(adc_bits=8, channel="r", source="scheimpflug import")
+    (real / "manifest.json").write_text(json.dumps(m))
+    for f in sorted(glob.glob(str(real / "frames" / "*.png"))):
+        assert cv2.imwrite(f, cv2.imread(f, cv2.IMREAD_UNCHANGED).astype(np.uint8))
+    return real
+
+
 def test_a_twin_written_as_its_camera_writes_is_imported_like_the_real_frames(tmp_path, capsys):
     """The twin's frames as RGB JPEG (the red channel the stripe, green and blue a tenth of it), the real
     ones an imported grey folder (``channel`` r): compare imports the twin's with the real folder's
     channel and stripe direction, and finds the known shift and peak (JPEG at quality 100, 4:4:4: within
     0.05 px and 3 DN; 4:2:0 would halve the red's resolution across the stripe and lower its peak)."""
     angles = [0, 10, 20]
-    real = _folder(tmp_path / "real", angles, seed=1, peak=180.0, bg=5.0, noise=0.0, clip=255)
-    m = json.loads((real / "manifest.json").read_text())
-    m.update(adc_bits=8, channel="r", source="scheimpflug import")
-    (real / "manifest.json").write_text(json.dumps(m))
-    for f in sorted(glob.glob(str(real / "frames" / "*.png"))):
-        assert cv2.imwrite(f, cv2.imread(f, cv2.IMREAD_UNCHANGED).astype(np.uint8))
+    real = _imported_real(tmp_path / "real", angles)
     twin = tmp_path / "twin"
     (twin / "frames").mkdir(parents=True)
     rng, entries = np.random.default_rng(2), []
@@ -418,12 +424,7 @@ def test_a_twin_whose_faint_stripe_the_direction_check_refuses_is_compared(tmp_p
     from scheimpflug.io.importer import frames_with_angles, import_frames
 
     angles = [0, 10, 20]
-    real = _folder(tmp_path / "real", angles, seed=1, peak=180.0, bg=5.0, noise=0.0, clip=255)
-    m = json.loads((real / "manifest.json").read_text())
-    m.update(adc_bits=8, channel="r", source="scheimpflug import")
-    (real / "manifest.json").write_text(json.dumps(m))
-    for f in sorted(glob.glob(str(real / "frames" / "*.png"))):
-        assert cv2.imwrite(f, cv2.imread(f, cv2.IMREAD_UNCHANGED).astype(np.uint8))
+    real = _imported_real(tmp_path / "real", angles)
     twin = tmp_path / "twin"
     (twin / "frames").mkdir(parents=True)
     rng, entries = np.random.default_rng(2), []

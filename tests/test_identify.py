@@ -100,14 +100,18 @@ def test_mcmc_recovers_a_gaussian_posterior_and_names_a_flat_parameter():
     assert max(chain["rhat"]) < 1.05
 
 
-def _synthetic(uncertainty_cv: str, refine: int = 0):
-    raw = {"identify": {"seed": 3, "runs": 16, "refine": refine},
+def _synthetic(uncertainty_cv: str, refine: int = 0, measured=(1.0, 1.0), **head):
+    """The paper's cheap known answer (f/11, speckle contrast 0.6, 16 runs over two unknowns): the spec, its
+    design runs' records from closed forms; ``measured`` scales the two observed figures, ``head`` adds
+    ``[identify]`` keys."""
+    raw = {"identify": {"seed": 3, "runs": 16, "refine": refine, **head},
            "rig": {"preset": "paper"},
            "parameters": {"lens.f_number": {"range": [4.0, 32.0], "prior": "log-uniform"},
                           "laser.speckle_contrast": {"range": [0.3, 1.0]}},
            "experiment": {"binning": 8},
-           "fitted": {"stripe_peak_dn": {"measured": 16000 / 11 ** 2, "uncertainty": "5%"},
-                      "stripe_peak_cv": {"measured": math.hypot(0.1, 0.072), "uncertainty": uncertainty_cv}}}
+           "fitted": {"stripe_peak_dn": {"measured": 16000 / 11 ** 2 * measured[0], "uncertainty": "5%"},
+                      "stripe_peak_cv": {"measured": math.hypot(0.1, 0.072) * measured[1],
+                                         "uncertainty": uncertainty_cv}}}
     spec = parse_identify_spec(raw)
     rng = np.random.default_rng(4)
     recs = []

@@ -13,17 +13,15 @@ the file within seconds.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
+from test_identify import _synthetic
 
 from scheimpflug.errors import StudyError
-from sim.identify import parse_identify_spec
 from sim.identify import posterior as post
 from sim.identify.fit import DEFAULT_INFERENCE, Inference, fit_posterior, parse_inference
 from sim.identify.posterior import run_sampler, summarise
-from sim.identify.spec import Parameter, plan_design
+from sim.identify.spec import Parameter
 from sim.identify.surrogate import fit_surrogate, matern52
 
 pytest.importorskip("sklearn")
@@ -113,23 +111,8 @@ def test_sampler_recovers_a_2d_gaussian(sampler, short_chains):
 
 
 def _known_answer(**head):
-    """The paper's cheap known answer: f/11, speckle contrast 0.6, 16 runs over two unknowns."""
-    raw = {"identify": {"seed": 3, "runs": 16, **head},
-           "rig": {"preset": "paper"},
-           "parameters": {"lens.f_number": {"range": [4.0, 32.0], "prior": "log-uniform"},
-                          "laser.speckle_contrast": {"range": [0.3, 1.0]}},
-           "experiment": {"binning": 8},
-           "fitted": {"stripe_peak_dn": {"measured": 16000 / 11 ** 2 * 1.01, "uncertainty": "5%"},
-                      "stripe_peak_cv": {"measured": math.hypot(0.1, 0.072) * 0.97, "uncertainty": "5%"}}}
-    spec = parse_identify_spec(raw)
-    rng = np.random.default_rng(4)
-    recs = []
-    for p in plan_design(spec):
-        n, c = p.values["lens.f_number"], p.values["laser.speckle_contrast"]
-        recs.append({"run": p.index, "unit": list(p.unit), "reasons": {},
-                     "figures": {"stripe_peak_dn": 16000 / n ** 2 * (1 + 0.002 * rng.standard_normal()),
-                                 "stripe_peak_cv": math.hypot(0.1, 0.12 * c) * (1 + 0.03 * rng.standard_normal())}})
-    return spec, recs
+    """The paper's cheap known answer (``tests/test_identify.py``'s), its observations 1 % and 3 % off the truth."""
+    return _synthetic("5%", measured=(1.01, 0.97), **head)
 
 
 @pytest.mark.parametrize("backend", ["sklearn+hand", "hand+emcee", "sklearn+emcee"])

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -123,26 +122,6 @@ def _median(v: np.ndarray) -> float:
     return float(np.median(v)) if len(v) else math.nan
 
 
-@contextmanager
-def _one_kernel_thread():
-    """The stripe kernel on one thread meanwhile (numba's count restored after; the results are the same).
-
-    Each extraction is a parallel loop over a frame's lines of a few milliseconds, run ≈ 22 times per
-    frame (five detectors, each fitting its window in 4–5 passes): on two busy cores its threads
-    cost more than they gain — ``compare`` of scan-2_1's 100 odd pairs took 187 s wall (96 s CPU)
-    with two threads and 64 s (31 s CPU) with one, at load ≈ 9 (as :mod:`sim.transport` found for
-    its table kernel).  Each line's result is its own: the same with any thread count.
-    """
-    import numba
-
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
-
-
 def compare_folders(real, twin, regions: dict, pairs: FramePairs, *, detector: str = "cog",
                     progress: ProgressCallback | None = None, wall_detectors=()) -> Comparison:
     """Measure the paired frames of both folders and build the comparison's object (no detectors' block).
@@ -184,9 +163,8 @@ def compare_folders(real, twin, regions: dict, pairs: FramePairs, *, detector: s
     half = (lambda done, total: progress(done, 2 * n)) if progress else None  # noqa: E731
     rest = (lambda done, total: progress(n + done, 2 * n)) if progress else None  # noqa: E731
     walls = {"walls": WALLS, "wall_detectors": tuple(wall_detectors)}
-    with _one_kernel_thread():
-        rm = measure_folder(real, regions, frames=pairs.real, detector=detector, progress=half, **walls)
-        tm = measure_folder(twin, regions, frames=pairs.twin, detector=detector, progress=rest, **walls)
+    rm = measure_folder(real, regions, frames=pairs.real, detector=detector, progress=half, **walls)
+    tm = measure_folder(twin, regions, frames=pairs.twin, detector=detector, progress=rest, **walls)
     diffs = position_differences(rm, tm)
     out_regions = {}
     for r in (name for name in REGION_NAMES if name in rm.figures):

@@ -484,6 +484,14 @@ def _run_steps(meta, twin_dir, scan_dir, scan, calibration, shas, progress_facto
     _identify(meta, twin_dir, scan_dir, scan, progress_factory, say, warn)
 
 
+def _inference_key(name: str) -> dict:
+    """The backend among the identification's inputs when it is not the default (earlier folders resume)."""
+    from sim.identify.fit import DEFAULT_INFERENCE, parse_inference
+
+    got = parse_inference(name)
+    return {} if got == DEFAULT_INFERENCE else {"inference": f"{got.surrogate}+{got.sampler}"}
+
+
 def _check_inference(name: str) -> None:
     """An unknown inference backend refused before anything is made (ScheimpflugError)."""
     from sim.identify.fit import parse_inference
@@ -532,7 +540,7 @@ def _identify(meta, twin_dir, scan_dir, scan, progress_factory, say, warn) -> No
     files = [RIG_FILE, PART_FILE] + ([HOUSING_FILE] if meta["files"]["housing"] else [])
     key = _key({"files": {f: _sha(twin_dir / f) for f in files}, "scan": meta["source"]["scan_manifest_sha256"],
                 "regions": meta["regions"], "fit": o.fit_frames, "held": o.held_frames, "runs": o.runs,
-                "part_material": o.part_material, **({} if o.inference == "hand+hand" else {"inference": o.inference})})
+                "part_material": o.part_material, **_inference_key(o.inference)})
     old = (meta.get("steps") or {}).get("identify") or {}
     if o.identify and old.get("key") not in (None, key) and (twin_dir / IDENTIFY_DIR).is_dir():
         import shutil
