@@ -282,15 +282,21 @@ class _Pool:
             p.join(10)
 
 
+def _died_error(pool: _Pool, inflight) -> RenderError:
+    """The error for a worker process that ended while ``inflight`` frames were being rendered."""
+    time.sleep(0.1)     # let the dead process's exit code arrive
+    indices = sorted(f.index for f in inflight)
+    when = f"while frames {index_ranges(indices)} were in flight" if indices else "between frames"
+    return RenderError(f"a render worker process ended unexpectedly ({pool._exit_codes()}: killed, "
+                       f"or out of memory?) {when}; the frames already written are complete: "
+                       "rerun to resume")
+
+
 def _frame_error(exc: BaseException, frame, pool: _Pool, inflight) -> Exception:
     """One error for a frame that failed in a worker (or whose worker died)."""
     where = f"frame {frame.index} ({describe_frame(frame)})"
     if isinstance(exc, BrokenProcessPool):
-        time.sleep(0.1)     # let the dead process's exit code arrive
-        frames = index_ranges([frame.index, *(f.index for f in inflight)])
-        return RenderError(f"a render worker process ended unexpectedly ({pool._exit_codes()}: killed, "
-                           f"or out of memory?) while frames {frames} were in flight; the frames "
-                           "already written are complete: rerun to resume")
+        return _died_error(pool, [frame, *inflight])
     if isinstance(exc, ScheimpflugError):
         try:
             return type(exc)(f"{where}: {exc}")
@@ -333,8 +339,12 @@ def _pool_loop(pool: _Pool, out: Path, warn, todo, stats, bar, ledger) -> None:
 
     def hand_out() -> None:
         frame = next(frames, None)
-        if frame is not None:
+        if frame is None:
+            return
+        try:
             inflight[pool.executor.submit(_frame_task, frame.index)] = frame
+        except BrokenProcessPool:    # a worker died after the last result came back
+            raise _died_error(pool, inflight.values()) from None
 
     for _ in range(IN_FLIGHT_PER_WORKER * pool.workers):
         hand_out()

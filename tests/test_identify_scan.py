@@ -199,3 +199,26 @@ def test_bad_input_is_one_clear_error_and_nothing_written(tmp_path, paper_rig, c
     with pytest.raises(StudyError, match=words):
         identify_scan(twin, real, regions, fit_frames=fit, held_frames=held, out=tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def _die(plan, out):
+    """A run whose worker process ends abruptly (as the kernel's OOM killer ends it)."""
+    import os
+
+    os._exit(9)
+
+
+def test_a_dying_run_worker_is_one_clear_error(tmp_path, monkeypatch):
+    """A worker killed mid-batch (memory) gives the scan identification's error, not the pool's."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from types import SimpleNamespace
+
+    from sim.identify import scan
+
+    monkeypatch.setattr(scan, "_worker_run", _die)
+    monkeypatch.setattr(scan, "_run_pool", lambda s, workers: ProcessPoolExecutor(
+        1, mp_context=multiprocessing.get_context("spawn")))
+    plans = [SimpleNamespace(index=k) for k in range(2)]
+    with pytest.raises(StudyError, match=r"worker process ended unexpectedly .*rerun to resume"):
+        scan._runs(plans, None, tmp_path, scan._Counter(None, 2, workers=1))

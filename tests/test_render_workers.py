@@ -9,7 +9,10 @@ the same files.
 
 import hashlib
 import os
+from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,8 +22,8 @@ from scheimpflug.errors import RenderError
 from scheimpflug.io.folder import FileLedger
 from scheimpflug.model.binning import binned_rig
 from scheimpflug.model.rig import load_preset
-from sim.workers import RenderJob, render_with_workers
-from sim.writer import render_folder
+from sim.workers import RenderJob, _FrameResult, _pool_loop, render_with_workers
+from sim.writer import RenderStats, render_folder
 
 FAIL_AT = 4
 
@@ -99,6 +102,56 @@ def test_a_failing_worker_names_the_frame_and_the_run_resumes(tmp_path, factory,
     assert stats.frames_skipped == len(written)
     render_with_workers(_job(), tmp_path / "clean", 1, warn=lambda m: None)
     assert _files(out) == _files(tmp_path / "clean")  # exact: resume
+
+
+class _BreakingExecutor:
+    """Hands out finished frames, then breaks as a pool whose worker died between two results."""
+
+    def __init__(self, good: int):
+        self.good = good
+
+    def submit(self, fn, index):
+        if self.good == 0:
+            raise BrokenProcessPool("A child process terminated abruptly")
+        self.good -= 1
+        fut = Future()
+        fut.set_result(_FrameResult(index, b"npz", b"png", {}, False, []))
+        return fut
+
+
+class _BreakingPool:
+    workers = 1
+
+    def __init__(self, good: int):
+        self.executor = _BreakingExecutor(good)
+
+    def _exit_codes(self) -> str:
+        return "exit code 9"
+
+
+class _Ledger:
+    def __init__(self):
+        self.recorded = []
+
+    def record(self, index, names):
+        self.recorded.append(index)
+
+
+class _Bar:
+    def update(self):
+        pass
+
+
+def test_a_worker_dying_between_results_is_the_same_error(tmp_path):
+    """The pool can break while the main process writes a result: the next hand-out says so (CI saw it)."""
+    for sub in ("frames", "truth"):
+        (tmp_path / sub).mkdir()
+    frames = [SimpleNamespace(index=i) for i in range(6)]
+    ledger = _Ledger()
+    with pytest.raises(RenderError, match=r"ended unexpectedly \(exit code 9\b.*while frames 1 were in flight"):
+        _pool_loop(_BreakingPool(2), tmp_path, lambda m: None, frames, RenderStats(), _Bar(), ledger)
+    assert ledger.recorded == [0]      # frame 0 written whole before the error
+    assert (tmp_path / "frames" / "00000.png").read_bytes() == b"png"
 
 
 @pytest.mark.parametrize("realistic", [False, True], ids=["ideal", "realistic"])

@@ -986,6 +986,7 @@ def _runs(plans: list, scan: _Scan, out: Path, count: _Counter) -> list[dict]:
     pool (a worker's memory grows run by run; the pool's own ``max_tasks_per_child`` hung on Python 3.11).
     """
     from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     records: list = [None] * len(plans)
     todo = []
@@ -1004,6 +1005,10 @@ def _runs(plans: list, scan: _Scan, out: Path, count: _Counter) -> list[dict]:
             for fut in as_completed(futures):
                 records[futures[fut]] = fut.result()
                 count.step()
+        except BrokenProcessPool:
+            raise _fail(f"a run's worker process ended unexpectedly (killed, or out of memory? each needs "
+                        f"about {WORKER_BYTES / 1e9:.0f} GB) with runs of this batch unfinished; the runs "
+                        "already done are kept: rerun to resume") from None
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
     return records
