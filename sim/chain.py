@@ -17,6 +17,8 @@ Order (each step its own module; the keys are the rig's ``[chain]`` table,
    g the sensor's conversion gain (:func:`sim.sensor.conversion_gain_e_per_dn`);
 6. the camera's processing: demosaicing of the raw codes (:mod:`sim.mosaic`), then
    black level, tone curve, pedestal and 8 bits by one lookup table (:mod:`sim.tone`);
+   with ``sharpen_amount`` > 0 the levels are sharpened (an unsharp mask on the
+   luminance, :mod:`sim.sharpen`) before the rounding to 8 bits;
 7. the file: RGB JPEG at the chain's quality and subsampling, or 8-bit RGB PNG
    (:mod:`sim.jpeg`).
 
@@ -40,7 +42,8 @@ from .glare import apply_glare
 from .jpeg import encode_jpeg, encode_png8
 from .mosaic import channel_factors, demosaic
 from .sensor import SensorModel, poisson_counts, read_out
-from .tone import output_lut
+from .sharpen import unsharp_mask
+from .tone import output_levels, output_lut
 
 __all__ = ["ChainModel", "apply_chain", "encode_frame", "expected_charge", "frame_suffix", "process_raw",
            "raw_frame"]
@@ -186,13 +189,17 @@ def process_raw(raw, model: ChainModel) -> np.ndarray:
     Returns
     -------
     (rows, columns, 3) uint8
-        R, G, B [DN]: demosaiced raw codes through the black level, tone curve and pedestal.
+        R, G, B [DN]: demosaiced raw codes through the black level, tone curve and pedestal
+        (and the sharpening).
     """
     c, s = model.chain, model.sensor
     table = tone_table_points(c.tone_table) if c.tone_curve == "table" else ()
-    lut = output_lut(s.adc_bits, float(s.dark_offset_dn), float(c.black_level_dn), c.tone_curve, float(c.gamma),
-                     table)
-    return lut[demosaic(raw, c.bayer_pattern, c.demosaic)]
+    tone = (s.adc_bits, float(s.dark_offset_dn), float(c.black_level_dn), c.tone_curve, float(c.gamma), table)
+    if c.sharpen_amount <= 0:
+        return output_lut(*tone)[demosaic(raw, c.bayer_pattern, c.demosaic)]
+    levels = output_levels(*tone)[demosaic(raw, c.bayer_pattern, c.demosaic)]
+    sharp = unsharp_mask(levels, float(c.sharpen_amount), float(c.sharpen_sigma_px))
+    return np.clip(np.rint(sharp), 0, 255).astype(np.uint8)
 
 
 def apply_chain(laser_e, other_e, model: ChainModel, rng: np.random.Generator | None = None,

@@ -24,7 +24,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["output_lut", "tone_curve"]
+__all__ = ["output_levels", "output_lut", "tone_curve"]
 
 
 def tone_curve(x, curve: str, gamma: float = 1.0, table: tuple = ()) -> np.ndarray:
@@ -65,6 +65,29 @@ def tone_curve(x, curve: str, gamma: float = 1.0, table: tuple = ()) -> np.ndarr
             raise ValueError("the table tone curve needs its points (xs, ys)")
         return np.interp(v, table[0], table[1])
     raise ValueError(f"unknown tone curve {curve!r} (gamma, srgb, bt709, table)")
+
+
+@functools.lru_cache(maxsize=8)
+def output_levels(adc_bits: int, black_dn: float, pedestal_dn: float, curve: str, gamma: float,
+                  table: tuple = ()) -> np.ndarray:
+    """The output level of every raw code before rounding to 8 bits (what a camera sharpens).
+
+    Parameters
+    ----------
+    adc_bits, black_dn, pedestal_dn, curve, gamma, table
+        As :func:`output_lut`.
+
+    Returns
+    -------
+    (2**adc_bits,) float32
+        p + (255 − p)·T(clip((D − b)/(2^adc_bits − 1 − b), 0, 1)) for D = 0 … 2^adc_bits − 1
+        (read-only, cached) [DN].
+    """
+    full = (1 << adc_bits) - 1
+    x = (np.arange(full + 1, dtype=np.float64) - black_dn) / (full - black_dn)
+    levels = (pedestal_dn + (255.0 - pedestal_dn) * tone_curve(x, curve, gamma, table)).astype(np.float32)
+    levels.flags.writeable = False
+    return levels
 
 
 @functools.lru_cache(maxsize=8)

@@ -294,3 +294,18 @@ def test_a_box_housing_stands_still_and_is_lit_around_the_part(tmp_path, variant
     img = read_png(out / "frames" / "00000.png").astype(float)
     rows = np.nonzero(both)[0]
     assert np.median(img[rows, np.round(z[0]["stripe_u"][rows]).astype(int)]) > 2 * np.median(img)
+
+
+def test_the_corner_models_derivatives_are_its_finite_differences():
+    """The blurred-corner fit's analytic Jacobian (Kaufman's variable projection) against central differences."""
+    from scheimpflug.calibration.measure import _saddle_terms
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-6, 6, (300, 2)) + [40.0, 30.0]
+    for p in (np.array([40.3, 29.6, 0.3, 1.9, 1.7]), np.array([39.8, 30.2, -0.4, 1.2, -0.9])):
+        _, jac = _saddle_terms(xy, p)
+        for k in range(5):
+            h = np.zeros(5)
+            h[k] = 1e-6
+            fd = (_saddle_terms(xy, p + h)[0] - _saddle_terms(xy, p - h)[0]) / 2e-6
+            np.testing.assert_allclose(jac[:, k], fd, atol=1e-6, rtol=1e-5)

@@ -190,3 +190,32 @@ def test_import_of_tiff_frames_gives_the_same_calibration(twins, tmp_path, capsy
         res.append(json.loads(capsys.readouterr().out))
     for key in ("hinge_px", "F2_px_mm", "d0_mm", "C_mm", "C_sigma_mm", "endpoint_fit_r2"):
         assert res[0][key] == res[1][key], key
+
+
+def test_a_fit_at_its_evaluation_limit_is_not_used():
+    """Least squares that stops at its limit (here: a minimum at infinity) is an error, not a result."""
+    from scheimpflug.calibration.general import _solve
+    from scheimpflug.errors import CalibrationError
+
+    with pytest.raises(CalibrationError, match=r"the test fit's least squares did not converge \(400 evaluations"):
+        _solve(lambda x: np.exp(-x), np.zeros(1), "test fit")
+
+
+def test_a_general_fit_that_does_not_converge_keeps_the_paper_form(twins, monkeypatch):
+    """auto: the paper form with the reason; --model general: refused (was: used as if converged)."""
+    from scipy import optimize
+
+    from scheimpflug.calibration import general
+    from scheimpflug.errors import CalibrationError
+
+    real = optimize.least_squares
+
+    def capped(fun, x0, **kw):      # the general model's fit (10 parameters) stops after 5 evaluations
+        return real(fun, x0, **({**kw, "max_nfev": 5} if np.size(x0) >= 10 else kw))
+
+    monkeypatch.setattr(general.optimize, "least_squares", capped)
+    res = general.calibrate_sheet_folder(twins["dist"])
+    assert res.selection.chosen == "paper" and res.general is None
+    assert "general model's least squares did not converge (5 evaluations" in res.selection.reason
+    with pytest.raises(CalibrationError, match="--model general: the general model's least squares did not"):
+        general.calibrate_sheet_folder(twins["dist"], model="general")

@@ -506,10 +506,18 @@ class SheetFit:
         return np.sqrt(var_s), np.sqrt(var_h)
 
 
-def _solve(fun: Callable, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
-    """Levenberg–Marquardt on ``fun``: (x, covariance, RSS, N)."""
+def _solve(fun: Callable, x0: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """Levenberg–Marquardt on ``fun``: (x, covariance, RSS, N).
+
+    A fit that stops at its evaluation limit (or on bad input) is not used as if it had
+    converged: :class:`CalibrationError` naming ``what`` (the callers then keep the paper
+    form, or refuse ``--model general``).
+    """
     sol = optimize.least_squares(fun, x0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
                                  gtol=1e-12, max_nfev=200 * (len(x0) + 1))
+    if sol.status <= 0 or not np.all(np.isfinite(sol.fun)):
+        raise CalibrationError(f"the {what}'s least squares did not converge ({sol.nfev} evaluations; "
+                               f"{sol.message.rstrip('.')})")
     r = sol.fun
     rss = float(r @ r)
     dof = max(r.size - len(x0), 1)
@@ -528,7 +536,7 @@ def _paper_mapping(x: np.ndarray) -> Callable:
 def _fit_paper(data: _Data, start: Calibration, h_bottom: float) -> SheetFit:
     """Least squares of the paper form (u_h, v_h, F², d0, C, h_b) on the common residuals."""
     x0 = np.array([*start.constants(), h_bottom])
-    x, cov, rss, n = _solve(lambda x: _residuals(data, _paper_mapping(x), x[5]), x0)
+    x, cov, rss, n = _solve(lambda x: _residuals(data, _paper_mapping(x), x[5]), x0, "paper form")
     cal = replace(start, hinge_u_px=float(x[0]), hinge_v_px=float(x[1]), F2_px_mm=float(x[2]),
                   d0_mm=float(x[3]), C_mm=float(x[4]), method="paper-lsq")
     return SheetFit("paper", 6, n, rss, x, cov, cal, _paper_mapping)
@@ -592,7 +600,7 @@ def _fit_general(data: _Data, camera: TiltedCamera, g0: np.ndarray, h_bottom: fl
     def fun(x):
         return np.append(_residuals(data, par.mapping_of(x), h_bottom), weight * x[-1])
 
-    x, cov, rss, n = _solve(fun, np.zeros(par.n))
+    x, cov, rss, n = _solve(fun, np.zeros(par.n), "general model")
     rss -= float(weight * x[-1]) ** 2
     return SheetFit("general", par.n, n - 1, rss, x, cov, None, par.mapping_of), par
 

@@ -665,27 +665,46 @@ def _patch(img: np.ndarray, c0: np.ndarray, a: np.ndarray, white_margin: float |
     return xy[keep], img[yy.ravel()[keep], xx.ravel()[keep]]
 
 
-def _saddle_design(xy: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Columns (1, erf(d1/s)·erf(d2/s)) of the blurred-corner model at the pixels, for parameters p."""
+def _saddle_terms(xy: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The blurred-corner model's shape e = erf(d1/s)·erf(d2/s) at the pixels and its (n, 5) derivatives in p."""
     d = xy - p[:2]
-    d1 = d @ np.array([math.cos(p[2]), math.sin(p[2])])
-    d2 = d @ np.array([math.cos(p[3]), math.sin(p[3])])
+    n1, n2 = np.array([math.cos(p[2]), math.sin(p[2])]), np.array([math.cos(p[3]), math.sin(p[3])])
+    d1, d2 = d @ n1, d @ n2
     s = abs(p[4]) + 0.3
-    e = special.erf(d1 / s) * special.erf(d2 / s)
-    return np.c_[np.ones_like(e), e]
+    e1, e2 = special.erf(d1 / s), special.erf(d2 / s)
+    g1 = (2.0 / math.sqrt(math.pi)) * np.exp(-(d1 / s) ** 2) / s      # d erf(d1/s) / d d1
+    g2 = (2.0 / math.sqrt(math.pi)) * np.exp(-(d2 / s) ** 2) / s
+    t1, t2 = g1 * e2, e1 * g2
+    ds = -(t1 * d1 + t2 * d2) / s * (1.0 if p[4] >= 0 else -1.0)
+    jac = np.column_stack([-(t1 * n1[0] + t2 * n2[0]), -(t1 * n1[1] + t2 * n2[1]),
+                           t1 * (d @ np.array([-n1[1], n1[0]])), t2 * (d @ np.array([-n2[1], n2[0]])), ds])
+    return e1 * e2, jac
 
 
 def _fit_saddle(xy: np.ndarray, values: np.ndarray, c0: np.ndarray, a: np.ndarray) -> np.ndarray | None:
-    """The corner of the blurred-saddle model fitted to a patch (variable projection), or None."""
-    def residuals(p):
-        m = _saddle_design(xy, p)
-        coef, *_ = np.linalg.lstsq(m, values, rcond=None)
-        return m @ coef - values
+    """The corner of the blurred-saddle model fitted to a patch (variable projection), or None.
+
+    The levels (a, b) by linear least squares at each step; the Jacobian is Kaufman's,
+    (I − P)·b·∂e/∂p (P the projection on the levels' columns): it gives the exact gradient
+    of the projected residual, so the same minimum as finite differences, at a fifth of the
+    evaluations.
+    """
+    last: dict = {}
+
+    def solve(p):
+        if last.get("p") is None or not np.array_equal(last["p"], p):     # exact: the same point again
+            e, de = _saddle_terms(xy, p)
+            q, _ = np.linalg.qr(np.c_[np.ones_like(e), e])
+            coef, *_ = np.linalg.lstsq(np.c_[np.ones_like(e), e], values, rcond=None)
+            r = coef[0] + coef[1] * e - values
+            dm = coef[1] * de
+            last.update(p=p.copy(), r=r, jac=dm - q @ (q.T @ dm))
+        return last
 
     angles = [math.atan2(a[1, k], a[0, k]) + 0.5 * math.pi for k in (0, 1)]   # normals of the two edges
     p0 = np.array([c0[0], c0[1], angles[0], angles[1], 2.0])
-    sol = optimize.least_squares(residuals, p0, method="lm", x_scale=[1.0, 1.0, 0.05, 0.05, 1.0],
-                                 xtol=1e-10, ftol=1e-12, max_nfev=400)
+    sol = optimize.least_squares(lambda p: solve(p)["r"], p0, jac=lambda p: solve(p)["jac"], method="lm",
+                                 x_scale=[1.0, 1.0, 0.05, 0.05, 1.0], xtol=1e-10, ftol=1e-12, max_nfev=400)
     side = min(np.hypot(*a[:, 0]), np.hypot(*a[:, 1]))
     c = sol.x[:2]
     return c if sol.success and np.hypot(*(c - c0)) < 0.3 * side else None

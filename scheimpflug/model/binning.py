@@ -40,7 +40,9 @@ def binned_rig(rig: Rig, k: int) -> Rig:
     a binned pixel has k² times the area, so the exposure time is divided by k²
     — a binned pixel collects the charge an unbinned one would (the operator
     re-exposes), and frames stay as far from saturation as at full resolution;
-    full well, read noise and ADC are those of the rig's sensor table.  Keys
+    full well, read noise and ADC are those of the rig's sensor table.  The camera's
+    sharpening (``[chain] sharpen_sigma_px``, in frame pixels) is divided by k (at least
+    0.3 px, its range's floor).  Keys
     that the rule derived for ``rig`` (stage positions, exposure) are derived
     again for the binned sensor (:mod:`scheimpflug.model.plan`: its pixel
     margins are in the pixels the pipeline reads, its exposure is the one that
@@ -59,7 +61,9 @@ def binned_rig(rig: Rig, k: int) -> Rig:
         pp_u, pp_v = 0.5 * (s.columns - 1) - s.offset_u_px, 0.5 * (s.rows - 1) - s.offset_v_px
         off_u = 0.5 * (s.columns // k - 1) - (pp_u - c) / k
         off_v = 0.5 * (s.rows // k - 1) - (pp_v - c) / k
-    return rig.replace(sensor={
+    # the camera's sharpening works in the frame's pixels: its Gaussian keeps its size on the sensor
+    chain = {"sharpen_sigma_px": max(rig.chain.sharpen_sigma_px / k, 0.3)}
+    return rig.replace(chain=chain, sensor={
         "pixel_pitch_um": s.pixel_pitch_um * k, "columns": s.columns // k, "rows": s.rows // k,
         "hinge_column": (s.hinge_column - c) / k, "axis_row": (s.axis_row - c) / k,
         "offset_u_px": off_u, "offset_v_px": off_v,

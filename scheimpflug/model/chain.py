@@ -72,6 +72,7 @@ CHAIN_KEY_RANGES: dict[str, str] = {
     "gamma": "[0.1, 10]", "tone_table": '{"", "x:y, x:y, …"}', "jpeg_quality": "[1, 100]",
     "jpeg_subsampling": _choices(JPEG_SUBSAMPLINGS),
     "bloom_spill_fraction": "[0, 1]", "glare_fraction": "[0, 0.99]", "glare_scale_um": "[0.1, 1e5]",
+    "sharpen_amount": "[0, 10]", "sharpen_sigma_px": "[0.3, 100]",
 }
 """The range of every ``[chain]`` key (merged into :data:`scheimpflug.model.rig.KEY_RANGES`)."""
 
@@ -83,7 +84,7 @@ class Chain:
     Applied in this order (:mod:`sim.chain`): veiling glare on the light (laser and
     flood light alike), the colour filter array with each channel's quantum
     efficiency, shot noise, blooming, read noise, analogue gain and the ADC
-    (``[sensor]``), black-level subtraction, demosaicing, tone curve, 8 bits, file.
+    (``[sensor]``), black-level subtraction, demosaicing, tone curve, sharpening, 8 bits, file.
 
     Parameters
     ----------
@@ -143,6 +144,14 @@ class Chain:
         Scale s of that tail on the sensor, K(r) = s / (2π (s² + r²)^(3/2)), whose line
         spread is the Cauchy profile (s/π)/(s² + x²) [µm], in [0.1, 1e5]; in pixels
         s / ``[sensor] pixel_pitch_um`` (so binning keeps the lens's glare).
+    sharpen_amount : float, default 0.0
+        The camera's sharpening, an unsharp mask on the luminance after the tone curve:
+        each channel gains a·(Y − G_σ * Y) before rounding to 8 bits (:mod:`sim.sharpen`);
+        beside a bright line on a dark ground it digs a moat the clip floors at 0 [-], in
+        [0, 10]; 0 = off.
+    sharpen_sigma_px : float, default 1.0
+        Standard deviation σ of the mask's Gaussian, in the frame's own pixels (the camera's
+        processor works on the frame it writes) [px], in [0.3, 100].
     """
 
     preset: str = "none"
@@ -165,6 +174,8 @@ class Chain:
     bloom_spill_fraction: float = 0.0
     glare_fraction: float = 0.0
     glare_scale_um: float = 50.0
+    sharpen_amount: float = 0.0
+    sharpen_sigma_px: float = 1.0
 
 
 _CHOICES = {"preset": CAMERA_PRESETS, "format": CHAIN_FORMATS, "bayer_pattern": BAYER_PATTERNS,

@@ -20,7 +20,9 @@ Unknowns (:func:`default_unknowns`, each a key with a prior; ``unknowns`` replac
 * ``laser.waist_um`` (the sheet's waist), ``chain.glare_fraction`` and
   ``chain.glare_scale_um`` (the halo's energy and scale), ``chain.bloom_spill_fraction``
   (blooming), ``chain.black_level_dn`` (the camera's pedestal: a black pixel's value in its
-  files), ``laser.speckle_contrast``, ``environment.ambient_irradiance_w_m2``;
+  files), ``laser.speckle_contrast``, ``environment.ambient_irradiance_w_m2``; with
+  ``sharpening`` also ``chain.sharpen_amount`` and ``chain.sharpen_sigma_px`` (the camera's unsharp
+  mask, :mod:`sim.sharpen`: the dark moat beside a stripe on a dark ground);
 * ``material.cardboard_albedo`` (the housing boards and the table, cardboard) and the part's
   material: fields of :class:`sim.materials.MaterialSettings` (or of the part's medium), not rig
   keys — the twin's renderer takes them (``render rotary --twin`` from ``twin.json``); they are
@@ -258,7 +260,7 @@ def default_frames(n_frames: int, parity: int, count: int = DEFAULT_FRAMES) -> l
     return sorted({int(pool[min(int(p), len(pool) - 1)]) for p in pos})
 
 
-def default_unknowns(tables: dict, part_material: str = DEFAULT_PART_MATERIAL) -> dict:
+def default_unknowns(tables: dict, part_material: str = DEFAULT_PART_MATERIAL, sharpening: bool = False) -> dict:
     """The unknowns of a scan's twin and their priors (module docstring), around the rig's values.
 
     Parameters
@@ -269,6 +271,10 @@ def default_unknowns(tables: dict, part_material: str = DEFAULT_PART_MATERIAL) -
         The part's material tag: a translucent one has its medium's ``material.part_sigma_s_per_mm``
         and ``material.part_diffusion_mm`` (:data:`PART_MEDIUM_PRIORS`), ``metal`` its
         ``material.metal_alpha``, ``knurled-metal`` its ``material.knurled_alpha``.
+    sharpening : bool, default False
+        The camera's sharpening too, ``chain.sharpen_amount`` in [0, 2] and ``chain.sharpen_sigma_px``
+        in [1, 30] px, log-uniform (off by default: on FabScan's scan it made the held-out part
+        worse, ``benchmarks/RESULTS.md``).
 
     Returns
     -------
@@ -287,6 +293,8 @@ def default_unknowns(tables: dict, part_material: str = DEFAULT_PART_MATERIAL) -
                                     "prior": "log-uniform"},
            "chain.bloom_spill_fraction": {"range": [0.0, 1.0]},
            "chain.black_level_dn": {"range": [0.0, 4.0]},
+           **({"chain.sharpen_amount": {"range": [0.0, 2.0]},
+               "chain.sharpen_sigma_px": {"range": [1.0, 30.0], "prior": "log-uniform"}} if sharpening else {}),
            "laser.speckle_contrast": {"range": [0.0, 1.0]}}
     if env["ambient_irradiance_w_m2"] > 0:
         amb = env["ambient_irradiance_w_m2"]
@@ -805,7 +813,7 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
                   progress: ProgressCallback | None = None, unknowns: dict | None = None, refine: int | None = None,
                   seed: int = 0, warn: Callable[[str], None] | None = None,
                   part_material: str = DEFAULT_PART_MATERIAL, workers: int | None = None,
-                  inference: str | None = None) -> dict:
+                  inference: str | None = None, sharpening: bool = False) -> dict:
     """Identify the twin's unknowns from the real scan's frames (module docstring).
 
     Parameters
@@ -828,6 +836,8 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
         ``progress(done, total)`` after each run.
     unknowns : dict, optional
         Key → ``{"range": [lo, hi], "prior": …}`` (default :func:`default_unknowns`).
+    sharpening : bool, default False
+        With the default unknowns: the camera's sharpening among them (:func:`default_unknowns`).
     refine : int, optional
         Refinement runs (default ``max(4, runs // 2)``; 0 = none).
     seed : int
@@ -868,7 +878,7 @@ def identify_scan(twin_dir, real_folder, regions, *, fit_frames=None, held_frame
     """
     warn = warn or (lambda msg: None)
     scan = _inputs(twin_dir, real_folder, regions, fit_frames, held_frames, part_material)
-    unknowns = dict(default_unknowns(scan.tables, part_material) if unknowns is None else unknowns)
+    unknowns = dict(default_unknowns(scan.tables, part_material, sharpening) if unknowns is None else unknowns)
     try:               # a part medium's unknown with a metal part: refused
         material_settings({k[len(_MATERIAL):]: 1.0 for k in unknowns if k.startswith(_MATERIAL)}, part_material)
     except ValueError as exc:

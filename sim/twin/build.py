@@ -88,6 +88,9 @@ class BuildOptions:
     inference : str
         The identification's inference backend, ``"SURROGATE+SAMPLER"``
         (:func:`sim.identify.fit.parse_inference`; default ``hand+hand``).
+    sharpening : bool
+        Identify the camera's sharpening too (``chain.sharpen_amount``, ``chain.sharpen_sigma_px``;
+        :func:`sim.identify.scan.default_unknowns`).
     """
 
     preset: str | None = None
@@ -100,6 +103,7 @@ class BuildOptions:
     detector: str = "cog"
     part_material: str = "white-plastic"
     inference: str = "hand+hand"
+    sharpening: bool = False
 
 
 def frame_selection(text: str, n_frames: int) -> list[int] | None:
@@ -372,7 +376,8 @@ def _step_identify(twin_dir: Path, scan_dir: Path, scan: _Scan, regions: dict, p
     with progress_factory("twin build: identify") as bar:
         result = identify_scan(twin_dir, scan_dir, {k: tuple(v) for k, v in regions.items()}, fit_frames=fit,
                                held_frames=held, out=twin_dir / IDENTIFY_DIR, runs=scan.opts.runs, progress=bar,
-                               warn=warn, part_material=scan.opts.part_material, inference=scan.opts.inference)
+                               warn=warn, part_material=scan.opts.part_material, inference=scan.opts.inference,
+                               sharpening=scan.opts.sharpening)
     return {"status": "done", "result": json.loads(json.dumps(finite_json(result), default=float))}
 
 
@@ -540,7 +545,8 @@ def _identify(meta, twin_dir, scan_dir, scan, progress_factory, say, warn) -> No
     files = [RIG_FILE, PART_FILE] + ([HOUSING_FILE] if meta["files"]["housing"] else [])
     key = _key({"files": {f: _sha(twin_dir / f) for f in files}, "scan": meta["source"]["scan_manifest_sha256"],
                 "regions": meta["regions"], "fit": o.fit_frames, "held": o.held_frames, "runs": o.runs,
-                "part_material": o.part_material, **_inference_key(o.inference)})
+                "part_material": o.part_material, **_inference_key(o.inference),
+                **({"sharpening": True} if o.sharpening else {})})
     old = (meta.get("steps") or {}).get("identify") or {}
     if o.identify and old.get("key") not in (None, key) and (twin_dir / IDENTIFY_DIR).is_dir():
         import shutil

@@ -50,6 +50,9 @@ def add_parser(sub):
     b.add_argument("--inference", default="hand+hand", metavar="SURROGATE+SAMPLER",
                    help="the identification's inference backend: surrogate hand|sklearn, sampler hand|emcee "
                         "(default hand+hand; benchmarks/inference_backends.py compares them)")
+    b.add_argument("--sharpening", action="store_true",
+                   help="identify the camera's sharpening too ([chain] sharpen_amount, sharpen_sigma_px: the dark "
+                        "moat beside a stripe on a dark ground; off by default, benchmarks/RESULTS.md says why)")
     b.add_argument("--no-identify", action="store_true", help="leave the identification out (recorded 'not run')")
     b.add_argument("--quiet", action="store_true", help="no progress display")
     b.add_argument("--json", action="store_true", help="print twin.json as one JSON object")
@@ -70,7 +73,8 @@ def _run_build(args) -> int:
         raise ScheimpflugError(f"--runs {args.runs}: must be an integer >= 1")
     opts = BuildOptions(preset=args.preset, chain=args.chain, fabscan_distortion=args.fabscan_distortion,
                         fit_frames=args.fit_frames, held_frames=args.held_frames, identify=not args.no_identify,
-                        runs=args.runs, part_material=args.part_material, inference=args.inference)
+                        runs=args.runs, part_material=args.part_material, inference=args.inference,
+                        sharpening=args.sharpening)
 
     @contextlib.contextmanager
     def bar(label):
