@@ -98,6 +98,25 @@ def test_halo_fraction_of_a_wide_gaussian_wing(tmp_path):
         assert f[region]["halo_fraction"] == pytest.approx(truth, rel=0.15)
 
 
+def test_moat_of_a_sharpened_stripe_and_none_beside_a_clean_one(tmp_path):
+    """A negative wide Gaussian under the stripe (what an unsharp mask gives): its closed-form lowest level."""
+    sigma, hs, h, peak = 2.5, 6.0, -0.8, 2000.0
+    f = _figures(_folder(tmp_path / "f", [0, 10, 20, 30], sigma=sigma, halo=h, halo_sigma=hs, noise=1.0, peak=peak,
+                         bg=500.0))                     # above the moat: no clipping at 0
+    clean = _figures(_folder(tmp_path / "c", [0, 10, 20, 30], sigma=sigma, noise=1.0, peak=peak))
+    for region in REGIONS:
+        w = f[region]["fwhm_px"]
+        d = np.linspace(w, 3 * w, 2001)
+        profile = peak * (np.exp(-0.5 * (d / sigma) ** 2) + h * (sigma / hs) * np.exp(-0.5 * (d / hs) ** 2))
+        assert profile.min() < -250                      # a moat of 15 % of the peak
+        # the lines' centre pixels sit up to ½ px off the centre: the mean profile is the closed form
+        # smoothed over ±½ px, which lifts its lowest point by well under 2 %
+        assert f[region]["moat_dn"] == pytest.approx(profile.min(), rel=0.03)
+        # no moat: the Gaussian's lowest level in the band is at 3 FWHM (7 σ: 0 DN), within the mean
+        # profile's noise (1 DN over ≥ 80 lines)
+        assert abs(clean[region]["moat_dn"]) < 0.5
+
+
 def test_saturated_fraction_and_a_clipped_stripe(tmp_path):
     """Stripe centred on whole pixels, peak rising along it: saturated where bg + A ≥ 4095."""
     bg = 100.0
@@ -289,7 +308,7 @@ def test_compare_json_table_and_report(tmp_path, capsys):
     assert set(out["regions"]) == {"wall_left", "part"}
     for block in out["regions"].values():
         assert set(block) == {"position_px", "fwhm_px", "peak_dn", "saturated_fraction", "halo_fraction",
-                              "background_dn", "noise_dn", "speckle_contrast", "detection_rate"}
+                              "background_dn", "noise_dn", "speckle_contrast", "detection_rate", "moat_dn"}
         assert block["position_px"]["mean"] == pytest.approx(-0.3, abs=0.03)
         assert block["fwhm_px"]["twin"] == pytest.approx(block["fwhm_px"]["real"], rel=0.03)
     assert out["detectors"] == {} and "no --calibration" in out["detectors_note"]

@@ -5,14 +5,12 @@ synthetic ordinary camera where FabScan's config is absent; a sphere as the part
 "real" frames at known values of its unknowns with a seed of its own, imported as real
 frames are; :func:`identify_scan` must find those values inside its 90 % intervals.
 
-The image-level figures are helper A's :func:`scheimpflug.compare.figures.folder_figures`
-when it exists; until then a small stand-in here (same signature, same figure names).
+The image-level figures are :func:`scheimpflug.compare.figures.folder_figures` (``compare``'s).
 """
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -26,55 +24,6 @@ TRUTH = {"laser.power_mw": 9.0, "chain.glare_fraction": 0.12}
 PRIORS = {"laser.power_mw": {"range": [2.0, 30.0], "prior": "log-uniform"},
           "chain.glare_fraction": {"range": [0.0, 0.3]}}
 REGIONS = {"part": (200.0, 298.0), "table": (302.0, 380.0)}
-
-
-def _standin_figures(folder, regions, *, frames=None, detector="cog"):
-    """Per region, the medians over frames of simple column-profile figures (stripe along rows)."""
-    from scheimpflug.io.frames import open_frame_folder
-
-    ff = folder if hasattr(folder, "frames") else open_frame_folder(folder)
-    per = {name: [] for name in regions}
-    for i in (range(len(ff)) if frames is None else frames):
-        img = ff.read(int(i)).astype(np.float64)
-        for name, (lo, hi) in regions.items():
-            per[name].append(_profile_figures(img[:, int(lo):int(hi)]))
-    return {name: {k: float(np.nanmedian([f[k] for f in rows])) for k in rows[0]} for name, rows in per.items()}
-
-
-def _profile_figures(cols: np.ndarray) -> dict:
-    rows = np.arange(cols.shape[0])[:, None]
-    bg = np.median(cols, axis=0)
-    top = np.argmax(cols, axis=0)
-    far = np.abs(rows - top) > 12
-    noise = 1.4826 * np.median(np.abs(cols - bg), axis=0)
-    peak = cols.max(axis=0) - bg
-    ok = peak > 6.0 * noise + 3.0
-    w = np.clip(cols - bg, 0.0, None) * (np.abs(rows - top) <= 4)
-    c = (w * rows).sum(axis=0) / np.maximum(w.sum(axis=0), 1e-9)
-    fwhm = 2.3548 * np.sqrt((w * (rows - c) ** 2).sum(axis=0) / np.maximum(w.sum(axis=0), 1e-9))
-    near = np.abs(rows - c) <= 30
-    e = np.clip(cols - bg, 0.0, None) * near
-    halo = (e * (np.abs(rows - c) > 3.0 * np.maximum(fwhm, 1.0))).sum(axis=0) / np.maximum(e.sum(axis=0), 1e-9)
-    nan = math.nan
-    return {"fwhm_px": float(np.median(fwhm[ok])) if ok.any() else nan,
-            "peak_dn": float(np.median(peak[ok])) if ok.any() else nan,
-            "saturated_fraction": float(np.mean(cols.max(axis=0)[ok] >= 255)) if ok.any() else nan,
-            "halo_fraction": float(np.median(halo[ok])) if ok.any() else nan,
-            "background_dn": float(np.median(bg)),
-            "noise_dn": float(np.median(np.where(far, np.abs(cols - bg), np.nan)[~np.isnan(cols)]) * 1.4826),
-            "speckle_contrast": float(np.std(peak[ok]) / np.mean(peak[ok])) if ok.sum() > 2 else nan,
-            "detection_rate": float(ok.mean())}
-
-
-@pytest.fixture
-def figures(monkeypatch):
-    """A's folder_figures when it is there, else the stand-in."""
-    from sim.identify import scan
-
-    try:
-        scan._figures_function()
-    except ImportError:
-        monkeypatch.setattr(scan, "_figures_function", lambda: _standin_figures)
 
 
 def _rig_tables(tmp_path) -> dict:
@@ -124,7 +73,7 @@ def _real_scan(twin: Path, out: Path, angles, values: dict) -> Path:
 
 @pytest.mark.slow
 @pytest.mark.render
-def test_closed_loop_recovers_the_twins_own_values(tmp_path, figures, variant):
+def test_closed_loop_recovers_the_twins_own_values(tmp_path, variant):
     from sim.identify.scan import identify_scan
 
     twin = _twin(tmp_path)

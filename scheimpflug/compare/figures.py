@@ -54,6 +54,12 @@ The figures of one region in one frame:
     the unsaturated detected lines (at least :data:`MIN_SPECKLE_LINES`, else NaN).
 ``detection_rate``
     Detected lines over the region's lines.
+``moat_dn``
+    The lowest level of the region's mean profile across the stripe (the detected lines'
+    profiles about their centre pixels, each line's background removed, averaged) between one
+    and three stripe widths from the centre (``W < |d| ≤ 3 W``) [DN]: below 0 where the camera's
+    sharpening digs a moat beside the stripe (FabScan's walls: about −0.9 DN on a 1 DN
+    floor), above 0 where glare or a glow lifts the flanks.
 
 :func:`folder_figures` gives each figure's median over the selected frames;
 :func:`stripe_positions` the detected centre ``u`` [px] per frame and line (NaN where none).
@@ -88,7 +94,7 @@ SPECKLE_TREND_LINES = 31
 MIN_SPECKLE_LINES = SPECKLE_TREND_LINES
 """Fewest unsaturated detected lines for a speckle contrast (a shorter run is all trend) [lines]."""
 FIGURES = ("fwhm_px", "peak_dn", "saturated_fraction", "halo_fraction", "background_dn", "noise_dn",
-           "speckle_contrast", "detection_rate")
+           "speckle_contrast", "detection_rate", "moat_dn")
 """The image-level figures, in the order of the JSON reference."""
 PROFILE_REACH_PX = 96
 """Reach of the mean profile across the stripe kept for pictures (:attr:`FolderMeasures.profiles`) [px]."""
@@ -285,7 +291,18 @@ def _region_figures(frame: np.ndarray, lines: np.ndarray, u: np.ndarray, n_lines
         "noise_dn": _trimmed_std(dev),
         "speckle_contrast": _speckle(core_dn[~sat]),
         "detection_rate": len(lines) / n_lines,
+        "moat_dn": _moat(q, dist, width, core),
     }
+
+
+def _moat(q: np.ndarray, dist: np.ndarray, width: float, core: float) -> float:
+    """Lowest level of the mean background-removed profile with width < |d| ≤ core [DN] (NaN where none)."""
+    band = (dist > width) & (dist <= core)
+    cols = q[:, band]
+    ok = np.isfinite(cols).any(axis=0)
+    if not ok.any():
+        return math.nan
+    return float(np.min(np.nanmean(cols[:, ok], axis=0)))
 
 
 def extract(frame, detector: str, *, saturation_dn: float, dn_per_electron: float = 0.0):

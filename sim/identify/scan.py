@@ -562,7 +562,7 @@ def _material_parameter(key: str, value) -> Parameter:
 
 
 def _figures_function():
-    """The image-level figures (helper A's :func:`scheimpflug.compare.figures.folder_figures`)."""
+    """The image-level figures (``compare``'s :func:`scheimpflug.compare.figures.folder_figures`)."""
     from scheimpflug.compare.figures import folder_figures
 
     return folder_figures

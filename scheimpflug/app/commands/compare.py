@@ -219,7 +219,8 @@ def _write_report(folder, real, twin, pairs, comp, force: bool) -> dict:
 _ROWS = (("fwhm_px", "FWHM [px]", "{:.2f}"), ("peak_dn", "peak [DN]", "{:.1f}"),
          ("saturated_fraction", "saturated", "{:.3f}"), ("halo_fraction", "halo", "{:.3f}"),
          ("background_dn", "background [DN]", "{:.2f}"), ("noise_dn", "noise [DN]", "{:.2f}"),
-         ("speckle_contrast", "speckle", "{:.3f}"), ("detection_rate", "detection", "{:.3f}"))
+         ("speckle_contrast", "speckle", "{:.3f}"), ("detection_rate", "detection", "{:.3f}"),
+         ("moat_dn", "moat [DN]", "{:.2f}"))
 
 
 def _cell(fmt: str, x) -> str:
