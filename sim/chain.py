@@ -197,7 +197,7 @@ def process_raw(raw, model: ChainModel) -> np.ndarray:
     tone = (s.adc_bits, float(s.dark_offset_dn), float(c.black_level_dn), c.tone_curve, float(c.gamma), table)
     if c.sharpen_amount <= 0:
         return output_lut(*tone)[demosaic(raw, c.bayer_pattern, c.demosaic)]
-    levels = output_levels(*tone)[demosaic(raw, c.bayer_pattern, c.demosaic)]
+    levels = output_levels(*tone).astype(np.float32)[demosaic(raw, c.bayer_pattern, c.demosaic)]
     sharp = unsharp_mask(levels, float(c.sharpen_amount), float(c.sharpen_sigma_px))
     return np.clip(np.rint(sharp), 0, 255).astype(np.uint8)
 

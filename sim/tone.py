@@ -79,13 +79,13 @@ def output_levels(adc_bits: int, black_dn: float, pedestal_dn: float, curve: str
 
     Returns
     -------
-    (2**adc_bits,) float32
+    (2**adc_bits,) float64
         p + (255 − p)·T(clip((D − b)/(2^adc_bits − 1 − b), 0, 1)) for D = 0 … 2^adc_bits − 1
         (read-only, cached) [DN].
     """
     full = (1 << adc_bits) - 1
     x = (np.arange(full + 1, dtype=np.float64) - black_dn) / (full - black_dn)
-    levels = (pedestal_dn + (255.0 - pedestal_dn) * tone_curve(x, curve, gamma, table)).astype(np.float32)
+    levels = pedestal_dn + (255.0 - pedestal_dn) * tone_curve(x, curve, gamma, table)
     levels.flags.writeable = False
     return levels
 
@@ -116,8 +116,6 @@ def output_lut(adc_bits: int, black_dn: float, pedestal_dn: float, curve: str, g
         round(p + (255 − p)·T(clip((D − b)/(2^adc_bits − 1 − b), 0, 1))) for D = 0 … 2^adc_bits − 1
         (read-only, cached).
     """
-    full = (1 << adc_bits) - 1
-    x = (np.arange(full + 1, dtype=np.float64) - black_dn) / (full - black_dn)
-    lut = np.rint(pedestal_dn + (255.0 - pedestal_dn) * tone_curve(x, curve, gamma, table)).astype(np.uint8)
+    lut = np.rint(output_levels(adc_bits, black_dn, pedestal_dn, curve, gamma, table)).astype(np.uint8)
     lut.flags.writeable = False
     return lut
