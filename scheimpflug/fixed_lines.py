@@ -140,15 +140,16 @@ def fixed_line(stage_mm, h_mm, frame) -> FixedLine:
     Raises
     ------
     ValueError
-        Fewer than 3 finite points.
+        Fewer than 3 distinct finite points.
     """
     s, h = np.asarray(stage_mm, np.float64), np.asarray(h_mm, np.float64)
     f = np.asarray(frame)
     ok = np.isfinite(s) & np.isfinite(h)
     s, h, f = s[ok], h[ok], f[ok]
-    if len(s) < 3:
-        raise ValueError(f"a line needs at least 3 finite points, got {len(s)}")
     p = np.stack([s, h], axis=1)
+    distinct = len(np.unique(p, axis=0))
+    if distinct < 3:          # e.g. one point repeated: no direction, and the bow's fit is singular
+        raise ValueError(f"a line needs at least 3 distinct finite points, got {distinct}")
     c = p.mean(axis=0)
     _, _, vt = np.linalg.svd(p - c, full_matrices=False)
     t, r = (p - c) @ vt[0], (p - c) @ vt[1]

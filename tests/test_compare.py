@@ -225,6 +225,25 @@ def test_wall_stillness_of_known_frame_offsets(tmp_path):
         assert lo <= v["straightness_mm"]["twin"] <= hi < own + 0.006, det      # the still twin: its own error
 
 
+def test_a_wall_of_single_point_frames_gives_figures_not_a_crash():
+    """A bootstrap draw of one frame's single wall point, repeated, has no line: that draw leaves the wall out
+    (it crashed compare on a sharpened FabScan twin: numpy's SVD did not converge)."""
+    from scheimpflug.compare.detectors import _bootstrap, _figures
+    from scheimpflug.fixed_lines import fixed_line
+
+    with pytest.raises(ValueError, match="3 distinct finite points, got 1"):
+        fixed_line([24.7] * 3, [-93.0] * 3, [0, 1, 2])
+    s, h, f = np.array([0.0, 10.0, 20.0]), np.array([0.0, 0.1, 0.0]), np.array([0, 1, 2])   # a point a frame
+    assert _figures({"wall_left": (s[[0, 0, 0]], h[[0, 0, 0]], np.array([0, 1, 2]))}) == (
+        pytest.approx(math.nan, nan_ok=True), pytest.approx(math.nan, nan_ok=True))
+    st, sl = _bootstrap({"wall_left": (s, h, f)}, 3, 200, 7)
+    rng = np.random.default_rng(7)                       # the bootstrap's own draws, in its order
+    short = np.array([len(set(rng.integers(0, 3, 3))) < 3 for _ in range(200)])
+    assert short.any() and not short.all()
+    assert np.array_equal(np.isnan(st), short)           # exact: integers (booleans: a draw of < 3 frames is NaN)
+    assert np.nanmax(st) == pytest.approx(0.1 * math.sqrt(2) / 3, rel=1e-6)   # 3 distinct points: a bent line
+
+
 def _reference_wall_points(folder, frames, walls, detectors):
     """The walls' points as compare found them before one reading served both passes: each frame read
     again for each detector, every detector's stripe extracted on its own."""

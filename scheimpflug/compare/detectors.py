@@ -171,10 +171,18 @@ def _sheet_points(points: dict, calibration) -> dict:
 
 
 def _figures(sheet: dict) -> tuple[float, float]:
-    """Straightness and stillness over the walls (RMS of the walls' figures) [mm]; NaN without a wall."""
+    """Straightness and stillness over the walls (RMS of the walls' figures) [mm]; NaN without a wall.
+
+    A wall without 3 distinct points (a bootstrap draw of one frame's single point, repeated) is left out.
+    """
     from scheimpflug.fixed_lines import fixed_line
 
-    lines = [fixed_line(*pts) for pts in sheet.values()]
+    lines = []
+    for pts in sheet.values():
+        try:
+            lines.append(fixed_line(*pts))
+        except ValueError:
+            continue
     if not lines:
         return math.nan, math.nan
     return (float(np.sqrt(np.mean([x.rms_mm ** 2 for x in lines]))),
