@@ -122,6 +122,17 @@ def line_inliers(u, v, threshold_px: float = 2.0, trials: int = 500, seed: int =
     return best
 
 
+def _distinct_up_to_3(p: np.ndarray) -> int:
+    """How many distinct rows ``p`` has, counted up to 3 (in O(n): no sort)."""
+    seen = np.zeros(len(p), bool)
+    for k in range(3):
+        rest = np.flatnonzero(~seen)
+        if len(rest) == 0:
+            return k
+        seen |= np.all(p == p[rest[0]], axis=1)
+    return 3
+
+
 def fixed_line(stage_mm, h_mm, frame) -> FixedLine:
     """Straightness and stillness of one still surface's stripe points (module docstring).
 
@@ -147,7 +158,7 @@ def fixed_line(stage_mm, h_mm, frame) -> FixedLine:
     ok = np.isfinite(s) & np.isfinite(h)
     s, h, f = s[ok], h[ok], f[ok]
     p = np.stack([s, h], axis=1)
-    distinct = len(np.unique(p, axis=0))
+    distinct = _distinct_up_to_3(p)
     if distinct < 3:          # e.g. one point repeated: no direction, and the bow's fit is singular
         raise ValueError(f"a line needs at least 3 distinct finite points, got {distinct}")
     c = p.mean(axis=0)
