@@ -694,10 +694,11 @@ def _fit_saddle(xy: np.ndarray, values: np.ndarray, c0: np.ndarray, a: np.ndarra
     def solve(p):
         if last.get("p") is None or not np.array_equal(last["p"], p):     # exact: the same point again
             e, de = _saddle_terms(xy, p)
-            q, _ = np.linalg.qr(np.c_[np.ones_like(e), e])
-            coef, *_ = np.linalg.lstsq(np.c_[np.ones_like(e), e], values, rcond=None)
-            r = coef[0] + coef[1] * e - values
-            dm = coef[1] * de
+            q, rr = np.linalg.qr(np.c_[np.ones_like(e), e])       # one factorisation: levels and projection
+            qv = q.T @ values
+            r = q @ qv - values
+            b = qv[1] / rr[1, 1] if abs(rr[1, 1]) > 1e-12 * abs(rr[0, 0]) else 0.0   # 0: e flat, no corner
+            dm = b * de
             last.update(p=p.copy(), r=r, jac=dm - q @ (q.T @ dm))
         return last
 

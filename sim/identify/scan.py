@@ -561,13 +561,6 @@ def _material_parameter(key: str, value) -> Parameter:
 # ------------------------------------------------------------------ one run: render, import, measure
 
 
-def _figures_function():
-    """The image-level figures (``compare``'s :func:`scheimpflug.compare.figures.folder_figures`)."""
-    from scheimpflug.compare.figures import folder_figures
-
-    return folder_figures
-
-
 def render_at_angles(tables: dict, part, housing, angles_deg, out, *, seed: int,
                      materials: dict | None = None, part_material: str | None = None) -> Path:
     """Render the twin's rotary scan at given turntable angles into a frame folder (resumable).
@@ -639,9 +632,9 @@ def _grey_folder(rendered: Path, out: Path, channel: str | None, stripe_along: s
 
 def _per_frame(folder, regions: dict, frames) -> dict:
     """``{"REGION.FIGURE": [value per frame (None: not measured)]}`` of a frame folder."""
+    from scheimpflug.compare.figures import folder_figures as figures
     from scheimpflug.io.frames import open_frame_folder
 
-    figures = _figures_function()
     folder = folder if hasattr(folder, "frames") else open_frame_folder(folder)
     out: dict = {}
     for i in frames:
